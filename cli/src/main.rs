@@ -1,0 +1,83 @@
+//! `abvs`: the one command-line program of the project. Each subcommand is a thin shell over a
+//! library crate (abvs-eye for the physics, abvs-onnx for ONNX Runtime).
+mod demo;
+mod kin;
+mod plot;
+mod sim;
+
+use clap::{Parser, Subcommand};
+use std::process::ExitCode;
+
+#[derive(Parser)]
+#[command(name = "abvs", version, about = "Perception runtime and calibration tools for SPM robot eyes")]
+struct Cli {
+    #[command(subcommand)]
+    cmd: Cmd,
+}
+
+#[derive(Subcommand)]
+enum Cmd {
+    /// Simulate units and the paper's data collection.
+    #[command(subcommand)]
+    Sim(sim::SimCmd),
+    /// Nominal / unit kinematics on CSV files (IK, FK, PSC map).
+    #[command(subcommand)]
+    Kin(kin::KinCmd),
+    /// The main job on the embedded default unit: simulate, measure, compare, map.
+    Demo(demo::DemoArgs),
+    /// Report what abvs found on this machine (ONNX Runtime library, version).
+    Doctor,
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    let r = match cli.cmd {
+        Cmd::Sim(c) => sim::run(c),
+        Cmd::Kin(c) => kin::run(c),
+        Cmd::Demo(a) => demo::run(a),
+        Cmd::Doctor => doctor(),
+    };
+    match r {
+        Ok(code) => code,
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+fn doctor() -> anyhow::Result<ExitCode> {
+    println!("abvs {}", env!("CARGO_PKG_VERSION"));
+    match abvs_onnx::init() {
+        Ok(info) => {
+            println!("onnxruntime: {}", info.path.display());
+            println!("onnxruntime build: {}", info.build_info);
+            Ok(ExitCode::SUCCESS)
+        }
+        Err(e) => {
+            println!("onnxruntime: NOT FOUND ({e})");
+            Ok(ExitCode::FAILURE)
+        }
+    }
+}
+
+/// Progress bar on stderr for long work (hidden when stderr is not a terminal).
+pub fn progress_bar(total: u64, what: &str) -> indicatif::ProgressBar {
+    let pb = indicatif::ProgressBar::new(total);
+    pb.set_style(
+        indicatif::ProgressStyle::with_template("{msg:>12} [{bar:40}] {pos}/{len} ({eta})")
+            .expect("valid template")
+            .progress_chars("=> "),
+    );
+    pb.set_message(what.to_string());
+    pb
+}
+
+/// Parses "a,b,c" into three numbers.
+pub fn parse3(s: &str) -> Result<[f64; 3], String> {
+    let v: Vec<f64> = s
+        .split(',')
+        .map(|x| x.trim().parse::<f64>().map_err(|_| format!("'{x}' is not a number")))
+        .collect::<Result<_, _>>()?;
+    v.try_into().map_err(|_| format!("'{s}': expected three comma-separated numbers"))
+}

@@ -1,0 +1,101 @@
+//! Pose sensitivity coefficient (the paper's eq. 8-10):
+//! `S(theta) = max_i || r(theta + d e_i) - r(theta) || / d`, with `r` the rotation vector (rad)
+//! of the orientation, `d = 1 deg` and S in rad per degree. S is lowest near the centre of the
+//! workspace; M4 splits the workspace by it.
+use crate::error::Result;
+use crate::pose::{rotation_vector, Fick};
+use crate::spm::SpmGeometry;
+use nalgebra::Matrix3;
+
+/// The paper's finite step, degrees.
+pub const PSC_STEP_DEG: f64 = 1.0;
+
+/// S at link angles `theta` (rad) for the geometry's FK, warm-started from `r` = FK(theta).
+pub fn psc_at(geom: &SpmGeometry, theta: &[f64; 3], r: &Matrix3<f64>) -> Result<f64> {
+    let d = PSC_STEP_DEG.to_radians();
+    let r0 = rotation_vector(r);
+    let mut s: f64 = 0.0;
+    for i in 0..3 {
+        let mut t = *theta;
+        t[i] += d;
+        let ri = geom.fk_from(&t, r)?.r;
+        s = s.max((rotation_vector(&ri) - r0).norm());
+    }
+    Ok(s / PSC_STEP_DEG)
+}
+
+/// S at link angles `theta` (rad), solving the FK from cold.
+pub fn psc(geom: &SpmGeometry, theta: &[f64; 3]) -> Result<f64> {
+    let r = geom.fk_cold(theta)?.r;
+    psc_at(geom, theta, &r)
+}
+
+/// One cell of the workspace map.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PscPoint {
+    /// Commanded Fick angles, degrees.
+    pub fick_deg: [f64; 3],
+    /// Link angles from the IK, degrees.
+    pub theta_deg: [f64; 3],
+    pub s: f64,
+}
+
+/// S over the Fick grid alpha in [-30, 30], beta in [-15, 15], gamma in [-30, 30] at `step_deg`.
+/// Grid poses that are unreachable or near-singular for this geometry are left out.
+pub fn psc_map(geom: &SpmGeometry, step_deg: f64) -> Vec<PscPoint> {
+    let [la, lb, lg] = crate::WORKSPACE_DEG;
+    let mut out = Vec::new();
+    for a in grid(-la, la, step_deg) {
+        for b in grid(-lb, lb, step_deg) {
+            for g in grid(-lg, lg, step_deg) {
+                let r = Fick::from_deg([a, b, g]).to_matrix();
+                let Ok(th) = geom.ik_checked(&r) else { continue };
+                if let Ok(s) = psc_at(geom, &th, &r) {
+                    out.push(PscPoint { fick_deg: [a, b, g], theta_deg: th.map(f64::to_degrees), s });
+                }
+            }
+        }
+    }
+    out
+}
+
+/// Values `lo, lo + step, ..., hi` (hi included when on the grid), robust to float drift.
+pub fn grid(lo: f64, hi: f64, step: f64) -> Vec<f64> {
+    let n = ((hi - lo) / step + 1e-9).floor() as i64;
+    (0..=n).map(|k| lo + k as f64 * step).collect()
+}
+
+/// Value below which a fraction `q` (0..1) of the map lies.
+pub fn percentile(values: &[f64], q: f64) -> f64 {
+    let mut v: Vec<f64> = values.to_vec();
+    v.sort_by(|a, b| a.total_cmp(b));
+    if v.is_empty() {
+        return f64::NAN;
+    }
+    let idx = ((v.len() - 1) as f64 * q.clamp(0.0, 1.0)).round() as usize;
+    v[idx]
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn psc_lowest_near_centre() {
+        let g = SpmGeometry::nominal();
+        let centre = psc(&g, &[0.0; 3]).unwrap();
+        let map = psc_map(&g, 10.0);
+        let max = map.iter().map(|p| p.s).fold(0.0, f64::max);
+        assert!(map.iter().all(|p| p.s.is_finite() && p.s > 0.0));
+        assert!(max > centre, "edge {max} vs centre {centre}");
+        // Pure roll of 1 deg is 0.01745 rad; a single link moves the platform more than that.
+        assert!(centre > 1f64.to_radians() * 0.5 && centre < 0.2, "{centre}");
+    }
+
+    #[test]
+    fn grid_counts() {
+        assert_eq!(grid(-30.0, 30.0, 1.0).len(), 61);
+        assert_eq!(grid(-15.0, 15.0, 3.0).len(), 11);
+        assert_eq!(grid(-30.0, 30.0, 3.0).len(), 21);
+    }
+}

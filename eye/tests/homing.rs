@@ -1,0 +1,262 @@
+//! Start-up homing against a simulator of the drive board: from every start the home counts
+//! come out exact within 180 deg + the tolerance of travel; bad streams are refused.
+use abvs_eye::encoder::*;
+use abvs_eye::error::EyeError;
+use proptest::prelude::*;
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+
+const N: i64 = COUNTS_PER_REV;
+const TOL: i64 = DEFAULT_TOLERANCE_COUNTS;
+
+/// The drive board during the start-up roll. Link i starts at theta_i = `start[i]` counts
+/// (any integer) and all links advance `step` counts per sample; `origin[i]` is the raw count
+/// at theta_i = 0, so the true home counts are `origin` modulo one turn. Reported counts carry
+/// +-`noise` read noise, except on the sample with an index rising edge, which carries the
+/// exact count latched at the edge. The index line stays high while the head is within
+/// `width` counts past a marker.
+#[derive(Clone, Debug)]
+struct Board {
+    start: [i64; 3],
+    origin: [i64; 3],
+    step: i64,
+    noise: i64,
+    width: i64,
+}
+
+impl Board {
+    fn sample(&self, n: i64, rng: &mut ChaCha8Rng) -> HomingSample {
+        let mut counts = [0; 3];
+        let mut index = [false; 3];
+        for i in 0..3 {
+            let p = self.start[i] + n * self.step;
+            // Head i's position on the wheel is s_i + theta_i.
+            let on = |p: i64| MARKER_COUNTS.iter().any(|m| (MARKER_COUNTS[i] + p - m).rem_euclid(N) < self.width);
+            let edge = (n > 0)
+                .then(|| {
+                    let prev = p - self.step;
+                    MARKER_COUNTS
+                        .iter()
+                        .map(|m| prev + 1 + (m - MARKER_COUNTS[i] - prev - 1).rem_euclid(N))
+                        .filter(|&q| q <= p)
+                        .min()
+                })
+                .flatten();
+            match edge {
+                Some(q) => {
+                    counts[i] = self.origin[i] + q;
+                    index[i] = true;
+                }
+                None => {
+                    counts[i] = self.origin[i] + p + rng.gen_range(-self.noise..=self.noise);
+                    index[i] = on(p);
+                }
+            }
+        }
+        HomingSample { counts, index }
+    }
+
+    /// The home counts the decoder must report, given the counts of the deciding sample:
+    /// the origin, shifted by whole turns so that theta lies in (-180, 180] deg.
+    fn expected(&self, last: [i64; 3]) -> HomeCounts {
+        HomeCounts([0, 1, 2].map(|i| {
+            let mut th = (last[i] - self.origin[i]).rem_euclid(N);
+            if th > N / 2 {
+                th -= N;
+            }
+            last[i] - th
+        }))
+    }
+
+    /// Runs homing to the end; returns (home, travel deg) or the error.
+    fn run(&self, rng: &mut ChaCha8Rng) -> Result<(HomeCounts, f64, [i64; 3]), EyeError> {
+        let mut h = Homing::new();
+        for n in 0..=(N / self.step + 2) {
+            let s = self.sample(n, rng);
+            if let HomingStatus::Done(home) = h.push(s)? {
+                return Ok((home, h.travel_deg(), s.counts));
+            }
+        }
+        panic!("homing never decided for {self:?} (travel {:.3} deg)", h.travel_deg());
+    }
+
+    fn check(&self, rng: &mut ChaCha8Rng) -> f64 {
+        let (home, travel, last) = self.run(rng).unwrap_or_else(|e| panic!("{self:?}: {e}"));
+        assert_eq!(home, self.expected(last), "{self:?}");
+        let limit = 180.0 + counts_to_deg(TOL, 0);
+        assert!(travel <= limit, "{self:?}: travel {travel} > {limit}");
+        travel
+    }
+}
+
+fn deviation(rng: &mut ChaCha8Rng) -> [i64; 3] {
+    // Pairwise within the tolerance; every few starts at the extremes.
+    let h = TOL / 2;
+    match rng.gen_range(0..8) {
+        0 => [-h, h, rng.gen_range(-h..=h)],
+        1 => [h, rng.gen_range(-h..=h), -h],
+        _ => [0; 3].map(|_| rng.gen_range(-h..=h)),
+    }
+}
+
+/// Every 0.05 deg of start roll over the whole turn (7200 starts).
+#[test]
+fn every_start_homes_exactly_within_180_deg() {
+    let mut rng = ChaCha8Rng::seed_from_u64(1);
+    let mut worst: f64 = 0.0;
+    for k in 0..7200i64 {
+        let t0 = deg_to_counts(k as f64 * 0.05, 0);
+        // Exact starts (on markers too) every 7th start, perturbed ones otherwise.
+        let d = if k % 7 == 0 { [0; 3] } else { deviation(&mut rng) };
+        let board = Board {
+            start: d.map(|x| t0 + x),
+            origin: [0; 3].map(|_| rng.gen_range(-1_000_000_000i64..1_000_000_000)),
+            step: [8, 13, 29, 64][(k % 4) as usize],
+            noise: 2,
+            width: 16,
+        };
+        worst = worst.max(board.check(&mut rng));
+    }
+    eprintln!("worst travel {worst:.3} deg");
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(96))]
+    #[test]
+    fn random_starts_and_origins(
+        t0 in 0i64..N,
+        d in prop::array::uniform3(-(TOL / 2)..=TOL / 2),
+        origin in prop::array::uniform3(prop_oneof![
+            -5_000_000_000_000i64..5_000_000_000_000,
+            -200_000i64..200_000,
+            Just(i64::MIN / 4),
+            Just(i64::MAX / 4)
+        ]),
+        step in 1i64..=96,
+        noise in 0i64..=3,
+        width in 1i64..=80,
+        seed in any::<u64>(),
+    ) {
+        let board = Board { start: d.map(|x| t0 + x), origin, step, noise, width };
+        board.check(&mut ChaCha8Rng::seed_from_u64(seed));
+    }
+}
+
+fn stream(board: &Board, n: i64) -> Vec<HomingSample> {
+    let mut rng = ChaCha8Rng::seed_from_u64(3);
+    (0..n).map(|k| board.sample(k, &mut rng)).collect()
+}
+
+fn plain(start_deg: f64) -> Board {
+    let t = deg_to_counts(start_deg, 0);
+    Board { start: [t, t + 40, t - 30], origin: [123_456, -7, 1 << 40], step: 16, noise: 1, width: 16 }
+}
+
+fn homing_err(r: abvs_eye::Result<HomeCounts>) -> String {
+    match r {
+        Err(EyeError::Homing(m)) => m,
+        other => panic!("expected a homing error, got {other:?}"),
+    }
+}
+
+#[test]
+fn batch_homing_matches_the_board() {
+    let b = plain(123.4);
+    let s = stream(&b, N / b.step);
+    let home = home_from_stream(&s).unwrap();
+    // Re-find the deciding sample to get the representative.
+    let mut h = Homing::new();
+    let last = s.iter().find(|x| matches!(h.push(**x).unwrap(), HomingStatus::Done(_))).unwrap();
+    assert_eq!(home, b.expected(last.counts));
+    let th = home.theta_deg(last.counts);
+    assert!(th.iter().all(|t| *t > -180.0 && *t <= 180.0));
+}
+
+#[test]
+fn stream_that_stops_early_is_ambiguous() {
+    // From 192 deg the first pulse is link 2 at 350.06 deg, a {2} that also happens at
+    // 170.06; stop right after it.
+    let b = plain(192.0);
+    let s = stream(&b, deg_to_counts(165.0, 0) / b.step);
+    let m = homing_err(home_from_stream(&s));
+    assert!(m.contains("ambiguous") && m.contains("need more travel") && m.contains("link 2 at +157.9"), "{m}");
+    // No pulse at all.
+    let m = homing_err(home_from_stream(&s[..100]));
+    assert!(m.contains("ambiguous: no index pulse after"), "{m}");
+}
+
+#[test]
+fn spurious_pulse_is_refused() {
+    // From 5 deg link 1 pulses at 9.94 deg; a second link-1 pulse at 60 deg fits no marker.
+    let b = plain(5.0);
+    let mut s = stream(&b, N / b.step);
+    let k = deg_to_counts(55.0, 0) as usize / b.step as usize;
+    s[k].index[0] = true;
+    let m = homing_err(home_from_stream(&s));
+    assert!(m.contains("link 1: index pulse at +54.9") && m.contains("no marker can be"), "{m}");
+}
+
+#[test]
+fn missing_pulse_is_refused() {
+    // From 5 deg: drop link 1's pulse at 180 deg (the second of its own).
+    let b = plain(5.0);
+    let mut s = stream(&b, N / b.step);
+    for x in s.iter_mut().skip(deg_to_counts(100.0, 0) as usize / b.step as usize) {
+        x.index[0] = false;
+    }
+    let m = homing_err(home_from_stream(&s));
+    assert!(m.contains("no marker hypothesis fits") && m.contains("expected index pulse"), "{m}");
+}
+
+#[test]
+fn start_angles_too_far_apart_are_refused() {
+    // Link 2 starts 30 deg ahead of the others: its pulses cannot match theirs.
+    let mut b = plain(100.0);
+    b.start[1] += deg_to_counts(30.0, 0);
+    let m = homing_err(home_from_stream(&stream(&b, N / b.step)));
+    assert!(m.contains("no marker hypothesis fits") || m.contains("no decision"), "{m}");
+}
+
+#[test]
+fn links_not_moving_together_are_refused() {
+    let b = plain(40.0);
+    let mut s = stream(&b, 2000);
+    // Link 3 stalls after 20 deg.
+    let k = deg_to_counts(20.0, 0) as usize / b.step as usize;
+    let c = s[k].counts[2];
+    for x in s.iter_mut().skip(k) {
+        x.counts[2] = c;
+    }
+    let m = homing_err(home_from_stream(&s));
+    assert!(m.contains("links do not move together"), "{m}");
+}
+
+#[test]
+fn link_moving_backwards_is_refused() {
+    let b = plain(40.0);
+    let mut s = stream(&b, 400);
+    s[300].counts[1] -= 200;
+    let m = homing_err(home_from_stream(&s));
+    assert!(m.contains("link 2 moved backwards"), "{m}");
+    // Once failed, it stays failed.
+    let mut h = Homing::new();
+    let r: Vec<_> = s.iter().map(|x| h.push(*x).is_err()).collect();
+    assert!(r[300] && r[301]);
+}
+
+#[test]
+fn counts_and_degrees_round_trip() {
+    let mut rng = ChaCha8Rng::seed_from_u64(9);
+    for _ in 0..20_000 {
+        let home = rng.gen_range(-1i64 << 45..1i64 << 45);
+        let c = home + rng.gen_range(-10 * N..10 * N);
+        assert_eq!(deg_to_counts(counts_to_deg(c, home), home), c);
+    }
+    assert_eq!(counts_to_deg(N / 2, 0), 180.0);
+    assert_eq!(counts_to_deg(MARKER_COUNTS[1], 0), 360.0 * 2560.0 / 92672.0);
+    assert_eq!(deg_to_counts(360.0, 5), N + 5);
+    let q = quantize_deg(12.345);
+    assert!((q - 12.345).abs() <= 0.5 * 360.0 / N as f64);
+    assert_eq!(quantize_deg(q), q);
+    assert_eq!(deg_to_counts(q, 0) as f64 * 360.0 / N as f64, q);
+}
