@@ -61,8 +61,12 @@ impl Table {
             .trim(csv::Trim::All)
             .from_path(path)
             .with_context(|| format!("{}: cannot open", path.display()))?;
-        let header: Vec<String> =
-            rd.headers().with_context(|| format!("{}:1: bad header", path.display()))?.iter().map(String::from).collect();
+        let header: Vec<String> = rd
+            .headers()
+            .with_context(|| format!("{}:1: bad header", path.display()))?
+            .iter()
+            .map(String::from)
+            .collect();
         let mut rows = Vec::new();
         for (k, rec) in rd.records().enumerate() {
             let rec = rec.map_err(|e| anyhow::anyhow!("{}:{}: {e}", path.display(), k + 2))?;
@@ -93,7 +97,8 @@ impl Table {
     }
 
     fn write(&self, path: &Path) -> anyhow::Result<()> {
-        let mut w = csv::Writer::from_path(path).with_context(|| format!("{}: cannot create", path.display()))?;
+        let mut w = csv::Writer::from_path(path)
+            .with_context(|| format!("{}: cannot create", path.display()))?;
         w.write_record(&self.header)?;
         for r in &self.rows {
             w.write_record(r)?;
@@ -106,8 +111,14 @@ impl Table {
 fn num(path: &Path, line: usize, col: &str, s: &str) -> Result<f64, String> {
     match s.parse::<f64>() {
         Ok(v) if v.is_finite() => Ok(v),
-        Ok(_) => Err(format!("{}:{line}: column {col}: not a finite number", path.display())),
-        Err(_) => Err(format!("{}:{line}: column {col}: \"{s}\" is not a number", path.display())),
+        Ok(_) => Err(format!(
+            "{}:{line}: column {col}: not a finite number",
+            path.display()
+        )),
+        Err(_) => Err(format!(
+            "{}:{line}: column {col}: \"{s}\" is not a number",
+            path.display()
+        )),
     }
 }
 
@@ -120,14 +131,21 @@ fn map_rows(
     mut f: impl FnMut(&[f64], usize) -> Result<Vec<f64>, String>,
 ) -> anyhow::Result<ExitCode> {
     let mut t = Table::read(input)?;
-    let ic: Vec<usize> = inputs.iter().map(|n| t.col(input, n)).collect::<anyhow::Result<_>>()?;
+    let ic: Vec<usize> = inputs
+        .iter()
+        .map(|n| t.col(input, n))
+        .collect::<anyhow::Result<_>>()?;
     let oc: Vec<usize> = outputs.iter().map(|n| t.out_col(n)).collect();
     let mut failed = 0usize;
     for (k, row) in t.rows.iter_mut().enumerate() {
         let line = k + 2;
-        let vals: Result<Vec<f64>, String> =
-            ic.iter().zip(inputs).map(|(&c, n)| num(input, line, n, &row[c])).collect();
-        let res = vals.and_then(|v| f(&v, line).map_err(|e| format!("{}:{line}: {e}", input.display())));
+        let vals: Result<Vec<f64>, String> = ic
+            .iter()
+            .zip(inputs)
+            .map(|(&c, n)| num(input, line, n, &row[c]))
+            .collect();
+        let res =
+            vals.and_then(|v| f(&v, line).map_err(|e| format!("{}:{line}: {e}", input.display())));
         match res {
             Ok(o) => {
                 for (c, v) in oc.iter().zip(o) {
@@ -145,7 +163,11 @@ fn map_rows(
     }
     t.write(out)?;
     if failed > 0 {
-        eprintln!("{failed} of {} rows failed; {} written with those rows' outputs empty", t.rows.len(), out.display());
+        eprintln!(
+            "{failed} of {} rows failed; {} written with those rows' outputs empty",
+            t.rows.len(),
+            out.display()
+        );
         Ok(ExitCode::FAILURE)
     } else {
         eprintln!("wrote {} ({} rows)", out.display(), t.rows.len());
@@ -179,8 +201,10 @@ pub fn run(cmd: KinCmd) -> anyhow::Result<ExitCode> {
             let mut hist = MotionHistory::new();
             let mut warm = fk.home_platform();
             let t = Table::read(&a.input)?;
-            let g_cols: Option<Vec<usize>> =
-                ["gx", "gy", "gz"].iter().map(|n| t.header.iter().position(|h| h == n)).collect();
+            let g_cols: Option<Vec<usize>> = ["gx", "gy", "gz"]
+                .iter()
+                .map(|n| t.header.iter().position(|h| h == n))
+                .collect();
             let rows = t.rows;
             map_rows(
                 &a.input,
@@ -189,12 +213,17 @@ pub fn run(cmd: KinCmd) -> anyhow::Result<ExitCode> {
                 &["alpha_deg", "beta_deg", "gamma_deg", "x_mm", "y_mm", "z_mm"],
                 |v, line| {
                     let q = [v[0], v[1], v[2]];
-                    let mut cond = Conditions { dir: hist.update(&q), ..Default::default() };
+                    let mut cond = Conditions {
+                        dir: hist.update(&q),
+                        ..Default::default()
+                    };
                     if let Some(gc) = &g_cols {
                         let row = &rows[line - 2];
                         for (k, c) in gc.iter().enumerate() {
                             cond.gravity[k] = num(&a.input, line, ["gx", "gy", "gz"][k], &row[*c])
-                                .map_err(|e| e.split(": ").skip(1).collect::<Vec<_>>().join(": "))?;
+                                .map_err(|e| {
+                                    e.split(": ").skip(1).collect::<Vec<_>>().join(": ")
+                                })?;
                         }
                     }
                     let (p, r) = fk.pose(&q, &cond, Some(&warm)).map_err(|e| e.to_string())?;
@@ -206,10 +235,24 @@ pub fn run(cmd: KinCmd) -> anyhow::Result<ExitCode> {
         KinCmd::Psc(a) => {
             let g = SpmGeometry::nominal();
             let map = psc_map(&g, a.step_deg);
-            let mut w = csv::Writer::from_path(&a.out).with_context(|| format!("{}: cannot create", a.out.display()))?;
-            w.write_record(["alpha_deg", "beta_deg", "gamma_deg", "theta1_deg", "theta2_deg", "theta3_deg", "psc"])?;
+            let mut w = csv::Writer::from_path(&a.out)
+                .with_context(|| format!("{}: cannot create", a.out.display()))?;
+            w.write_record([
+                "alpha_deg",
+                "beta_deg",
+                "gamma_deg",
+                "theta1_deg",
+                "theta2_deg",
+                "theta3_deg",
+                "psc",
+            ])?;
             for p in &map {
-                let mut rec: Vec<String> = p.fick_deg.iter().chain(&p.theta_deg).map(|x| format!("{x}")).collect();
+                let mut rec: Vec<String> = p
+                    .fick_deg
+                    .iter()
+                    .chain(&p.theta_deg)
+                    .map(|x| format!("{x}"))
+                    .collect();
                 rec.push(format!("{}", p.s));
                 w.write_record(&rec)?;
             }
@@ -225,8 +268,16 @@ pub fn run(cmd: KinCmd) -> anyhow::Result<ExitCode> {
                 percentile(&s, 1.0)
             );
             if let Some(png) = a.png {
-                let pts: Vec<(f64, f64, f64)> = map.iter().map(|p| (p.fick_deg[0], p.fick_deg[2], p.s)).collect();
-                crate::plot::heatmap_max(&pts, a.step_deg, &png, "PSC S (rad/deg), max over beta: alpha (rows) x gamma (cols)")?;
+                let pts: Vec<(f64, f64, f64)> = map
+                    .iter()
+                    .map(|p| (p.fick_deg[0], p.fick_deg[2], p.s))
+                    .collect();
+                crate::plot::heatmap_max(
+                    &pts,
+                    a.step_deg,
+                    &png,
+                    "PSC S (rad/deg), max over beta: alpha (rows) x gamma (cols)",
+                )?;
                 eprintln!("wrote {}", png.display());
             }
             Ok(ExitCode::SUCCESS)

@@ -9,7 +9,11 @@ use clap::{Parser, Subcommand};
 use std::process::ExitCode;
 
 #[derive(Parser)]
-#[command(name = "abvs", version, about = "Perception runtime and calibration tools for SPM robot eyes")]
+#[command(
+    name = "abvs",
+    version,
+    about = "Perception runtime and calibration tools for SPM robot eyes"
+)]
 struct Cli {
     #[command(subcommand)]
     cmd: Cmd,
@@ -77,7 +81,12 @@ pub fn progress_bar(total: u64, what: &str) -> indicatif::ProgressBar {
 pub fn parse3(s: &str) -> Result<[f64; 3], String> {
     let v: Vec<f64> = s
         .split(',')
-        .map(|x| x.trim().parse::<f64>().map_err(|_| format!("'{x}' is not a number")))
+        .map(|x| {
+            x.trim()
+                .parse::<f64>()
+                .map_err(|_| format!("'{x}' is not a number"))
+        })
         .collect::<Result<_, _>>()?;
-    v.try_into().map_err(|_| format!("'{s}': expected three comma-separated numbers"))
+    v.try_into()
+        .map_err(|_| format!("'{s}': expected three comma-separated numbers"))
 }

@@ -1,10 +1,11 @@
 //! Calibration dataset files (`shared/spec/dataset.md`): one CSV per eye and session, one
 //! header line, one row per sample in acquisition order.
 //!
-//! Reading finds columns by name (any order), keeps unknown extra columns as text, and refuses
-//! bad input with `file:line: column X: what is wrong` ([`EyeError::File`], 1-based physical
-//! line, the header is line 1). Nothing is skipped silently: a value out of its physical range
-//! is an error, not a dropped row. Writing applies the same checks, so every file this module
+//! Reading finds columns by name (any order), trims blanks around every field, keeps unknown
+//! extra columns as text, and refuses bad input with `file:line: column X: what is wrong`
+//! ([`EyeError::File`], 1-based physical line, the header is line 1 of a file without leading
+//! blank lines). Nothing is skipped silently: a value out of its physical range is an error,
+//! not a dropped row; only blank lines, which hold no sample, are passed over. Writing applies the same checks, so every file this module
 //! writes reads back, bit for bit (floats use Rust's shortest round-trip `Display`).
 use crate::error::{EyeError, Result};
 use std::collections::HashMap;
@@ -69,9 +70,7 @@ pub struct Dataset {
 fn physical_range(col: &str) -> Option<(f64, f64, &'static str)> {
     match col {
         "theta1_deg" | "theta2_deg" | "theta3_deg" => Some((-360.0, 360.0, "deg")),
-        "alpha_deg" | "gamma_deg" | "cmd_alpha_deg" | "cmd_gamma_deg" => {
-            Some((-90.0, 90.0, "deg"))
-        }
+        "alpha_deg" | "gamma_deg" | "cmd_alpha_deg" | "cmd_gamma_deg" => Some((-90.0, 90.0, "deg")),
         "beta_deg" | "cmd_beta_deg" => Some((-180.0, 180.0, "deg")),
         "x_mm" | "y_mm" | "z_mm" => Some((-1000.0, 1000.0, "mm")),
         _ => None,
@@ -84,7 +83,9 @@ fn check_value(col: &str, v: f64) -> std::result::Result<(), String> {
         return Err(format!("column {col}: {v} is not a finite number"));
     }
     if col == "t_s" && v < 0.0 {
-        return Err(format!("column t_s: {v} is negative (time since the session start)"));
+        return Err(format!(
+            "column t_s: {v} is negative (time since the session start)"
+        ));
     }
     if let Some((lo, hi, unit)) = physical_range(col) {
         if !(lo..=hi).contains(&v) {
@@ -211,13 +212,21 @@ impl Layout {
             })
             .map(|(k, n)| (k, n.clone()))
             .collect();
-        Ok(Layout { required, cmd, gravity, extra, n_fields: fields.len() })
+        Ok(Layout {
+            required,
+            cmd,
+            gravity,
+            extra,
+            n_fields: fields.len(),
+        })
     }
 }
 
 fn parse_f64(rec: &csv::StringRecord, k: usize, col: &str) -> std::result::Result<f64, String> {
     let s = &rec[k];
-    let v: f64 = s.parse().map_err(|_| format!("column {col}: {s:?} is not a number"))?;
+    let v: f64 = s
+        .parse()
+        .map_err(|_| format!("column {col}: {s:?} is not a number"))?;
     if !v.is_finite() {
         return Err(format!("column {col}: {s:?} is not a finite number"));
     }
@@ -266,7 +275,15 @@ fn parse_row(rec: &csv::StringRecord, lay: &Layout) -> std::result::Result<Sampl
         check_gravity(g)?;
     }
     let extra = lay.extra.iter().map(|(k, _)| rec[*k].to_string()).collect();
-    Ok(Sample { seq, t_s, theta_deg, pose, cmd_deg, gravity, extra })
+    Ok(Sample {
+        seq,
+        t_s,
+        theta_deg,
+        pose,
+        cmd_deg,
+        gravity,
+        extra,
+    })
 }
 
 /// Physical line numbers of records. csv's own record positions point just past the
@@ -288,7 +305,10 @@ impl Lines<'_> {
         if b < self.pos {
             (self.pos, self.line) = (0, 1);
         }
-        self.line += self.buf[self.pos..b].iter().filter(|&&c| c == b'\n').count();
+        self.line += self.buf[self.pos..b]
+            .iter()
+            .filter(|&&c| c == b'\n')
+            .count();
         self.pos = b;
         self.line
     }
@@ -318,7 +338,11 @@ impl Dataset {
         // Whole input in memory (a dataset is a few MB at most), for exact line numbers.
         let mut buf = Vec::new();
         r.read_to_end(&mut buf).map_err(|e| EyeError::io(name, e))?;
-        let mut lines = Lines { buf: &buf, pos: 0, line: 1 };
+        let mut lines = Lines {
+            buf: &buf,
+            pos: 0,
+            line: 1,
+        };
         let mut rdr = csv::ReaderBuilder::new()
             .has_headers(false)
             // Field-count errors get our own message, with the line.
@@ -326,7 +350,9 @@ impl Dataset {
             .trim(csv::Trim::All)
             .from_reader(buf.as_slice());
         let mut rec = csv::StringRecord::new();
-        let has_header = rdr.read_record(&mut rec).map_err(|e| csv_error(name, &e, &mut lines))?;
+        let has_header = rdr
+            .read_record(&mut rec)
+            .map_err(|e| csv_error(name, &e, &mut lines))?;
         if !has_header {
             return Err(EyeError::file(
                 name,
@@ -343,8 +369,8 @@ impl Dataset {
         if let Some(first) = names.first_mut() {
             *first = first.trim_start_matches('\u{feff}').trim().to_string();
         }
-        let lay = Layout::from_header(&names)
-            .map_err(|m| EyeError::file(name, Some(header_line), m))?;
+        let lay =
+            Layout::from_header(&names).map_err(|m| EyeError::file(name, Some(header_line), m))?;
 
         let mut ds = Dataset {
             samples: Vec::new(),
@@ -451,7 +477,11 @@ impl Dataset {
         for (k, s) in self.samples.iter().enumerate() {
             let line = k + 2;
             let err = |m: String| {
-                EyeError::file(name, Some(line), format!("cannot write sample seq {}: {m}", s.seq))
+                EyeError::file(
+                    name,
+                    Some(line),
+                    format!("cannot write sample seq {}: {m}", s.seq),
+                )
             };
             if s.cmd_deg.is_some() != has_cmd {
                 return Err(err(format!(
@@ -469,6 +499,10 @@ impl Dataset {
                     s.extra.len(),
                     self.extra_columns.len()
                 )));
+            }
+            if let Some(v) = s.extra.iter().find(|v| v.trim() != v.as_str()) {
+                // Reading trims fields, so such a value would not come back as written.
+                return Err(err(format!("extra value {v:?} has surrounding blanks")));
             }
             if let Some(p) = prev {
                 if s.seq <= p {

@@ -17,8 +17,9 @@
 //!   its first sample. A run already under way in the very first sample has no edge we saw
 //!   and is ignored.
 //! - At start-up the three links turn together in the + direction (a pure roll, far from any
-//!   singularity): their start angles agree within a tolerance (pairwise, default 2 deg) and
-//!   they advance by the same amount up to small noise.
+//!   singularity): their start angles agree pairwise within a tolerance (default 2 deg, plus
+//!   [`INDEX_SLACK_COUNTS`] for read noise) and they advance by the same amount up to small
+//!   noise; their travels may differ by no more than that either.
 //!
 //! In terms of the common roll t the events are (deg): 0 {1,2,3}, 9.94 {1}, 170.06 {2},
 //! 180 {1,3}, 189.94 {3}, 350.06 {2}. {2} alone occurs twice, so it is ambiguous until the
@@ -33,7 +34,9 @@
 //! still silent links to have passed no marker so far. No surviving hypothesis is an error
 //! (never a guess); several keep homing pending; one, once all three heads have pulsed, is
 //! the answer. Each home count then comes from that link's OWN latched pulse count, in
-//! integers, so it is exact. Work is done only on pulses and at the travel where some
+//! integers, so it is exact; of the values one turn apart, the one that puts theta_i in
+//! (-180, 180] deg at the deciding sample. A stream still undecided past 180 deg + twice the
+//! tolerance of travel is refused. Work is done only on pulses and at the travel where some
 //! hypothesis expects a pulse, which keeps [`Homing::push`] cheap per sample.
 use crate::error::{EyeError, Result};
 
@@ -241,24 +244,32 @@ impl Homing {
             u[i] = s.counts[i] - start[i];
         }
         self.last = s.counts;
-        let edge = [0, 1, 2].map(|i| s.index[i] && !self.prev_index[i]);
-        // A latched count lags the head by up to one step: judge togetherness on the others.
-        let free = || (0..3).filter(|&i| !edge[i]).map(|i| u[i]);
-        if let (Some(lo), Some(hi)) = (free().min(), free().max()) {
-            if hi - lo > self.tol + INDEX_SLACK_COUNTS {
-                return Err(format!(
-                    "links do not move together: travel {:.3}, {:.3}, {:.3} deg differ by more \
-                     than the tolerance {:.3} deg",
-                    c2d(u[0]),
-                    c2d(u[1]),
-                    c2d(u[2]),
-                    c2d(self.tol)
-                ));
+        // Plain loops: this runs for every sample, also in unoptimised test builds.
+        let mut edge = [false; 3];
+        let (mut lo, mut hi) = (i64::MAX, i64::MIN);
+        for i in 0..3 {
+            edge[i] = s.index[i] && !self.prev_index[i];
+            // A latched count lags the head by up to one step: judge togetherness on the others.
+            if !edge[i] {
+                lo = lo.min(u[i]);
+                hi = hi.max(u[i]);
             }
+        }
+        if lo <= hi && hi - lo > self.tol + INDEX_SLACK_COUNTS {
+            return Err(format!(
+                "links do not move together: travel {:.3}, {:.3}, {:.3} deg differ by more than \
+                 the tolerance {:.3} deg",
+                c2d(u[0]),
+                c2d(u[1]),
+                c2d(u[2]),
+                c2d(self.tol)
+            ));
         }
         let mut changed = false;
         for i in 0..3 {
-            self.max_u[i] = self.max_u[i].max(u[i]);
+            if u[i] > self.max_u[i] {
+                self.max_u[i] = u[i];
+            }
             if edge[i] {
                 self.pulses[i].push(u[i]);
                 changed = true;
@@ -266,20 +277,30 @@ impl Homing {
             changed |= self.max_u[i] >= self.next_eval[i];
         }
         self.prev_index = s.index;
-        let status = if changed { self.evaluate()? } else { HomingStatus::Pending };
+        if !changed {
+            if u[0] + u[1] + u[2] > 3 * self.travel_limit() {
+                return Err(self.undecided_message());
+            }
+            return Ok(HomingStatus::Pending);
+        }
+        let status = self.evaluate()?;
         if status == HomingStatus::Pending && self.travel_counts() > self.travel_limit() {
-            return Err(format!(
-                "no decision after {:.3} deg of travel (homing decides within 180 deg + the \
-                 tolerance): {} hypotheses fit the pulses seen: {}",
-                self.travel_deg(),
-                self.alive,
-                self.pulses_seen()
-            ));
+            return Err(self.undecided_message());
         }
         if let HomingStatus::Done(h) = status {
             self.state = State::Done(h);
         }
         Ok(status)
+    }
+
+    fn undecided_message(&self) -> String {
+        format!(
+            "no decision after {:.3} deg of travel (homing decides within 180 deg + the \
+             tolerance): {} hypotheses fit the pulses seen: {}",
+            self.travel_deg(),
+            self.alive,
+            self.pulses_seen()
+        )
     }
 
     /// Past this mean travel a valid stream has always decided; the margin covers links that
@@ -297,7 +318,9 @@ impl Homing {
             return Ok(HomingStatus::Pending);
         }
         // Start angle (counts at the first sample, in [0, N)) if pulse i is on marker k.
-        let cand = |i: usize, k: usize| (MARKER_COUNTS[k] - MARKER_COUNTS[i] - self.pulses[i][0]).rem_euclid(N);
+        let cand = |i: usize, k: usize| {
+            (MARKER_COUNTS[k] - MARKER_COUNTS[i] - self.pulses[i][0]).rem_euclid(N)
+        };
         let n_k = pulsed.map(|p| if p { 3 } else { 1 });
         let mut alive = 0usize;
         let mut winner = [0i64; 3];
@@ -371,7 +394,11 @@ impl Homing {
                 }
             }
         }
-        let refuse = |msg: String| Refusal { by_pulses: true, spread: 0, msg };
+        let refuse = |msg: String| Refusal {
+            by_pulses: true,
+            spread: 0,
+            msg,
+        };
         let mut next = [i64::MAX; 3];
         let reference = phi.iter().flatten().next().copied();
         for i in 0..3 {

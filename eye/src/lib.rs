@@ -14,6 +14,9 @@
 //!
 //! Conventions (frames, angles, units) are those of `shared/spec/conventions.md`: degrees and
 //! millimetres in files and on the command line, radians and metres-or-millimetres inside.
+// Leg-indexed loops (i over the three legs) read closer to the equations than iterators.
+#![allow(clippy::needless_range_loop)]
+
 pub mod dataset;
 pub mod encoder;
 pub mod error;

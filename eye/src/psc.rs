@@ -49,9 +49,15 @@ pub fn psc_map(geom: &SpmGeometry, step_deg: f64) -> Vec<PscPoint> {
         for b in grid(-lb, lb, step_deg) {
             for g in grid(-lg, lg, step_deg) {
                 let r = Fick::from_deg([a, b, g]).to_matrix();
-                let Ok(th) = geom.ik_checked(&r) else { continue };
+                let Ok(th) = geom.ik_checked(&r) else {
+                    continue;
+                };
                 if let Ok(s) = psc_at(geom, &th, &r) {
-                    out.push(PscPoint { fick_deg: [a, b, g], theta_deg: th.map(f64::to_degrees), s });
+                    out.push(PscPoint {
+                        fick_deg: [a, b, g],
+                        theta_deg: th.map(f64::to_degrees),
+                        s,
+                    });
                 }
             }
         }
