@@ -6,8 +6,9 @@
 //! ## The true forward kinematics (readings -> camera pose relative to home)
 //! For encoder readings `q_i` (deg, already homed), a motion history (the direction each link
 //! last moved) and gravity `g` (unit vector in B):
-//! 1. link angle: `theta_i = q_i (1 + encoder_scale_i) + encoder_zero_offset_i - eps [sin(s_i + q_i
-//!    - phi) - sin(s_i - phi)]`. The last term is code_wheel_eccentricity: the wheel is
+//! 1. link angle:
+//!    `theta_i = q_i (1 + encoder_scale_i) + encoder_zero_offset_i - eps [sin(s_i + q_i - phi) - sin(s_i - phi)]`.
+//!    The last term is code_wheel_eccentricity: the wheel is
 //!    off-centre by `e`, `eps = e / wheel_radius`, `s_i` is the head's position on the wheel (its
 //!    marker) and phi the direction of the offset; it is zero at home because homing re-zeroes it.
 //! 2. hinge_backlash: `theta_i -= dir_i * backlash_i / 2` (`dir_i` = +1 if link i last moved
