@@ -10,7 +10,7 @@ ORT_VERSION=1.31.1
 SUDO=""
 if [ "$(id -u)" -ne 0 ]; then SUDO="sudo"; fi
 
-pkgs=(build-essential pkg-config clang libclang-dev libopencv-dev python3-pip unzip curl)
+pkgs=(build-essential pkg-config clang libclang-dev libopencv-dev python3-pip unzip curl fonts-dejavu-core)
 missing=()
 for p in "${pkgs[@]}"; do
   dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")

@@ -47,9 +47,7 @@ fn errors(pred: &[[f64; 6]], meas: &[[f64; 6]]) -> ([f64; 6], f64, f64) {
 pub fn run(a: DemoArgs) -> anyhow::Result<ExitCode> {
     let unit = match &a.unit {
         Some(p) => UnitModel::load(p)?,
-        None => {
-            UnitModel::from_toml_str(DEFAULT_UNIT, Path::new("fixtures/units/c0.toml (embedded)"))?
-        }
+        None => UnitModel::from_toml_str(DEFAULT_UNIT, Path::new("fixtures/units/c0.toml (embedded)"))?,
     };
     std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
     println!(
@@ -60,11 +58,7 @@ pub fn run(a: DemoArgs) -> anyhow::Result<ExitCode> {
     );
 
     let t0 = Instant::now();
-    let spec = SimSpec {
-        commanded: Commanded::Step(a.step_deg),
-        seed: a.seed,
-        ..Default::default()
-    };
+    let spec = SimSpec { commanded: Commanded::Step(a.step_deg), seed: a.seed, ..Default::default() };
     let pb = crate::progress_bar(0, "simulating");
     let (data, stats) = simulate_dataset(&unit, &spec, |d, t| {
         pb.set_length(t as u64);
@@ -105,29 +99,18 @@ pub fn run(a: DemoArgs) -> anyhow::Result<ExitCode> {
         .zip(&nominal)
         .map(|(s, p)| {
             let c = s.cmd_deg.unwrap_or([s.pose[0], s.pose[1], s.pose[2]]);
-            (
-                c[0],
-                c[2],
-                rotation_angle_deg(&Pose::from_p6(p).r, &Pose::from_p6(&s.pose).r),
-            )
+            (c[0], c[2], rotation_angle_deg(&Pose::from_p6(p).r, &Pose::from_p6(&s.pose).r))
         })
         .collect();
     let dev_png = a.out.join("nominal_error_heatmap.png");
-    crate::plot::heatmap_max(
-        &dev,
-        a.step_deg,
-        &dev_png,
-        "nominal-vs-measured rotation error",
-    )?;
+    crate::plot::heatmap_max(&dev, a.step_deg, &dev_png, "nominal-vs-measured rotation error")?;
 
     let t1 = Instant::now();
     let map = psc_map(&SpmGeometry::nominal(), a.step_deg);
     let s: Vec<f64> = map.iter().map(|p| p.s).collect();
     let psc_png = a.out.join("psc_heatmap.png");
     crate::plot::heatmap_max(
-        &map.iter()
-            .map(|p| (p.fick_deg[0], p.fick_deg[2], p.s))
-            .collect::<Vec<_>>(),
+        &map.iter().map(|p| (p.fick_deg[0], p.fick_deg[2], p.s)).collect::<Vec<_>>(),
         a.step_deg,
         &psc_png,
         "PSC",
@@ -140,11 +123,7 @@ pub fn run(a: DemoArgs) -> anyhow::Result<ExitCode> {
         percentile(&s, 0.5),
         percentile(&s, 1.0)
     );
-    println!(
-        "heatmaps (alpha rows x gamma cols): {}, {}",
-        dev_png.display(),
-        psc_png.display()
-    );
+    println!("heatmaps (alpha rows x gamma cols): {}, {}", dev_png.display(), psc_png.display());
 
     let summary = serde_json::json!({
         "unit": unit.name,

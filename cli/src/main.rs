@@ -1,19 +1,20 @@
 //! `abvs`: the one command-line program of the project. Each subcommand is a thin shell over a
 //! library crate (abvs-eye for the physics, abvs-onnx for ONNX Runtime).
+mod calib;
 mod demo;
+mod explain;
+mod explain_plots;
 mod kin;
+mod paper;
 mod plot;
 mod sim;
+mod table;
 
 use clap::{Parser, Subcommand};
 use std::process::ExitCode;
 
 #[derive(Parser)]
-#[command(
-    name = "abvs",
-    version,
-    about = "Perception runtime and calibration tools for SPM robot eyes"
-)]
+#[command(name = "abvs", version, about = "Perception runtime and calibration tools for SPM robot eyes")]
 struct Cli {
     #[command(subcommand)]
     cmd: Cmd,
@@ -27,6 +28,9 @@ enum Cmd {
     /// Nominal / unit kinematics on CSV files (IK, FK, PSC map).
     #[command(subcommand)]
     Kin(kin::KinCmd),
+    /// Calibrate forward kinematics: fit, fine-tune, evaluate, predict.
+    #[command(subcommand)]
+    Calib(calib::CalibCmd),
     /// The main job on the embedded default unit: simulate, measure, compare, map.
     Demo(demo::DemoArgs),
     /// Report what abvs found on this machine (ONNX Runtime library, version).
@@ -38,6 +42,7 @@ fn main() -> ExitCode {
     let r = match cli.cmd {
         Cmd::Sim(c) => sim::run(c),
         Cmd::Kin(c) => kin::run(c),
+        Cmd::Calib(c) => calib::run(c),
         Cmd::Demo(a) => demo::run(a),
         Cmd::Doctor => doctor(),
     };
@@ -81,12 +86,7 @@ pub fn progress_bar(total: u64, what: &str) -> indicatif::ProgressBar {
 pub fn parse3(s: &str) -> Result<[f64; 3], String> {
     let v: Vec<f64> = s
         .split(',')
-        .map(|x| {
-            x.trim()
-                .parse::<f64>()
-                .map_err(|_| format!("'{x}' is not a number"))
-        })
+        .map(|x| x.trim().parse::<f64>().map_err(|_| format!("'{x}' is not a number")))
         .collect::<Result<_, _>>()?;
-    v.try_into()
-        .map_err(|_| format!("'{s}': expected three comma-separated numbers"))
+    v.try_into().map_err(|_| format!("'{s}': expected three comma-separated numbers"))
 }

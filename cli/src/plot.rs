@@ -5,13 +5,8 @@ use std::path::Path;
 
 /// Viridis-like colour for t in [0, 1] (5-point piecewise-linear approximation).
 pub fn colour(t: f64) -> Rgb<u8> {
-    const STOPS: [[f64; 3]; 5] = [
-        [68.0, 1.0, 84.0],
-        [59.0, 82.0, 139.0],
-        [33.0, 145.0, 140.0],
-        [94.0, 201.0, 98.0],
-        [253.0, 231.0, 37.0],
-    ];
+    const STOPS: [[f64; 3]; 5] =
+        [[68.0, 1.0, 84.0], [59.0, 82.0, 139.0], [33.0, 145.0, 140.0], [94.0, 201.0, 98.0], [253.0, 231.0, 37.0]];
     let t = if t.is_finite() {
         t.clamp(0.0, 1.0)
     } else {
@@ -27,12 +22,7 @@ pub fn colour(t: f64) -> Rgb<u8> {
 /// Heatmap of (row, col, value) points on a regular grid of `step`, taking the max of values
 /// that share a cell; rows top to bottom = increasing row coordinate. A colour bar (low at the
 /// bottom) is drawn on the right. Empty cells are white.
-pub fn heatmap_max(
-    points: &[(f64, f64, f64)],
-    step: f64,
-    path: &Path,
-    _title: &str,
-) -> anyhow::Result<()> {
+pub fn heatmap_max(points: &[(f64, f64, f64)], step: f64, path: &Path, _title: &str) -> anyhow::Result<()> {
     anyhow::ensure!(!points.is_empty(), "nothing to plot for {}", path.display());
     let (mut r0, mut r1, mut c0, mut c1) = (f64::MAX, f64::MIN, f64::MAX, f64::MIN);
     let (mut lo, mut hi) = (f64::MAX, f64::MIN);
@@ -62,11 +52,7 @@ pub fn heatmap_max(
     for i in 0..nr {
         for j in 0..nc {
             let v = cells[i * nc + j];
-            let col = if v.is_nan() {
-                Rgb([255, 255, 255])
-            } else {
-                colour((v - lo) / span)
-            };
+            let col = if v.is_nan() { Rgb([255, 255, 255]) } else { colour((v - lo) / span) };
             for y in 0..px {
                 for x in 0..px {
                     img.put_pixel(j as u32 * px + x, i as u32 * px + y, col);
@@ -80,7 +66,6 @@ pub fn heatmap_max(
             img.put_pixel(x, y, col);
         }
     }
-    img.save(path)
-        .with_context(|| format!("writing {}", path.display()))?;
+    img.save(path).with_context(|| format!("writing {}", path.display()))?;
     Ok(())
 }

@@ -64,9 +64,7 @@ pub fn parse_effects(s: &str) -> anyhow::Result<Vec<Effect>> {
     if s.trim().is_empty() || s.trim() == "none" {
         return Ok(vec![]);
     }
-    s.split(',')
-        .map(|n| Effect::from_name(n.trim()).map_err(Into::into))
-        .collect()
+    s.split(',').map(|n| Effect::from_name(n.trim()).map_err(Into::into)).collect()
 }
 
 pub fn run(cmd: SimCmd) -> anyhow::Result<ExitCode> {
@@ -77,11 +75,7 @@ pub fn run(cmd: SimCmd) -> anyhow::Result<ExitCode> {
                 u.name = n;
             }
             u.save(&a.out)?;
-            eprintln!(
-                "wrote {} ({} effects on)",
-                a.out.display(),
-                u.enabled_effects().len()
-            );
+            eprintln!("wrote {} ({} effects on)", a.out.display(), u.enabled_effects().len());
             Ok(ExitCode::SUCCESS)
         }
         SimCmd::Dataset(a) => {
@@ -93,15 +87,11 @@ pub fn run(cmd: SimCmd) -> anyhow::Result<ExitCode> {
             };
             let spec = SimSpec {
                 commanded,
-                range_deg: crate::parse3(&a.range)
-                    .map_err(anyhow::Error::msg)
-                    .context("--range")?,
+                range_deg: crate::parse3(&a.range).map_err(anyhow::Error::msg).context("--range")?,
                 random: a.random,
                 seed: a.seed,
                 dropout: a.dropout,
-                gravity: crate::parse3(&a.gravity)
-                    .map_err(anyhow::Error::msg)
-                    .context("--gravity")?,
+                gravity: crate::parse3(&a.gravity).map_err(anyhow::Error::msg).context("--gravity")?,
             };
             let t0 = std::time::Instant::now();
             let pb = crate::progress_bar(0, "simulating");

@@ -3,19 +3,12 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
 fn abvs(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_abvs"))
-        .args(args)
-        .output()
-        .expect("run abvs")
+    Command::new(env!("CARGO_BIN_EXE_abvs")).args(args).output().expect("run abvs")
 }
 
 fn ok(args: &[&str]) -> String {
     let o = abvs(args);
-    assert!(
-        o.status.success(),
-        "abvs {args:?} failed:\n{}",
-        String::from_utf8_lossy(&o.stderr)
-    );
+    assert!(o.status.success(), "abvs {args:?} failed:\n{}", String::from_utf8_lossy(&o.stderr));
     String::from_utf8_lossy(&o.stdout).into_owned()
 }
 
@@ -30,26 +23,9 @@ fn repo() -> PathBuf {
 #[test]
 fn sim_is_reproducible_bit_for_bit_and_follows_the_protocol() {
     let d = tempfile::tempdir().unwrap();
-    ok(&[
-        "sim",
-        "unit",
-        "--seed",
-        "7",
-        "--out",
-        &p(d.path(), "u.toml"),
-    ]);
-    ok(&[
-        "sim",
-        "unit",
-        "--seed",
-        "7",
-        "--out",
-        &p(d.path(), "u2.toml"),
-    ]);
-    assert_eq!(
-        std::fs::read(d.path().join("u.toml")).unwrap(),
-        std::fs::read(d.path().join("u2.toml")).unwrap()
-    );
+    ok(&["sim", "unit", "--seed", "7", "--out", &p(d.path(), "u.toml")]);
+    ok(&["sim", "unit", "--seed", "7", "--out", &p(d.path(), "u2.toml")]);
+    assert_eq!(std::fs::read(d.path().join("u.toml")).unwrap(), std::fs::read(d.path().join("u2.toml")).unwrap());
     for f in ["a.csv", "b.csv"] {
         ok(&[
             "sim",
@@ -96,49 +72,24 @@ fn sim_is_reproducible_bit_for_bit_and_follows_the_protocol() {
         "--out",
         &p(d.path(), "n4.csv"),
     ]);
-    assert_eq!(
-        abvs_eye::dataset::Dataset::read(&d.path().join("n4.csv"))
-            .unwrap()
-            .len(),
-        64
-    );
+    assert_eq!(abvs_eye::dataset::Dataset::read(&d.path().join("n4.csv")).unwrap().len(), 64);
 }
 
 #[test]
 fn kin_ik_then_fk_round_trips_and_keeps_other_columns() {
     let d = tempfile::tempdir().unwrap();
-    let poses =
-        "label,alpha_deg,beta_deg,gamma_deg\nA,0,0,0\nB,-11,-7,-26\nC,30,15,30\nD,-30,15,-30\n";
+    let poses = "label,alpha_deg,beta_deg,gamma_deg\nA,0,0,0\nB,-11,-7,-26\nC,30,15,30\nD,-30,15,-30\n";
     std::fs::write(d.path().join("poses.csv"), poses).unwrap();
-    ok(&[
-        "kin",
-        "ik",
-        "--in",
-        &p(d.path(), "poses.csv"),
-        "--out",
-        &p(d.path(), "th.csv"),
-    ]);
+    ok(&["kin", "ik", "--in", &p(d.path(), "poses.csv"), "--out", &p(d.path(), "th.csv")]);
     // FK on the IK output: alpha/beta/gamma columns are replaced by the FK's, x/y/z added.
-    ok(&[
-        "kin",
-        "fk",
-        "--in",
-        &p(d.path(), "th.csv"),
-        "--out",
-        &p(d.path(), "back.csv"),
-    ]);
+    ok(&["kin", "fk", "--in", &p(d.path(), "th.csv"), "--out", &p(d.path(), "back.csv")]);
     let mut rd = csv::Reader::from_path(d.path().join("back.csv")).unwrap();
     let h = rd.headers().unwrap().clone();
     assert_eq!(&h[0], "label");
     for col in ["theta1_deg", "x_mm", "z_mm"] {
         assert!(h.iter().any(|c| c == col), "{h:?}");
     }
-    let want: Vec<[f64; 3]> = vec![
-        [0.0, 0.0, 0.0],
-        [-11.0, -7.0, -26.0],
-        [30.0, 15.0, 30.0],
-        [-30.0, 15.0, -30.0],
-    ];
+    let want: Vec<[f64; 3]> = vec![[0.0, 0.0, 0.0], [-11.0, -7.0, -26.0], [30.0, 15.0, 30.0], [-30.0, 15.0, -30.0]];
     for (rec, w) in rd.records().zip(want) {
         let rec = rec.unwrap();
         for (k, name) in ["alpha_deg", "beta_deg", "gamma_deg"].iter().enumerate() {
@@ -146,9 +97,7 @@ fn kin_ik_then_fk_round_trips_and_keeps_other_columns() {
             let v: f64 = rec[i].parse().unwrap();
             assert!((v - w[k]).abs() < 1e-9, "{name}: {v} vs {}", w[k]);
         }
-        let x: f64 = rec[h.iter().position(|c| c == "x_mm").unwrap()]
-            .parse()
-            .unwrap();
+        let x: f64 = rec[h.iter().position(|c| c == "x_mm").unwrap()].parse().unwrap();
         assert!(x.abs() < 1e-9, "camera at O1 has no translation");
     }
 }
@@ -156,56 +105,23 @@ fn kin_ik_then_fk_round_trips_and_keeps_other_columns() {
 #[test]
 fn kin_reports_bad_rows_by_line_and_exits_nonzero() {
     let d = tempfile::tempdir().unwrap();
-    std::fs::write(
-        d.path().join("poses.csv"),
-        "alpha_deg,beta_deg,gamma_deg\n1,2,3\nabc,0,0\n89,0,0\n-5,4,2\n",
-    )
-    .unwrap();
-    let o = abvs(&[
-        "kin",
-        "ik",
-        "--in",
-        &p(d.path(), "poses.csv"),
-        "--out",
-        &p(d.path(), "th.csv"),
-    ]);
+    std::fs::write(d.path().join("poses.csv"), "alpha_deg,beta_deg,gamma_deg\n1,2,3\nabc,0,0\n89,0,0\n-5,4,2\n")
+        .unwrap();
+    let o = abvs(&["kin", "ik", "--in", &p(d.path(), "poses.csv"), "--out", &p(d.path(), "th.csv")]);
     assert!(!o.status.success());
     let err = String::from_utf8_lossy(&o.stderr);
-    assert!(
-        err.contains("poses.csv:3") && err.contains("alpha_deg") && err.contains("not a number"),
-        "{err}"
-    );
+    assert!(err.contains("poses.csv:3") && err.contains("alpha_deg") && err.contains("not a number"), "{err}");
     assert!(err.contains("poses.csv:4"), "{err}");
     // Good rows are still written, bad rows kept with empty outputs: nothing is lost.
     let out = std::fs::read_to_string(d.path().join("th.csv")).unwrap();
     assert_eq!(out.lines().count(), 5, "{out}");
-    assert!(
-        out.lines().nth(4).unwrap().starts_with("-5,4,2,")
-            && !out.lines().nth(4).unwrap().ends_with(",,")
-    );
-    let o = abvs(&[
-        "kin",
-        "ik",
-        "--in",
-        &p(d.path(), "missing.csv"),
-        "--out",
-        &p(d.path(), "x.csv"),
-    ]);
+    assert!(out.lines().nth(4).unwrap().starts_with("-5,4,2,") && !out.lines().nth(4).unwrap().ends_with(",,"));
+    let o = abvs(&["kin", "ik", "--in", &p(d.path(), "missing.csv"), "--out", &p(d.path(), "x.csv")]);
     assert!(!o.status.success() && String::from_utf8_lossy(&o.stderr).contains("missing.csv"));
     std::fs::write(d.path().join("nocol.csv"), "alpha_deg,gamma_deg\n1,2\n").unwrap();
-    let o = abvs(&[
-        "kin",
-        "ik",
-        "--in",
-        &p(d.path(), "nocol.csv"),
-        "--out",
-        &p(d.path(), "x.csv"),
-    ]);
+    let o = abvs(&["kin", "ik", "--in", &p(d.path(), "nocol.csv"), "--out", &p(d.path(), "x.csv")]);
     let err = String::from_utf8_lossy(&o.stderr);
-    assert!(
-        !o.status.success() && err.contains("nocol.csv:1") && err.contains("beta_deg"),
-        "{err}"
-    );
+    assert!(!o.status.success() && err.contains("nocol.csv:1") && err.contains("beta_deg"), "{err}");
 }
 
 #[test]
@@ -213,26 +129,8 @@ fn kin_fk_with_a_unit_reproduces_the_simulated_measurements() {
     let d = tempfile::tempdir().unwrap();
     let unit = repo().join("fixtures/units/c1.toml");
     let unit = unit.to_str().unwrap();
-    ok(&[
-        "sim",
-        "dataset",
-        "--unit",
-        unit,
-        "--step-deg",
-        "10",
-        "--out",
-        &p(d.path(), "m.csv"),
-    ]);
-    ok(&[
-        "kin",
-        "fk",
-        "--unit",
-        unit,
-        "--in",
-        &p(d.path(), "m.csv"),
-        "--out",
-        &p(d.path(), "fk.csv"),
-    ]);
+    ok(&["sim", "dataset", "--unit", unit, "--step-deg", "10", "--out", &p(d.path(), "m.csv")]);
+    ok(&["kin", "fk", "--unit", unit, "--in", &p(d.path(), "m.csv"), "--out", &p(d.path(), "fk.csv")]);
     let m = abvs_eye::dataset::Dataset::read(&d.path().join("m.csv")).unwrap();
     let f = abvs_eye::dataset::Dataset::read(&d.path().join("fk.csv")).unwrap();
     assert_eq!(m.len(), f.len());
@@ -241,16 +139,8 @@ fn kin_fk_with_a_unit_reproduces_the_simulated_measurements() {
     let st = u.effects.measurement_noise.trans_mm;
     for (a, b) in m.samples.iter().zip(&f.samples) {
         for k in 0..3 {
-            assert!(
-                (a.pose[k] - b.pose[k]).abs() < 6.0 * sr,
-                "rot {k}: {:?} vs {:?}",
-                a.pose,
-                b.pose
-            );
-            assert!(
-                (a.pose[3 + k] - b.pose[3 + k]).abs() < 6.0 * st,
-                "trans {k}"
-            );
+            assert!((a.pose[k] - b.pose[k]).abs() < 6.0 * sr, "rot {k}: {:?} vs {:?}", a.pose, b.pose);
+            assert!((a.pose[3 + k] - b.pose[3 + k]).abs() < 6.0 * st, "trans {k}");
         }
     }
 }
@@ -259,58 +149,27 @@ fn kin_fk_with_a_unit_reproduces_the_simulated_measurements() {
 fn bad_unit_file_is_named_with_its_field() {
     let d = tempfile::tempdir().unwrap();
     std::fs::write(d.path().join("u.toml"), "format = \"abvs-unit/1\"\nname = \"x\"\n[effects.hinge_backlash]\nenabled = true\nbacklash_deg = [0.1, \"a\", 0.1]\n").unwrap();
-    let o = abvs(&[
-        "sim",
-        "dataset",
-        "--unit",
-        &p(d.path(), "u.toml"),
-        "--step-deg",
-        "10",
-        "--out",
-        &p(d.path(), "x.csv"),
-    ]);
+    let o =
+        abvs(&["sim", "dataset", "--unit", &p(d.path(), "u.toml"), "--step-deg", "10", "--out", &p(d.path(), "x.csv")]);
     let err = String::from_utf8_lossy(&o.stderr);
-    assert!(
-        !o.status.success() && err.contains("u.toml") && err.contains("backlash_deg"),
-        "{err}"
-    );
-    let o = abvs(&[
-        "sim",
-        "unit",
-        "--seed",
-        "1",
-        "--effects",
-        "camera_mount,warp",
-        "--out",
-        &p(d.path(), "v.toml"),
-    ]);
+    assert!(!o.status.success() && err.contains("u.toml") && err.contains("backlash_deg"), "{err}");
+    let o = abvs(&["sim", "unit", "--seed", "1", "--effects", "camera_mount,warp", "--out", &p(d.path(), "v.toml")]);
     let err = String::from_utf8_lossy(&o.stderr);
-    assert!(
-        !o.status.success() && err.contains("unknown effect 'warp'"),
-        "{err}"
-    );
+    assert!(!o.status.success() && err.contains("unknown effect 'warp'"), "{err}");
 }
 
 #[test]
 fn demo_runs_on_the_embedded_default() {
     let d = tempfile::tempdir().unwrap();
     let out = ok(&["demo", "--out", &p(d.path(), "demo")]);
-    assert!(
-        out.contains("nominal kinematics") && out.contains("PSC"),
-        "{out}"
-    );
+    assert!(out.contains("nominal kinematics") && out.contains("PSC"), "{out}");
     let s: serde_json::Value =
-        serde_json::from_slice(&std::fs::read(d.path().join("demo/summary.json")).unwrap())
-            .unwrap();
+        serde_json::from_slice(&std::fs::read(d.path().join("demo/summary.json")).unwrap()).unwrap();
     let nominal = s["nominal"]["rot_norm_mean_deg"].as_f64().unwrap();
     let floor = s["true_model"]["rot_norm_mean_deg"].as_f64().unwrap();
     // The reason calibration exists: the nominal model is off by far more than the noise floor.
     assert!(nominal > 10.0 * floor, "{nominal} vs {floor}");
-    for f in [
-        "demo/psc_heatmap.png",
-        "demo/nominal_error_heatmap.png",
-        "demo/dataset_3deg.csv",
-    ] {
+    for f in ["demo/psc_heatmap.png", "demo/nominal_error_heatmap.png", "demo/dataset_3deg.csv"] {
         assert!(d.path().join(f).metadata().unwrap().len() > 100, "{f}");
     }
     // The embedded default is the committed fixture.
@@ -327,10 +186,7 @@ fn doctor_finds_onnx_runtime_without_variables() {
         .output()
         .unwrap();
     let out = String::from_utf8_lossy(&o.stdout);
-    assert!(
-        o.status.success() && out.contains("libonnxruntime.so"),
-        "{out}"
-    );
+    assert!(o.status.success() && out.contains("libonnxruntime.so"), "{out}");
     // The variable overrides the search order, and a wrong one is a clear error.
     let o = Command::new(env!("CARGO_BIN_EXE_abvs"))
         .arg("doctor")
@@ -338,8 +194,5 @@ fn doctor_finds_onnx_runtime_without_variables() {
         .output()
         .unwrap();
     let out = String::from_utf8_lossy(&o.stdout);
-    assert!(
-        !o.status.success() && out.contains("/nope/libonnxruntime.so"),
-        "{out}"
-    );
+    assert!(!o.status.success() && out.contains("/nope/libonnxruntime.so"), "{out}");
 }

@@ -14,25 +14,16 @@ fn kinematics(c: &mut Criterion) {
     let prev = g.fk_cold(&th.map(|t| t - 1f64.to_radians())).unwrap().r;
 
     c.bench_function("ik", |b| b.iter(|| g.ik(black_box(&r)).unwrap()));
-    c.bench_function("fk_warm_1deg", |b| {
-        b.iter(|| g.fk_from(black_box(&th), black_box(&prev)).unwrap())
-    });
+    c.bench_function("fk_warm_1deg", |b| b.iter(|| g.fk_from(black_box(&th), black_box(&prev)).unwrap()));
     c.bench_function("fk_cold", |b| b.iter(|| g.fk_cold(black_box(&th)).unwrap()));
-    c.bench_function("psc", |b| {
-        b.iter(|| psc_at(&g, black_box(&th), black_box(&r)).unwrap())
-    });
-    c.bench_function("singularity_measure", |b| {
-        b.iter(|| g.singularity(black_box(&r), black_box(&th)))
-    });
+    c.bench_function("psc", |b| b.iter(|| psc_at(&g, black_box(&th), black_box(&r)).unwrap()));
+    c.bench_function("singularity_measure", |b| b.iter(|| g.singularity(black_box(&r), black_box(&th))));
 
     let unit = draw_unit(0, &Effect::ALL).compile().unwrap();
     let q = th.map(f64::to_degrees);
     let warm = unit.home_platform();
     c.bench_function("unit_fk_all_effects", |b| {
-        b.iter(|| {
-            unit.pose(black_box(&q), &Conditions::default(), Some(&warm))
-                .unwrap()
-        })
+        b.iter(|| unit.pose(black_box(&q), &Conditions::default(), Some(&warm)).unwrap())
     });
 }
 
@@ -41,24 +32,16 @@ fn dataset(c: &mut Criterion) {
     let mut grp = c.benchmark_group("dataset");
     grp.sample_size(10);
     for step in [3.0, 1.0] {
-        let spec = SimSpec {
-            commanded: Commanded::Step(step),
-            ..Default::default()
-        };
+        let spec = SimSpec { commanded: Commanded::Step(step), ..Default::default() };
         grp.bench_function(format!("simulate_grid_{step}deg"), |b| {
             b.iter(|| simulate_dataset(&unit, &spec, |_, _| {}).unwrap())
         });
     }
-    let spec = SimSpec {
-        commanded: Commanded::Step(1.0),
-        ..Default::default()
-    };
+    let spec = SimSpec { commanded: Commanded::Step(1.0), ..Default::default() };
     let (data, _) = simulate_dataset(&unit, &spec, |_, _| {}).unwrap();
     let dir = std::env::temp_dir().join("abvs-bench-dataset.csv");
     grp.bench_function("write_csv_1deg", |b| b.iter(|| data.write(&dir).unwrap()));
-    grp.bench_function("read_csv_1deg", |b| {
-        b.iter(|| abvs_eye::dataset::Dataset::read(&dir).unwrap())
-    });
+    grp.bench_function("read_csv_1deg", |b| b.iter(|| abvs_eye::dataset::Dataset::read(&dir).unwrap()));
     grp.finish();
 }
 

@@ -83,15 +83,11 @@ fn check_value(col: &str, v: f64) -> std::result::Result<(), String> {
         return Err(format!("column {col}: {v} is not a finite number"));
     }
     if col == "t_s" && v < 0.0 {
-        return Err(format!(
-            "column t_s: {v} is negative (time since the session start)"
-        ));
+        return Err(format!("column t_s: {v} is negative (time since the session start)"));
     }
     if let Some((lo, hi, unit)) = physical_range(col) {
         if !(lo..=hi).contains(&v) {
-            return Err(format!(
-                "column {col}: {v} is outside the physical range [{lo}, {hi}] {unit}"
-            ));
+            return Err(format!("column {col}: {v} is outside the physical range [{lo}, {hi}] {unit}"));
         }
     }
     Ok(())
@@ -143,10 +139,7 @@ struct Layout {
 }
 
 /// Finds an optional all-or-nothing column group; a partial group names the missing column.
-fn find_group(
-    index: &HashMap<&str, usize>,
-    cols: &[&str; 3],
-) -> std::result::Result<Option<[usize; 3]>, String> {
+fn find_group(index: &HashMap<&str, usize>, cols: &[&str; 3]) -> std::result::Result<Option<[usize; 3]>, String> {
     let found = cols.map(|c| index.get(c).copied());
     if found.iter().all(Option::is_none) {
         return Ok(None);
@@ -164,10 +157,7 @@ fn find_group(
 impl Layout {
     fn from_header(fields: &[String]) -> std::result::Result<Layout, String> {
         if fields.len() == 1 && fields[0].is_empty() {
-            return Err(format!(
-                "empty header line: expected the column names {}",
-                REQUIRED_COLUMNS.join(", ")
-            ));
+            return Err(format!("empty header line: expected the column names {}", REQUIRED_COLUMNS.join(", ")));
         }
         let mut index: HashMap<&str, usize> = HashMap::new();
         for (k, name) in fields.iter().enumerate() {
@@ -175,18 +165,10 @@ impl Layout {
                 return Err(format!("header: column {} has an empty name", k + 1));
             }
             if let Some(prev) = index.insert(name.as_str(), k) {
-                return Err(format!(
-                    "duplicate column name {name:?} (columns {} and {})",
-                    prev + 1,
-                    k + 1
-                ));
+                return Err(format!("duplicate column name {name:?} (columns {} and {})", prev + 1, k + 1));
             }
         }
-        let missing: Vec<&str> = REQUIRED_COLUMNS
-            .iter()
-            .copied()
-            .filter(|c| !index.contains_key(c))
-            .collect();
+        let missing: Vec<&str> = REQUIRED_COLUMNS.iter().copied().filter(|c| !index.contains_key(c)).collect();
         if !missing.is_empty() {
             // A first line of numbers means the header itself is absent.
             if fields.iter().all(|f| f.parse::<f64>().is_ok()) {
@@ -212,21 +194,13 @@ impl Layout {
             })
             .map(|(k, n)| (k, n.clone()))
             .collect();
-        Ok(Layout {
-            required,
-            cmd,
-            gravity,
-            extra,
-            n_fields: fields.len(),
-        })
+        Ok(Layout { required, cmd, gravity, extra, n_fields: fields.len() })
     }
 }
 
 fn parse_f64(rec: &csv::StringRecord, k: usize, col: &str) -> std::result::Result<f64, String> {
     let s = &rec[k];
-    let v: f64 = s
-        .parse()
-        .map_err(|_| format!("column {col}: {s:?} is not a number"))?;
+    let v: f64 = s.parse().map_err(|_| format!("column {col}: {s:?} is not a number"))?;
     if !v.is_finite() {
         return Err(format!("column {col}: {s:?} is not a finite number"));
     }
@@ -247,11 +221,7 @@ fn parse_seq(rec: &csv::StringRecord, k: usize) -> std::result::Result<u64, Stri
 
 fn parse_row(rec: &csv::StringRecord, lay: &Layout) -> std::result::Result<Sample, String> {
     if rec.len() != lay.n_fields {
-        return Err(format!(
-            "wrong number of fields: {} found, the header has {}",
-            rec.len(),
-            lay.n_fields
-        ));
+        return Err(format!("wrong number of fields: {} found, the header has {}", rec.len(), lay.n_fields));
     }
     let r = &lay.required;
     let f = |j: usize| parse_f64(rec, r[j], REQUIRED_COLUMNS[j]);
@@ -275,15 +245,7 @@ fn parse_row(rec: &csv::StringRecord, lay: &Layout) -> std::result::Result<Sampl
         check_gravity(g)?;
     }
     let extra = lay.extra.iter().map(|(k, _)| rec[*k].to_string()).collect();
-    Ok(Sample {
-        seq,
-        t_s,
-        theta_deg,
-        pose,
-        cmd_deg,
-        gravity,
-        extra,
-    })
+    Ok(Sample { seq, t_s, theta_deg, pose, cmd_deg, gravity, extra })
 }
 
 /// Physical line numbers of records. csv's own record positions point just past the
@@ -305,10 +267,7 @@ impl Lines<'_> {
         if b < self.pos {
             (self.pos, self.line) = (0, 1);
         }
-        self.line += self.buf[self.pos..b]
-            .iter()
-            .filter(|&&c| c == b'\n')
-            .count();
+        self.line += self.buf[self.pos..b].iter().filter(|&&c| c == b'\n').count();
         self.pos = b;
         self.line
     }
@@ -338,11 +297,7 @@ impl Dataset {
         // Whole input in memory (a dataset is a few MB at most), for exact line numbers.
         let mut buf = Vec::new();
         r.read_to_end(&mut buf).map_err(|e| EyeError::io(name, e))?;
-        let mut lines = Lines {
-            buf: &buf,
-            pos: 0,
-            line: 1,
-        };
+        let mut lines = Lines { buf: &buf, pos: 0, line: 1 };
         let mut rdr = csv::ReaderBuilder::new()
             .has_headers(false)
             // Field-count errors get our own message, with the line.
@@ -350,9 +305,7 @@ impl Dataset {
             .trim(csv::Trim::All)
             .from_reader(buf.as_slice());
         let mut rec = csv::StringRecord::new();
-        let has_header = rdr
-            .read_record(&mut rec)
-            .map_err(|e| csv_error(name, &e, &mut lines))?;
+        let has_header = rdr.read_record(&mut rec).map_err(|e| csv_error(name, &e, &mut lines))?;
         if !has_header {
             return Err(EyeError::file(
                 name,
@@ -369,13 +322,9 @@ impl Dataset {
         if let Some(first) = names.first_mut() {
             *first = first.trim_start_matches('\u{feff}').trim().to_string();
         }
-        let lay =
-            Layout::from_header(&names).map_err(|m| EyeError::file(name, Some(header_line), m))?;
+        let lay = Layout::from_header(&names).map_err(|m| EyeError::file(name, Some(header_line), m))?;
 
-        let mut ds = Dataset {
-            samples: Vec::new(),
-            extra_columns: lay.extra.iter().map(|(_, n)| n.clone()).collect(),
-        };
+        let mut ds = Dataset { samples: Vec::new(), extra_columns: lay.extra.iter().map(|(_, n)| n.clone()).collect() };
         let mut prev: Option<(u64, usize)> = None;
         loop {
             match rdr.read_record(&mut rec) {
@@ -465,9 +414,7 @@ impl Dataset {
                 return Err(header_err(format!("duplicate column name {c:?}")));
             }
             if c.trim().is_empty() || c.trim() != c {
-                return Err(header_err(format!(
-                    "extra column name {c:?} is empty or has surrounding blanks"
-                )));
+                return Err(header_err(format!("extra column name {c:?} is empty or has surrounding blanks")));
             }
             seen.push(c);
         }
@@ -476,22 +423,12 @@ impl Dataset {
         let mut prev: Option<u64> = None;
         for (k, s) in self.samples.iter().enumerate() {
             let line = k + 2;
-            let err = |m: String| {
-                EyeError::file(
-                    name,
-                    Some(line),
-                    format!("cannot write sample seq {}: {m}", s.seq),
-                )
-            };
+            let err = |m: String| EyeError::file(name, Some(line), format!("cannot write sample seq {}: {m}", s.seq));
             if s.cmd_deg.is_some() != has_cmd {
-                return Err(err(format!(
-                    "cmd_* present in some samples only (first sample: {has_cmd})"
-                )));
+                return Err(err(format!("cmd_* present in some samples only (first sample: {has_cmd})")));
             }
             if s.gravity.is_some() != has_gravity {
-                return Err(err(format!(
-                    "gx, gy, gz present in some samples only (first sample: {has_gravity})"
-                )));
+                return Err(err(format!("gx, gy, gz present in some samples only (first sample: {has_gravity})")));
             }
             if s.extra.len() != self.extra_columns.len() {
                 return Err(err(format!(
@@ -506,10 +443,7 @@ impl Dataset {
             }
             if let Some(p) = prev {
                 if s.seq <= p {
-                    return Err(err(format!(
-                        "column seq: {} is not greater than the previous seq {p}",
-                        s.seq
-                    )));
+                    return Err(err(format!("column seq: {} is not greater than the previous seq {p}", s.seq)));
                 }
             }
             prev = Some(s.seq);

@@ -318,9 +318,7 @@ impl Homing {
             return Ok(HomingStatus::Pending);
         }
         // Start angle (counts at the first sample, in [0, N)) if pulse i is on marker k.
-        let cand = |i: usize, k: usize| {
-            (MARKER_COUNTS[k] - MARKER_COUNTS[i] - self.pulses[i][0]).rem_euclid(N)
-        };
+        let cand = |i: usize, k: usize| (MARKER_COUNTS[k] - MARKER_COUNTS[i] - self.pulses[i][0]).rem_euclid(N);
         let n_k = pulsed.map(|p| if p { 3 } else { 1 });
         let mut alive = 0usize;
         let mut winner = [0i64; 3];
@@ -330,8 +328,7 @@ impl Homing {
             for k1 in 0..n_k[1] {
                 for k2 in 0..n_k[2] {
                     let ks = [k0, k1, k2];
-                    let phi: [Option<i64>; 3] =
-                        [0, 1, 2].map(|i| pulsed[i].then(|| cand(i, ks[i])));
+                    let phi: [Option<i64>; 3] = [0, 1, 2].map(|i| pulsed[i].then(|| cand(i, ks[i])));
                     match self.check(&phi) {
                         Ok(n) => {
                             alive += 1;
@@ -394,11 +391,7 @@ impl Homing {
                 }
             }
         }
-        let refuse = |msg: String| Refusal {
-            by_pulses: true,
-            spread: 0,
-            msg,
-        };
+        let refuse = |msg: String| Refusal { by_pulses: true, spread: 0, msg };
         let mut next = [i64::MAX; 3];
         let reference = phi.iter().flatten().next().copied();
         for i in 0..3 {
@@ -500,18 +493,13 @@ impl Homing {
     }
 
     fn pulses_seen(&self) -> String {
-        let mut all: Vec<(i64, usize)> = (0..3)
-            .flat_map(|i| self.pulses[i].iter().map(move |&u| (u, i)))
-            .collect();
+        let mut all: Vec<(i64, usize)> = (0..3).flat_map(|i| self.pulses[i].iter().map(move |&u| (u, i))).collect();
         if all.is_empty() {
             return "none".into();
         }
         all.sort_unstable();
-        let mut v: Vec<String> = all
-            .iter()
-            .take(12)
-            .map(|(u, i)| format!("link {} at {:+.3} deg", i + 1, c2d(*u)))
-            .collect();
+        let mut v: Vec<String> =
+            all.iter().take(12).map(|(u, i)| format!("link {} at {:+.3} deg", i + 1, c2d(*u))).collect();
         if all.len() > 12 {
             v.push(format!("... ({} in all)", all.len()));
         }
@@ -541,10 +529,7 @@ impl Homing {
     /// Why homing is still pending (for the batch error).
     fn pending_message(&self) -> String {
         if self.pulses.iter().all(Vec::is_empty) {
-            format!(
-                "ambiguous: no index pulse after {:.3} deg of travel; need more travel",
-                self.travel_deg()
-            )
+            format!("ambiguous: no index pulse after {:.3} deg of travel; need more travel", self.travel_deg())
         } else {
             format!(
                 "ambiguous: {} after {:.3} deg of travel (pulses seen: {}); need more travel",

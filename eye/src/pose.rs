@@ -12,18 +12,10 @@ pub struct Fick {
 
 impl Fick {
     pub fn from_deg(d: [f64; 3]) -> Self {
-        Fick {
-            alpha: d[0].to_radians(),
-            beta: d[1].to_radians(),
-            gamma: d[2].to_radians(),
-        }
+        Fick { alpha: d[0].to_radians(), beta: d[1].to_radians(), gamma: d[2].to_radians() }
     }
     pub fn to_deg(self) -> [f64; 3] {
-        [
-            self.alpha.to_degrees(),
-            self.beta.to_degrees(),
-            self.gamma.to_degrees(),
-        ]
+        [self.alpha.to_degrees(), self.beta.to_degrees(), self.gamma.to_degrees()]
     }
     /// `R = Ry(gamma) . Rx(alpha) . Rz(beta)`.
     pub fn to_matrix(self) -> Matrix3<f64> {
@@ -59,34 +51,22 @@ impl Default for Pose {
 
 impl Pose {
     pub fn identity() -> Self {
-        Pose {
-            r: Matrix3::identity(),
-            t: Vector3::zeros(),
-        }
+        Pose { r: Matrix3::identity(), t: Vector3::zeros() }
     }
     pub fn new(r: Matrix3<f64>, t: Vector3<f64>) -> Self {
         Pose { r, t }
     }
     pub fn inverse(&self) -> Pose {
         let rt = self.r.transpose();
-        Pose {
-            r: rt,
-            t: -(rt * self.t),
-        }
+        Pose { r: rt, t: -(rt * self.t) }
     }
     /// `self * other` (apply `other` first).
     pub fn compose(&self, other: &Pose) -> Pose {
-        Pose {
-            r: self.r * other.r,
-            t: self.r * other.t + self.t,
-        }
+        Pose { r: self.r * other.r, t: self.r * other.t + self.t }
     }
     /// From the file layout `[alpha, beta, gamma (deg), x, y, z (mm)]`.
     pub fn from_p6(p: &[f64; 6]) -> Pose {
-        Pose {
-            r: Fick::from_deg([p[0], p[1], p[2]]).to_matrix(),
-            t: Vector3::new(p[3], p[4], p[5]),
-        }
+        Pose { r: Fick::from_deg([p[0], p[1], p[2]]).to_matrix(), t: Vector3::new(p[3], p[4], p[5]) }
     }
     /// To the file layout `[alpha, beta, gamma (deg), x, y, z (mm)]`.
     pub fn to_p6(&self) -> [f64; 6] {
@@ -99,22 +79,14 @@ impl Pose {
 /// symmetric parts, accurate to machine precision for small angles (where acos of the trace,
 /// as in nalgebra's `scaled_axis`, loses half the digits); nalgebra handles angles near pi.
 pub fn rotation_vector(r: &Matrix3<f64>) -> Vector3<f64> {
-    let v = Vector3::new(
-        r[(2, 1)] - r[(1, 2)],
-        r[(0, 2)] - r[(2, 0)],
-        r[(1, 0)] - r[(0, 1)],
-    ) * 0.5;
+    let v = Vector3::new(r[(2, 1)] - r[(1, 2)], r[(0, 2)] - r[(2, 0)], r[(1, 0)] - r[(0, 1)]) * 0.5;
     let s = v.norm();
     let c = 0.5 * (r.trace() - 1.0);
     let th = s.atan2(c);
     if th > std::f64::consts::PI - 1e-3 {
         return Rotation3::from_matrix_unchecked(*r).scaled_axis();
     }
-    let k = if s < 1e-12 {
-        1.0 + th * th / 6.0
-    } else {
-        th / s
-    };
+    let k = if s < 1e-12 { 1.0 + th * th / 6.0 } else { th / s };
     v * k
 }
 
@@ -137,9 +109,7 @@ pub fn skew(w: &Vector3<f64>) -> Matrix3<f64> {
 /// Angle (deg) of the rotation taking `a` to `b`.
 pub fn rotation_angle_deg(a: &Matrix3<f64>, b: &Matrix3<f64>) -> f64 {
     let m = a.transpose() * b;
-    (((m.trace() - 1.0) / 2.0).clamp(-1.0, 1.0))
-        .acos()
-        .to_degrees()
+    (((m.trace() - 1.0) / 2.0).clamp(-1.0, 1.0)).acos().to_degrees()
 }
 
 #[cfg(test)]
@@ -173,16 +143,9 @@ mod tests {
 
     #[test]
     fn exp_log_round_trip() {
-        for w in [
-            Vector3::new(0.3, -0.2, 0.9),
-            Vector3::new(1e-7, 2e-7, -3e-8),
-            Vector3::new(0.0, 3.1, 0.0),
-        ] {
+        for w in [Vector3::new(0.3, -0.2, 0.9), Vector3::new(1e-7, 2e-7, -3e-8), Vector3::new(0.0, 3.1, 0.0)] {
             let back = rotation_vector(&exp_so3(&w));
-            assert!(
-                (back - w).norm() < 1e-13 * (1.0 + w.norm()) || (back - w).norm() / w.norm() < 1e-9,
-                "{w} {back}"
-            );
+            assert!((back - w).norm() < 1e-13 * (1.0 + w.norm()) || (back - w).norm() / w.norm() < 1e-9, "{w} {back}");
         }
         let tiny = Vector3::new(1e-7, 2e-7, -3e-8);
         assert!((rotation_vector(&exp_so3(&tiny)) - tiny).norm() < 1e-20);

@@ -24,6 +24,26 @@ pub fn psc_at(geom: &SpmGeometry, theta: &[f64; 3], r: &Matrix3<f64>) -> Result<
     Ok(s / PSC_STEP_DEG)
 }
 
+/// First-order S from the analytic FK Jacobian, for the per-frame hot path: `||J_r^-1(r) omega_i||`
+/// per degree, with `omega_i` the angular-velocity Jacobian column and `J_r^-1` the inverse left
+/// Jacobian of SO(3) mapping it to rotation-vector rates. It differs from [`psc_at`] by the
+/// curvature over the 1 deg step (a few 1e-4 over the workspace); callers that need the exact
+/// value near a threshold use [`psc_at`] there.
+pub fn psc_first_order(geom: &SpmGeometry, theta: &[f64; 3], r: &Matrix3<f64>) -> Result<f64> {
+    let jf = geom.fk_jacobian(r, theta)?;
+    let rv = rotation_vector(r);
+    let th = rv.norm();
+    let k = crate::pose::skew(&rv);
+    let jl_inv = if th < 1e-8 {
+        Matrix3::identity() - 0.5 * k
+    } else {
+        Matrix3::identity() - 0.5 * k + (1.0 / (th * th) - (1.0 + th.cos()) / (2.0 * th * th.sin())) * k * k
+    };
+    let m = jl_inv * jf;
+    let s = (0..3).map(|i| m.column(i).norm()).fold(0.0, f64::max);
+    Ok(s * PSC_STEP_DEG.to_radians() / PSC_STEP_DEG)
+}
+
 /// S at link angles `theta` (rad), solving the FK from cold.
 pub fn psc(geom: &SpmGeometry, theta: &[f64; 3]) -> Result<f64> {
     let r = geom.fk_cold(theta)?.r;
@@ -53,11 +73,7 @@ pub fn psc_map(geom: &SpmGeometry, step_deg: f64) -> Vec<PscPoint> {
                     continue;
                 };
                 if let Ok(s) = psc_at(geom, &th, &r) {
-                    out.push(PscPoint {
-                        fick_deg: [a, b, g],
-                        theta_deg: th.map(f64::to_degrees),
-                        s,
-                    });
+                    out.push(PscPoint { fick_deg: [a, b, g], theta_deg: th.map(f64::to_degrees), s });
                 }
             }
         }
@@ -96,6 +112,18 @@ mod tests {
         assert!(max > centre, "edge {max} vs centre {centre}");
         // Pure roll of 1 deg is 0.01745 rad; a single link moves the platform more than that.
         assert!(centre > 1f64.to_radians() * 0.5 && centre < 0.2, "{centre}");
+    }
+
+    #[test]
+    fn first_order_psc_is_close_to_the_finite_step() {
+        let g = SpmGeometry::nominal();
+        let mut worst: f64 = 0.0;
+        for p in psc_map(&g, 6.0) {
+            let th = p.theta_deg.map(f64::to_radians);
+            let r = g.fk_cold(&th).unwrap().r;
+            worst = worst.max((psc_first_order(&g, &th, &r).unwrap() - p.s).abs());
+        }
+        assert!(worst < 1e-3, "{worst}");
     }
 
     #[test]

@@ -36,10 +36,7 @@ pub fn draw_unit(seed: u64, effects: &[Effect]) -> UnitModel {
         e.encoder_zero_offset.offset_deg[i] = signed(&mut rng, 0.1, 1.0);
         e.link_angle_error.d1_error_deg[i] = signed(&mut rng, 0.1, 0.5);
         e.link_angle_error.d2_error_deg[i] = signed(&mut rng, 0.1, 0.5);
-        let (m, az) = (
-            rng.gen_range(0.05..0.3),
-            rng.gen_range(0.0..std::f64::consts::TAU),
-        );
+        let (m, az) = (rng.gen_range(0.05..0.3), rng.gen_range(0.0..std::f64::consts::TAU));
         e.input_axis_tilt.tilt_x_deg[i] = m * az.cos();
         e.input_axis_tilt.tilt_y_deg[i] = m * az.sin();
         e.platform_axis_error.azimuth_deg[i] = signed(&mut rng, 0.1, 0.5);
@@ -49,20 +46,12 @@ pub fn draw_unit(seed: u64, effects: &[Effect]) -> UnitModel {
         e.hinge_backlash.backlash_deg[i] = rng.gen_range(0.01..0.1);
     }
     // The camera sits in front of the spherical centre: mostly +z, a little off-axis.
-    e.camera_mount.offset_mm = [
-        rng.gen_range(-3.0..3.0),
-        rng.gen_range(-3.0..3.0),
-        rng.gen_range(2.0..12.0),
-    ];
+    e.camera_mount.offset_mm = [rng.gen_range(-3.0..3.0), rng.gen_range(-3.0..3.0), rng.gen_range(2.0..12.0)];
     e.code_wheel_eccentricity.eccentricity_um = rng.gen_range(5.0..30.0);
     e.code_wheel_eccentricity.phase_deg = rng.gen_range(0.0..360.0);
     // Sag lever: the camera's weight acts forward of O1 (z), with a little lateral offset.
     let m = rng.gen_range(0.01..0.1);
-    e.gravity_sag.sag_deg = [
-        signed(&mut rng, 0.0, 0.2) * m,
-        signed(&mut rng, 0.0, 0.2) * m,
-        m,
-    ];
+    e.gravity_sag.sag_deg = [signed(&mut rng, 0.0, 0.2) * m, signed(&mut rng, 0.0, 0.2) * m, m];
     e.encoder_time_offset.latency_ms = rng.gen_range(0.1..5.0);
     e.measurement_noise.rot_deg = rng.gen_range(0.005..0.02);
     e.measurement_noise.trans_mm = rng.gen_range(0.02..0.1);
@@ -133,9 +122,7 @@ pub fn commanded_poses(spec: &SimSpec) -> Vec<[f64; 3]> {
         let r = spec.range_deg[k];
         match spec.commanded {
             Commanded::Step(s) => grid(-r, r, s),
-            Commanded::PerAxis(n) if n >= 2 => (0..n)
-                .map(|i| -r + 2.0 * r * i as f64 / (n - 1) as f64)
-                .collect(),
+            Commanded::PerAxis(n) if n >= 2 => (0..n).map(|i| -r + 2.0 * r * i as f64 / (n - 1) as f64).collect(),
             Commanded::PerAxis(_) => vec![0.0],
         }
     };
@@ -143,17 +130,9 @@ pub fn commanded_poses(spec: &SimSpec) -> Vec<[f64; 3]> {
     let mut out = Vec::with_capacity(al.len() * be.len() * ga.len());
     let mut row = 0usize;
     for (ia, a) in al.iter().enumerate() {
-        let bs: Vec<f64> = if ia.is_multiple_of(2) {
-            be.clone()
-        } else {
-            be.iter().rev().copied().collect()
-        };
+        let bs: Vec<f64> = if ia.is_multiple_of(2) { be.clone() } else { be.iter().rev().copied().collect() };
         for b in bs {
-            let gs: Vec<f64> = if row.is_multiple_of(2) {
-                ga.clone()
-            } else {
-                ga.iter().rev().copied().collect()
-            };
+            let gs: Vec<f64> = if row.is_multiple_of(2) { ga.clone() } else { ga.iter().rev().copied().collect() };
             row += 1;
             for g in gs {
                 out.push([*a, b, g]);
@@ -170,17 +149,11 @@ pub fn simulate_dataset(
     mut progress: impl FnMut(usize, usize),
 ) -> Result<(Dataset, SimStats)> {
     if !(0.0..1.0).contains(&spec.dropout) {
-        return Err(EyeError::Invalid(format!(
-            "dropout {} must be in [0, 1)",
-            spec.dropout
-        )));
+        return Err(EyeError::Invalid(format!("dropout {} must be in [0, 1)", spec.dropout)));
     }
     let gn = Vector3::from(spec.gravity).norm();
     if (gn - 1.0).abs() > 1e-3 {
-        return Err(EyeError::Invalid(format!(
-            "gravity {:?} is not a unit vector",
-            spec.gravity
-        )));
+        return Err(EyeError::Invalid(format!("gravity {:?} is not a unit vector", spec.gravity)));
     }
     if let Commanded::Step(s) = spec.commanded {
         if !(s.is_finite() && s > 0.0) {
@@ -196,18 +169,11 @@ pub fn simulate_dataset(
     let nominal = SpmGeometry::nominal();
     let fk = unit.compile()?;
     let noise = &unit.effects.measurement_noise;
-    let (nr, nt) = if noise.enabled {
-        (noise.rot_deg.to_radians(), noise.trans_mm)
-    } else {
-        (0.0, 0.0)
-    };
+    let (nr, nt) = if noise.enabled { (noise.rot_deg.to_radians(), noise.trans_mm) } else { (0.0, 0.0) };
     let n_rot = Normal::new(0.0, nr).map_err(|e| EyeError::Invalid(e.to_string()))?;
     let n_tr = Normal::new(0.0, nt).map_err(|e| EyeError::Invalid(e.to_string()))?;
 
-    let mut stats = SimStats {
-        commanded: poses.len(),
-        ..Default::default()
-    };
+    let mut stats = SimStats { commanded: poses.len(), ..Default::default() };
     let mut hist = MotionHistory::new();
     let mut warm = fk.home_platform();
     let mut samples = Vec::new();
@@ -221,16 +187,8 @@ pub fn simulate_dataset(
         // The random draws happen for every commanded pose, so dropping one pose never shifts
         // the noise of the others (reproducible subsets).
         let drop_meas = rng.gen_bool(spec.dropout);
-        let nrv = Vector3::new(
-            n_rot.sample(&mut rng),
-            n_rot.sample(&mut rng),
-            n_rot.sample(&mut rng),
-        );
-        let ntv = Vector3::new(
-            n_tr.sample(&mut rng),
-            n_tr.sample(&mut rng),
-            n_tr.sample(&mut rng),
-        );
+        let nrv = Vector3::new(n_rot.sample(&mut rng), n_rot.sample(&mut rng), n_rot.sample(&mut rng));
+        let ntv = Vector3::new(n_tr.sample(&mut rng), n_tr.sample(&mut rng), n_tr.sample(&mut rng));
 
         let r_cmd = Fick::from_deg(*cmd).to_matrix();
         let Ok(th_cmd) = nominal.ik_checked(&r_cmd) else {
@@ -241,15 +199,10 @@ pub fn simulate_dataset(
         let reading = th_cmd.map(|x| quantize_deg(x.to_degrees()));
         let dir = hist.update(&reading);
         // Travel at ~200 deg/s between poses, then settle and expose.
-        let travel = (0..3)
-            .map(|i| (reading[i] - last_reading[i]).abs())
-            .fold(0.0, f64::max);
+        let travel = (0..3).map(|i| (reading[i] - last_reading[i]).abs()).fold(0.0, f64::max);
         t += travel / 200.0 + 0.25;
         last_reading = reading;
-        let cond = Conditions {
-            dir,
-            gravity: spec.gravity,
-        };
+        let cond = Conditions { dir, gravity: spec.gravity };
         let (truth, r) = match fk.pose(&reading, &cond, Some(&warm)) {
             Ok(x) => x,
             Err(_) => {
@@ -263,9 +216,7 @@ pub fn simulate_dataset(
             continue;
         }
         let meas = Pose::new(exp_so3(&nrv) * truth.r, truth.t + ntv);
-        stats.max_dev_rot_deg = stats
-            .max_dev_rot_deg
-            .max(rotation_angle_deg(&r_cmd, &meas.r));
+        stats.max_dev_rot_deg = stats.max_dev_rot_deg.max(rotation_angle_deg(&r_cmd, &meas.r));
         stats.max_dev_trans_mm = stats.max_dev_trans_mm.max(meas.t.norm());
         samples.push(Sample {
             seq: k as u64,
@@ -279,13 +230,7 @@ pub fn simulate_dataset(
     }
     progress(total, total);
     stats.written = samples.len();
-    Ok((
-        Dataset {
-            samples,
-            extra_columns: vec![],
-        },
-        stats,
-    ))
+    Ok((Dataset { samples, extra_columns: vec![] }, stats))
 }
 
 #[cfg(test)]
@@ -294,31 +239,21 @@ mod tests {
 
     #[test]
     fn serpentine_neighbours() {
-        let spec = SimSpec {
-            commanded: Commanded::Step(3.0),
-            ..Default::default()
-        };
+        let spec = SimSpec { commanded: Commanded::Step(3.0), ..Default::default() };
         let p = commanded_poses(&spec);
         assert_eq!(p.len(), 21 * 11 * 21);
         for w in p.windows(2) {
             let d: f64 = (0..3).map(|k| (w[0][k] - w[1][k]).abs()).sum();
             assert!(d <= 3.0 + 1e-9, "{:?} -> {:?}", w[0], w[1]);
         }
-        let spec = SimSpec {
-            commanded: Commanded::PerAxis(7),
-            ..Default::default()
-        };
+        let spec = SimSpec { commanded: Commanded::PerAxis(7), ..Default::default() };
         assert_eq!(commanded_poses(&spec).len(), 343);
     }
 
     #[test]
     fn reproducible_bit_for_bit() {
         let u = draw_unit(3, &Effect::ALL);
-        let spec = SimSpec {
-            commanded: Commanded::Step(10.0),
-            seed: 9,
-            ..Default::default()
-        };
+        let spec = SimSpec { commanded: Commanded::Step(10.0), seed: 9, ..Default::default() };
         let (a, sa) = simulate_dataset(&u, &spec, |_, _| {}).unwrap();
         let (b, sb) = simulate_dataset(&u, &spec, |_, _| {}).unwrap();
         assert_eq!(a, b);
@@ -329,16 +264,9 @@ mod tests {
     #[test]
     fn plausible_unit_deviates_by_degrees_and_millimetres() {
         let u = draw_unit(1, &Effect::ALL);
-        let spec = SimSpec {
-            commanded: Commanded::Step(6.0),
-            dropout: 0.0,
-            ..Default::default()
-        };
+        let spec = SimSpec { commanded: Commanded::Step(6.0), dropout: 0.0, ..Default::default() };
         let (_, s) = simulate_dataset(&u, &spec, |_, _| {}).unwrap();
         assert!(s.max_dev_rot_deg > 1.0 && s.max_dev_rot_deg < 15.0, "{s:?}");
-        assert!(
-            s.max_dev_trans_mm > 1.0 && s.max_dev_trans_mm < 20.0,
-            "{s:?}"
-        );
+        assert!(s.max_dev_trans_mm > 1.0 && s.max_dev_trans_mm < 20.0, "{s:?}");
     }
 }

@@ -81,12 +81,7 @@ impl LegParams {
         let az = psi + PI / 2.0 + self.platform_axis_deg[0].to_radians();
         let el = self.platform_axis_deg[1].to_radians();
         let v0 = Vector3::new(az.cos() * el.cos(), az.sin() * el.cos(), el.sin());
-        Leg {
-            axis,
-            w0,
-            v0,
-            cos_d2: self.d2_deg.to_radians().cos(),
-        }
+        Leg { axis, w0, v0, cos_d2: self.d2_deg.to_radians().cos() }
     }
 }
 
@@ -137,11 +132,7 @@ impl Default for SpmGeometry {
 impl SpmGeometry {
     /// The design geometry of conventions.md: d1 = 60, d2 = 90, psi = 90/210/330 deg.
     pub fn nominal() -> Self {
-        Self::from_params(&[
-            LegParams::nominal(0),
-            LegParams::nominal(1),
-            LegParams::nominal(2),
-        ])
+        Self::from_params(&[LegParams::nominal(0), LegParams::nominal(1), LegParams::nominal(2)])
     }
 
     pub fn from_params(p: &[LegParams; 3]) -> Self {
@@ -151,12 +142,7 @@ impl SpmGeometry {
     /// Builds the solver for given legs; the working mode is the one continuous with the
     /// identity orientation at theta = 0 (home).
     pub fn from_legs(legs: [Leg; 3]) -> Self {
-        let mut g = SpmGeometry {
-            legs,
-            branch: [-1.0; 3],
-            det_sign: 1.0,
-            singular_limit: DEFAULT_SINGULAR_LIMIT,
-        };
+        let mut g = SpmGeometry { legs, branch: [-1.0; 3], det_sign: 1.0, singular_limit: DEFAULT_SINGULAR_LIMIT };
         let eye = Matrix3::identity();
         for i in 0..3 {
             // The root nearer theta = 0 at the identity orientation is the working mode.
@@ -183,9 +169,7 @@ impl SpmGeometry {
     /// Loop-closure residuals f_i(R, theta).
     #[inline]
     pub fn constraints(&self, r: &Matrix3<f64>, theta: &[f64; 3]) -> Vector3<f64> {
-        Vector3::from_fn(|i, _| {
-            self.w(i, theta[i]).dot(&(r * self.legs[i].v0)) - self.legs[i].cos_d2
-        })
+        Vector3::from_fn(|i, _| self.w(i, theta[i]).dot(&(r * self.legs[i].v0)) - self.legs[i].cos_d2)
     }
 
     /// df/d(rotation vector applied on the left), rows `(R v_i0 x w_i)^T`.
@@ -268,11 +252,7 @@ impl SpmGeometry {
         let parallel = if mx > 0.0 { mn / mx } else { 0.0 };
         let mut serial: f64 = 1.0;
         for i in 0..3 {
-            serial = serial.min(
-                self.leg_roots(i, r)
-                    .map(|(_, gap)| gap.sin())
-                    .unwrap_or(0.0),
-            );
+            serial = serial.min(self.leg_roots(i, r).map(|(_, gap)| gap.sin()).unwrap_or(0.0));
         }
         Singularity { parallel, serial }
     }
@@ -306,17 +286,10 @@ impl SpmGeometry {
             let j = self.constraint_jacobian(&r, theta);
             if res < FK_TOL {
                 self.check_mode(&r, theta, &j)?;
-                return Ok(FkSolution {
-                    r,
-                    iterations: it,
-                    residual: res,
-                });
+                return Ok(FkSolution { r, iterations: it, residual: res });
             }
             let step = j.lu().solve(&(-f)).ok_or_else(|| {
-                EyeError::FkFailed(format!(
-                    "singular Jacobian at theta {:?} deg",
-                    theta.map(f64::to_degrees)
-                ))
+                EyeError::FkFailed(format!("singular Jacobian at theta {:?} deg", theta.map(f64::to_degrees)))
             })?;
             if !step.iter().all(|x| x.is_finite()) || step.norm() > 1.0 {
                 return Err(EyeError::FkFailed(format!(
@@ -340,9 +313,7 @@ impl SpmGeometry {
             )));
         }
         for i in 0..3 {
-            let (delta, gap) = self
-                .leg_roots(i, r)
-                .ok_or_else(|| EyeError::FkFailed("leg open".into()))?;
+            let (delta, gap) = self.leg_roots(i, r).ok_or_else(|| EyeError::FkFailed("leg open".into()))?;
             let mine = wrap(delta + self.branch[i] * gap - theta[i]).abs();
             let other = wrap(delta - self.branch[i] * gap - theta[i]).abs();
             if mine > other && gap > 1e-6 {
@@ -384,11 +355,7 @@ impl SpmGeometry {
             }
         }
         let res = self.constraints(&r, theta).amax();
-        Ok(FkSolution {
-            r,
-            iterations: total_it,
-            residual: res,
-        })
+        Ok(FkSolution { r, iterations: total_it, residual: res })
     }
 }
 
@@ -416,11 +383,7 @@ pub struct FkSolver {
 
 impl FkSolver {
     pub fn new(geom: SpmGeometry) -> Self {
-        FkSolver {
-            geom,
-            last: None,
-            max_warm_jump: 10f64.to_radians(),
-        }
+        FkSolver { geom, last: None, max_warm_jump: 10f64.to_radians() }
     }
     pub fn reset(&mut self) {
         self.last = None;
@@ -474,16 +437,8 @@ mod tests {
     #[test]
     fn constraint_jacobian_matches_finite_difference() {
         let g = SpmGeometry::from_params(&[
-            LegParams {
-                d1_deg: 60.3,
-                axis_tilt_deg: [0.2, -0.1],
-                ..LegParams::nominal(0)
-            },
-            LegParams {
-                d2_deg: 89.6,
-                platform_axis_deg: [0.3, 0.2],
-                ..LegParams::nominal(1)
-            },
+            LegParams { d1_deg: 60.3, axis_tilt_deg: [0.2, -0.1], ..LegParams::nominal(0) },
+            LegParams { d2_deg: 89.6, platform_axis_deg: [0.3, 0.2], ..LegParams::nominal(1) },
             LegParams::nominal(2),
         ]);
         let r = Fick::from_deg([12.0, -7.0, 21.0]).to_matrix();
@@ -496,11 +451,7 @@ mod tests {
             let fp = g.constraints(&(exp_so3(&d) * r), &th);
             let fm = g.constraints(&(exp_so3(&(-d)) * r), &th);
             let col = (fp - fm) / (2.0 * h);
-            assert!(
-                (col - j.column(k)).amax() < 1e-8,
-                "col {k}: {col} vs {}",
-                j.column(k)
-            );
+            assert!((col - j.column(k)).amax() < 1e-8, "col {k}: {col} vs {}", j.column(k));
         }
         let jin = g.input_jacobian(&r, &th);
         for k in 0..3 {
@@ -528,34 +479,20 @@ mod tests {
             let rp = g.fk_from(&tp, &r).unwrap().r;
             let rm = g.fk_from(&tm, &r).unwrap().r;
             let w = crate::pose::rotation_vector(&(rp * rm.transpose())) / (2.0 * h);
-            assert!(
-                (w - jf.column(k)).amax() < 1e-7,
-                "col {k}: {w} vs {}",
-                jf.column(k)
-            );
+            assert!((w - jf.column(k)).amax() < 1e-7, "col {k}: {w} vs {}", jf.column(k));
         }
     }
 
     #[test]
     fn warm_start_far_away_never_returns_wrong_mode_silently() {
         let g = SpmGeometry::nominal();
-        let th = g
-            .ik(&Fick::from_deg([25.0, -10.0, -28.0]).to_matrix())
-            .unwrap();
+        let th = g.ik(&Fick::from_deg([25.0, -10.0, -28.0]).to_matrix()).unwrap();
         let truth = g.fk_cold(&th).unwrap().r;
         // A start on the far side of the sphere: either converges to the truth or errors.
-        for start in [
-            [170.0, 0.0, 0.0],
-            [0.0, 170.0, 0.0],
-            [80.0, 80.0, 80.0],
-            [-60.0, 100.0, 10.0],
-        ] {
+        for start in [[170.0, 0.0, 0.0], [0.0, 170.0, 0.0], [80.0, 80.0, 80.0], [-60.0, 100.0, 10.0]] {
             let r0 = Fick::from_deg(start).to_matrix();
             if let Ok(sol) = g.fk_from(&th, &r0) {
-                assert!(
-                    (sol.r - truth).amax() < 1e-9,
-                    "silent wrong branch from {start:?}"
-                );
+                assert!((sol.r - truth).amax() < 1e-9, "silent wrong branch from {start:?}");
             }
         }
     }

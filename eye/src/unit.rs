@@ -47,11 +47,7 @@ pub struct NominalGeometry {
 
 impl Default for NominalGeometry {
     fn default() -> Self {
-        NominalGeometry {
-            d1_deg: NOMINAL_D1_DEG,
-            d2_deg: NOMINAL_D2_DEG,
-            psi_deg: NOMINAL_PSI_DEG,
-        }
+        NominalGeometry { d1_deg: NOMINAL_D1_DEG, d2_deg: NOMINAL_D2_DEG, psi_deg: NOMINAL_PSI_DEG }
     }
 }
 
@@ -123,12 +119,7 @@ pub const WHEEL_RADIUS_MM: f64 = 11.5;
 
 impl Default for CodeWheelEccentricity {
     fn default() -> Self {
-        CodeWheelEccentricity {
-            enabled: false,
-            eccentricity_um: 0.0,
-            phase_deg: 0.0,
-            wheel_radius_mm: WHEEL_RADIUS_MM,
-        }
+        CodeWheelEccentricity { enabled: false, eccentricity_um: 0.0, phase_deg: 0.0, wheel_radius_mm: WHEEL_RADIUS_MM }
     }
 }
 
@@ -244,15 +235,9 @@ impl Effect {
     }
 
     pub fn from_name(s: &str) -> Result<Effect> {
-        Effect::ALL
-            .into_iter()
-            .find(|e| e.name() == s)
-            .ok_or_else(|| {
-                EyeError::Invalid(format!(
-                    "unknown effect '{s}' (known: {})",
-                    Effect::ALL.map(|e| e.name()).join(", ")
-                ))
-            })
+        Effect::ALL.into_iter().find(|e| e.name() == s).ok_or_else(|| {
+            EyeError::Invalid(format!("unknown effect '{s}' (known: {})", Effect::ALL.map(|e| e.name()).join(", ")))
+        })
     }
 
     /// Names and units of the parameters exposed to fitting, in vector order.
@@ -263,9 +248,7 @@ impl Effect {
             Effect::EncoderZeroOffset => per_leg("offset_deg"),
             Effect::LinkAngleError => [per_leg("d1_error_deg"), per_leg("d2_error_deg")].concat(),
             Effect::InputAxisTilt => [per_leg("tilt_x_deg"), per_leg("tilt_y_deg")].concat(),
-            Effect::PlatformAxisError => {
-                [per_leg("azimuth_deg"), per_leg("elevation_deg")].concat()
-            }
+            Effect::PlatformAxisError => [per_leg("azimuth_deg"), per_leg("elevation_deg")].concat(),
             Effect::CameraMount => [
                 "rotation_deg.alpha",
                 "rotation_deg.beta",
@@ -281,9 +264,7 @@ impl Effect {
             }
             Effect::EncoderScale => per_leg("relative_error"),
             Effect::HingeBacklash => per_leg("backlash_deg"),
-            Effect::GravitySag => ["sag_deg.x", "sag_deg.y", "sag_deg.z"]
-                .map(String::from)
-                .to_vec(),
+            Effect::GravitySag => ["sag_deg.x", "sag_deg.y", "sag_deg.z"].map(String::from).to_vec(),
             Effect::EncoderTimeOffset => vec!["latency_ms".into()],
             Effect::MeasurementNoise => vec!["rot_deg".into(), "trans_mm".into()],
         }
@@ -342,14 +323,9 @@ impl UnitModel {
     }
 
     pub fn from_toml_str(text: &str, path: &Path) -> Result<Self> {
-        let u: UnitModel = toml::from_str(text).map_err(|e| EyeError::Unit {
-            path: path.into(),
-            msg: e.to_string(),
-        })?;
-        u.validate().map_err(|msg| EyeError::Unit {
-            path: path.into(),
-            msg,
-        })?;
+        let u: UnitModel =
+            toml::from_str(text).map_err(|e| EyeError::Unit { path: path.into(), msg: e.to_string() })?;
+        u.validate().map_err(|msg| EyeError::Unit { path: path.into(), msg })?;
         Ok(u)
     }
 
@@ -377,61 +353,17 @@ impl UnitModel {
         checks.push(("geometry.d2_deg", g.d2_deg - NOMINAL_D2_DEG, 20.0));
         for i in 0..3 {
             checks.push(("geometry.psi_deg", g.psi_deg[i] - NOMINAL_PSI_DEG[i], 30.0));
-            checks.push((
-                "effects.encoder_zero_offset.offset_deg",
-                e.encoder_zero_offset.offset_deg[i],
-                20.0,
-            ));
-            checks.push((
-                "effects.link_angle_error.d1_error_deg",
-                e.link_angle_error.d1_error_deg[i],
-                5.0,
-            ));
-            checks.push((
-                "effects.link_angle_error.d2_error_deg",
-                e.link_angle_error.d2_error_deg[i],
-                5.0,
-            ));
-            checks.push((
-                "effects.input_axis_tilt.tilt_x_deg",
-                e.input_axis_tilt.tilt_x_deg[i],
-                5.0,
-            ));
-            checks.push((
-                "effects.input_axis_tilt.tilt_y_deg",
-                e.input_axis_tilt.tilt_y_deg[i],
-                5.0,
-            ));
-            checks.push((
-                "effects.platform_axis_error.azimuth_deg",
-                e.platform_axis_error.azimuth_deg[i],
-                5.0,
-            ));
-            checks.push((
-                "effects.platform_axis_error.elevation_deg",
-                e.platform_axis_error.elevation_deg[i],
-                5.0,
-            ));
-            checks.push((
-                "effects.camera_mount.rotation_deg",
-                e.camera_mount.rotation_deg[i],
-                30.0,
-            ));
-            checks.push((
-                "effects.camera_mount.offset_mm",
-                e.camera_mount.offset_mm[i],
-                50.0,
-            ));
-            checks.push((
-                "effects.encoder_scale.relative_error",
-                e.encoder_scale.relative_error[i],
-                0.05,
-            ));
-            checks.push((
-                "effects.hinge_backlash.backlash_deg",
-                e.hinge_backlash.backlash_deg[i],
-                2.0,
-            ));
+            checks.push(("effects.encoder_zero_offset.offset_deg", e.encoder_zero_offset.offset_deg[i], 20.0));
+            checks.push(("effects.link_angle_error.d1_error_deg", e.link_angle_error.d1_error_deg[i], 5.0));
+            checks.push(("effects.link_angle_error.d2_error_deg", e.link_angle_error.d2_error_deg[i], 5.0));
+            checks.push(("effects.input_axis_tilt.tilt_x_deg", e.input_axis_tilt.tilt_x_deg[i], 5.0));
+            checks.push(("effects.input_axis_tilt.tilt_y_deg", e.input_axis_tilt.tilt_y_deg[i], 5.0));
+            checks.push(("effects.platform_axis_error.azimuth_deg", e.platform_axis_error.azimuth_deg[i], 5.0));
+            checks.push(("effects.platform_axis_error.elevation_deg", e.platform_axis_error.elevation_deg[i], 5.0));
+            checks.push(("effects.camera_mount.rotation_deg", e.camera_mount.rotation_deg[i], 30.0));
+            checks.push(("effects.camera_mount.offset_mm", e.camera_mount.offset_mm[i], 50.0));
+            checks.push(("effects.encoder_scale.relative_error", e.encoder_scale.relative_error[i], 0.05));
+            checks.push(("effects.hinge_backlash.backlash_deg", e.hinge_backlash.backlash_deg[i], 2.0));
             checks.push(("effects.gravity_sag.sag_deg", e.gravity_sag.sag_deg[i], 2.0));
         }
         checks.push((
@@ -439,26 +371,10 @@ impl UnitModel {
             e.code_wheel_eccentricity.eccentricity_um,
             500.0,
         ));
-        checks.push((
-            "effects.code_wheel_eccentricity.phase_deg",
-            e.code_wheel_eccentricity.phase_deg,
-            720.0,
-        ));
-        checks.push((
-            "effects.encoder_time_offset.latency_ms",
-            e.encoder_time_offset.latency_ms,
-            1000.0,
-        ));
-        checks.push((
-            "effects.measurement_noise.rot_deg",
-            e.measurement_noise.rot_deg,
-            5.0,
-        ));
-        checks.push((
-            "effects.measurement_noise.trans_mm",
-            e.measurement_noise.trans_mm,
-            20.0,
-        ));
+        checks.push(("effects.code_wheel_eccentricity.phase_deg", e.code_wheel_eccentricity.phase_deg, 720.0));
+        checks.push(("effects.encoder_time_offset.latency_ms", e.encoder_time_offset.latency_ms, 1000.0));
+        checks.push(("effects.measurement_noise.rot_deg", e.measurement_noise.rot_deg, 5.0));
+        checks.push(("effects.measurement_noise.trans_mm", e.measurement_noise.trans_mm, 20.0));
         for (name, v, lim) in checks {
             if !v.is_finite() {
                 return Err(format!("{name}: not a finite number"));
@@ -469,9 +385,7 @@ impl UnitModel {
         }
         let r = e.code_wheel_eccentricity.wheel_radius_mm;
         if !(r.is_finite() && r > 1.0 && r < 100.0) {
-            return Err(format!(
-                "effects.code_wheel_eccentricity.wheel_radius_mm: {r} must be in (1, 100) mm"
-            ));
+            return Err(format!("effects.code_wheel_eccentricity.wheel_radius_mm: {r} must be in (1, 100) mm"));
         }
         if e.hinge_backlash.backlash_deg.iter().any(|b| *b < 0.0) {
             return Err("effects.hinge_backlash.backlash_deg: must be >= 0".into());
@@ -518,10 +432,7 @@ impl UnitModel {
 
     /// The effects switched on, in [`Effect::ALL`] order.
     pub fn enabled_effects(&self) -> Vec<Effect> {
-        Effect::ALL
-            .into_iter()
-            .filter(|e| self.is_enabled(*e))
-            .collect()
+        Effect::ALL.into_iter().filter(|e| self.is_enabled(*e)).collect()
     }
 
     /// Parameters of one effect as a vector (order of [`Effect::param_names`]).
@@ -529,19 +440,11 @@ impl UnitModel {
         let x = &self.effects;
         match e {
             Effect::EncoderZeroOffset => x.encoder_zero_offset.offset_deg.to_vec(),
-            Effect::LinkAngleError => [
-                x.link_angle_error.d1_error_deg,
-                x.link_angle_error.d2_error_deg,
-            ]
-            .concat(),
-            Effect::InputAxisTilt => {
-                [x.input_axis_tilt.tilt_x_deg, x.input_axis_tilt.tilt_y_deg].concat()
+            Effect::LinkAngleError => [x.link_angle_error.d1_error_deg, x.link_angle_error.d2_error_deg].concat(),
+            Effect::InputAxisTilt => [x.input_axis_tilt.tilt_x_deg, x.input_axis_tilt.tilt_y_deg].concat(),
+            Effect::PlatformAxisError => {
+                [x.platform_axis_error.azimuth_deg, x.platform_axis_error.elevation_deg].concat()
             }
-            Effect::PlatformAxisError => [
-                x.platform_axis_error.azimuth_deg,
-                x.platform_axis_error.elevation_deg,
-            ]
-            .concat(),
             Effect::CameraMount => [x.camera_mount.rotation_deg, x.camera_mount.offset_mm].concat(),
             Effect::CodeWheelEccentricity => {
                 let c = &x.code_wheel_eccentricity;
@@ -562,10 +465,7 @@ impl UnitModel {
     pub fn set_params(&mut self, e: Effect, p: &[f64]) -> Result<()> {
         let n = e.param_names().len();
         if p.len() != n {
-            return Err(EyeError::Invalid(format!(
-                "{e}: {} parameters given, {n} expected",
-                p.len()
-            )));
+            return Err(EyeError::Invalid(format!("{e}: {} parameters given, {n} expected", p.len())));
         }
         let x = &mut self.effects;
         let mut it = p.iter().copied();
@@ -636,10 +536,7 @@ pub struct Conditions {
 
 impl Default for Conditions {
     fn default() -> Self {
-        Conditions {
-            dir: [1.0; 3],
-            gravity: [0.0, 1.0, 0.0],
-        }
+        Conditions { dir: [1.0; 3], gravity: [0.0, 1.0, 0.0] }
     }
 }
 
@@ -653,10 +550,7 @@ pub struct MotionHistory {
 
 impl MotionHistory {
     pub fn new() -> Self {
-        MotionHistory {
-            last: None,
-            dir: [1.0; 3],
-        }
+        MotionHistory { last: None, dir: [1.0; 3] }
     }
     /// Feeds the next reading (deg) and returns the direction state for it.
     pub fn update(&mut self, reading_deg: &[f64; 3]) -> [f64; 3] {
@@ -691,11 +585,7 @@ impl UnitFk {
         model.validate().map_err(EyeError::Invalid)?;
         let e = &model.effects;
         let g = &model.geometry;
-        let mut legs = [
-            LegParams::nominal(0),
-            LegParams::nominal(1),
-            LegParams::nominal(2),
-        ];
+        let mut legs = [LegParams::nominal(0), LegParams::nominal(1), LegParams::nominal(2)];
         for (i, l) in legs.iter_mut().enumerate() {
             l.psi_deg = g.psi_deg[i];
             l.d1_deg = g.d1_deg;
@@ -705,45 +595,27 @@ impl UnitFk {
                 l.d2_deg += e.link_angle_error.d2_error_deg[i];
             }
             if e.input_axis_tilt.enabled {
-                l.axis_tilt_deg = [
-                    e.input_axis_tilt.tilt_x_deg[i],
-                    e.input_axis_tilt.tilt_y_deg[i],
-                ];
+                l.axis_tilt_deg = [e.input_axis_tilt.tilt_x_deg[i], e.input_axis_tilt.tilt_y_deg[i]];
             }
             if e.platform_axis_error.enabled {
-                l.platform_axis_deg = [
-                    e.platform_axis_error.azimuth_deg[i],
-                    e.platform_axis_error.elevation_deg[i],
-                ];
+                l.platform_axis_deg = [e.platform_axis_error.azimuth_deg[i], e.platform_axis_error.elevation_deg[i]];
             }
         }
         let geom = SpmGeometry::from_params(&legs);
         let mount = if e.camera_mount.enabled {
             let m = &e.camera_mount;
-            Pose::new(
-                Fick::from_deg(m.rotation_deg).to_matrix(),
-                Vector3::from(m.offset_mm),
-            )
+            Pose::new(Fick::from_deg(m.rotation_deg).to_matrix(), Vector3::from(m.offset_mm))
         } else {
             Pose::identity()
         };
         let c = &e.code_wheel_eccentricity;
         let ecc = if c.enabled {
-            (
-                c.eccentricity_um * 1e-3 / c.wheel_radius_mm,
-                c.phase_deg.to_radians(),
-            )
+            (c.eccentricity_um * 1e-3 / c.wheel_radius_mm, c.phase_deg.to_radians())
         } else {
             (0.0, 0.0)
         };
-        let mut fk = UnitFk {
-            model: model.clone(),
-            geom,
-            mount,
-            home_inv: Pose::identity(),
-            home_r: Matrix3::identity(),
-            ecc,
-        };
+        let mut fk =
+            UnitFk { model: model.clone(), geom, mount, home_inv: Pose::identity(), home_r: Matrix3::identity(), ecc };
         let (home_c, home_r) = fk.camera_in_base(&[0.0; 3], &Conditions::default(), None)?;
         fk.home_inv = home_c.inverse();
         fk.home_r = home_r;
@@ -789,10 +661,7 @@ impl UnitFk {
     ) -> Result<(Pose, Matrix3<f64>)> {
         let th = self.link_angles(reading_deg, &cond.dir);
         let sol = match warm {
-            Some(r0) => self
-                .geom
-                .fk_from(&th, r0)
-                .or_else(|_| self.geom.fk_cold(&th))?,
+            Some(r0) => self.geom.fk_from(&th, r0).or_else(|_| self.geom.fk_cold(&th))?,
             None => self.geom.fk_cold(&th)?,
         };
         self.geom.check_singularity(&sol.r, &th)?;
@@ -831,10 +700,7 @@ impl UnitFk {
         let mut out = Vec::with_capacity(data.samples.len());
         for s in &data.samples {
             let dir = hist.update(&s.theta_deg);
-            let cond = Conditions {
-                dir,
-                gravity: s.gravity_or_default(),
-            };
+            let cond = Conditions { dir, gravity: s.gravity_or_default() };
             let (p, r) = self
                 .pose(&s.theta_deg, &cond, Some(&warm))
                 .map_err(|e| EyeError::Invalid(format!("sample seq {}: {e}", s.seq)))?;
@@ -853,10 +719,7 @@ mod tests {
     fn nominal_unit_is_nominal_fk() {
         let fk = UnitModel::nominal().compile().unwrap();
         let p = fk.p6(&[10.0, -5.0, 20.0], &Conditions::default()).unwrap();
-        let r = SpmGeometry::nominal()
-            .fk_cold(&[10f64, -5.0, 20.0].map(f64::to_radians))
-            .unwrap()
-            .r;
+        let r = SpmGeometry::nominal().fk_cold(&[10f64, -5.0, 20.0].map(f64::to_radians)).unwrap().r;
         let f = Fick::from_matrix(&r).to_deg();
         for k in 0..3 {
             assert!((p[k] - f[k]).abs() < 1e-10);
@@ -885,9 +748,7 @@ mod tests {
     #[test]
     fn bad_unit_file_names_field() {
         let text = "format = \"abvs-unit/1\"\nname = \"x\"\n[effects.camera_mount]\nenabled = true\noffset_mm = [0.0, 0.0, 900.0]\n";
-        let err = UnitModel::from_toml_str(text, Path::new("u.toml"))
-            .unwrap_err()
-            .to_string();
+        let err = UnitModel::from_toml_str(text, Path::new("u.toml")).unwrap_err().to_string();
         assert!(err.contains("u.toml") && err.contains("offset_mm"), "{err}");
         let err = UnitModel::from_toml_str(
             "format = \"abvs-unit/1\"\nname = \"x\"\n[effects.warp_drive]\n",
@@ -901,19 +762,10 @@ mod tests {
     #[test]
     fn home_is_identity_for_any_unit() {
         let mut u = UnitModel::nominal();
-        u.effects.camera_mount = CameraMount {
-            enabled: true,
-            rotation_deg: [2.0, -1.0, 1.5],
-            offset_mm: [1.0, -2.0, 8.0],
-        };
-        u.effects.encoder_zero_offset = EncoderZeroOffset {
-            enabled: true,
-            offset_deg: [0.5, -0.3, 0.2],
-        };
-        u.effects.gravity_sag = GravitySag {
-            enabled: true,
-            sag_deg: [0.05, 0.0, 0.02],
-        };
+        u.effects.camera_mount =
+            CameraMount { enabled: true, rotation_deg: [2.0, -1.0, 1.5], offset_mm: [1.0, -2.0, 8.0] };
+        u.effects.encoder_zero_offset = EncoderZeroOffset { enabled: true, offset_deg: [0.5, -0.3, 0.2] };
+        u.effects.gravity_sag = GravitySag { enabled: true, sag_deg: [0.05, 0.0, 0.02] };
         let fk = u.compile().unwrap();
         let p = fk.p6(&[0.0; 3], &Conditions::default()).unwrap();
         assert!(p.iter().all(|x| x.abs() < 1e-12), "{p:?}");
@@ -922,30 +774,11 @@ mod tests {
     #[test]
     fn backlash_depends_on_direction() {
         let mut u = UnitModel::nominal();
-        u.effects.hinge_backlash = HingeBacklash {
-            enabled: true,
-            backlash_deg: [0.1, 0.1, 0.1],
-        };
+        u.effects.hinge_backlash = HingeBacklash { enabled: true, backlash_deg: [0.1, 0.1, 0.1] };
         let fk = u.compile().unwrap();
         let q = [5.0, 5.0, 5.0];
-        let up = fk
-            .p6(
-                &q,
-                &Conditions {
-                    dir: [1.0; 3],
-                    ..Default::default()
-                },
-            )
-            .unwrap();
-        let down = fk
-            .p6(
-                &q,
-                &Conditions {
-                    dir: [-1.0; 3],
-                    ..Default::default()
-                },
-            )
-            .unwrap();
+        let up = fk.p6(&q, &Conditions { dir: [1.0; 3], ..Default::default() }).unwrap();
+        let down = fk.p6(&q, &Conditions { dir: [-1.0; 3], ..Default::default() }).unwrap();
         // equal links: pure roll, shifted by the full clearance between directions
         assert!((up[1] - down[1] + 0.1).abs() < 1e-9, "{up:?} {down:?}");
     }

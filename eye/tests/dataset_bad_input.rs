@@ -4,8 +4,7 @@ use abvs_eye::dataset::{Dataset, Sample, REQUIRED_COLUMNS};
 use abvs_eye::error::EyeError;
 use std::path::Path;
 
-const HEADER: &str =
-    "seq,t_s,theta1_deg,theta2_deg,theta3_deg,alpha_deg,beta_deg,gamma_deg,x_mm,y_mm,z_mm";
+const HEADER: &str = "seq,t_s,theta1_deg,theta2_deg,theta3_deg,alpha_deg,beta_deg,gamma_deg,x_mm,y_mm,z_mm";
 const ROW1: &str = "1,0.5,10,-5,20,1.5,-2,3,0.1,-0.2,0.3";
 const ROW2: &str = "2,1.0,11,-4,21,2,-1,4,0.2,-0.1,0.4";
 
@@ -42,10 +41,7 @@ fn with_row(row: &str) -> String {
 
 /// ROW-like line with seq 3 and `col` set to `value`.
 fn row_with(col: &str, value: &str) -> String {
-    let mut f: Vec<String> = "3,1.5,12,-3,22,2.5,0,5,0.3,0,0.5"
-        .split(',')
-        .map(String::from)
-        .collect();
+    let mut f: Vec<String> = "3,1.5,12,-3,22,2.5,0,5,0.3,0,0.5".split(',').map(String::from).collect();
     let k = REQUIRED_COLUMNS.iter().position(|c| *c == col).unwrap();
     f[k] = value.to_string();
     f.join(",")
@@ -65,103 +61,47 @@ fn missing_header() {
 fn missing_required_column() {
     let header = HEADER.replace(",theta2_deg", "");
     let row = "1,0.5,10,20,1.5,-2,3,0.1,-0.2,0.3";
-    refused(
-        &format!("{header}\n{row}\n"),
-        1,
-        &["missing required column theta2_deg"],
-    );
+    refused(&format!("{header}\n{row}\n"), 1, &["missing required column theta2_deg"]);
 }
 
 #[test]
 fn duplicate_column() {
-    refused(
-        &format!("{HEADER},x_mm\n"),
-        1,
-        &["duplicate column", "x_mm"],
-    );
-    refused(
-        &format!("{HEADER},note,note\n"),
-        1,
-        &["duplicate column", "note"],
-    );
+    refused(&format!("{HEADER},x_mm\n"), 1, &["duplicate column", "x_mm"]);
+    refused(&format!("{HEADER},note,note\n"), 1, &["duplicate column", "note"]);
 }
 
 #[test]
 fn wrong_field_count() {
-    refused(
-        &with_row("3,1.5,12,-3,22,2.5,0,5,0.3,0"),
-        4,
-        &["wrong number of fields", "10", "11"],
-    );
-    refused(
-        &with_row("3,1.5,12,-3,22,2.5,0,5,0.3,0,0.5,9"),
-        4,
-        &["wrong number of fields"],
-    );
+    refused(&with_row("3,1.5,12,-3,22,2.5,0,5,0.3,0"), 4, &["wrong number of fields", "10", "11"]);
+    refused(&with_row("3,1.5,12,-3,22,2.5,0,5,0.3,0,0.5,9"), 4, &["wrong number of fields"]);
 }
 
 #[test]
 fn non_number() {
-    let m = refused(
-        &with_row(&row_with("theta2_deg", "abc")),
-        4,
-        &["column theta2_deg", "not a number"],
-    );
+    let m = refused(&with_row(&row_with("theta2_deg", "abc")), 4, &["column theta2_deg", "not a number"]);
     assert!(m.contains("\"abc\""), "{m}");
-    refused(
-        &with_row(&row_with("z_mm", "")),
-        4,
-        &["column z_mm", "not a number"],
-    );
-    refused(
-        &with_row(&row_with("seq", "x3")),
-        4,
-        &["column seq", "not a number"],
-    );
-    refused(
-        &with_row(&row_with("seq", "3.5")),
-        4,
-        &["column seq", "not a non-negative integer"],
-    );
+    refused(&with_row(&row_with("z_mm", "")), 4, &["column z_mm", "not a number"]);
+    refused(&with_row(&row_with("seq", "x3")), 4, &["column seq", "not a number"]);
+    refused(&with_row(&row_with("seq", "3.5")), 4, &["column seq", "not a non-negative integer"]);
 }
 
 #[test]
 fn nan_or_infinite() {
     for v in ["NaN", "inf", "-infinity", "1e400"] {
-        refused(
-            &with_row(&row_with("alpha_deg", v)),
-            4,
-            &["column alpha_deg", "not a finite number"],
-        );
+        refused(&with_row(&row_with("alpha_deg", v)), 4, &["column alpha_deg", "not a finite number"]);
     }
-    refused(
-        &with_row(&row_with("t_s", "nan")),
-        4,
-        &["column t_s", "not a finite number"],
-    );
+    refused(&with_row(&row_with("t_s", "nan")), 4, &["column t_s", "not a finite number"]);
 }
 
 #[test]
 fn seq_not_increasing() {
-    refused(
-        &with_row(&row_with("seq", "2")),
-        4,
-        &["column seq", "previous seq 2", "line 3"],
-    );
-    refused(
-        &with_row(&row_with("seq", "1")),
-        4,
-        &["column seq", "not greater"],
-    );
+    refused(&with_row(&row_with("seq", "2")), 4, &["column seq", "previous seq 2", "line 3"]);
+    refused(&with_row(&row_with("seq", "1")), 4, &["column seq", "not greater"]);
 }
 
 #[test]
 fn negative_time() {
-    refused(
-        &with_row(&row_with("t_s", "-0.25")),
-        4,
-        &["column t_s", "negative"],
-    );
+    refused(&with_row(&row_with("t_s", "-0.25")), 4, &["column t_s", "negative"]);
 }
 
 #[test]
@@ -176,11 +116,7 @@ fn angle_or_position_out_of_range() {
         ("y_mm", "-2000"),
     ];
     for (col, v) in cases {
-        refused(
-            &with_row(&row_with(col, v)),
-            4,
-            &[&format!("column {col}"), "outside the physical range"],
-        );
+        refused(&with_row(&row_with(col, v)), 4, &[&format!("column {col}"), "outside the physical range"]);
     }
     // The limits themselves are fine.
     let ok = format!("{HEADER}\n3,0,-360,360,0,-90,180,90,-1000,1000,0\n");
@@ -189,17 +125,8 @@ fn angle_or_position_out_of_range() {
 
 #[test]
 fn cmd_out_of_range() {
-    let text = format!(
-        "{HEADER},cmd_alpha_deg,cmd_beta_deg,cmd_gamma_deg\n{ROW1},1,2,3\n{ROW2},1,200,3\n"
-    );
-    refused(
-        &text,
-        3,
-        &[
-            "column cmd_beta_deg",
-            "outside the physical range [-180, 180]",
-        ],
-    );
+    let text = format!("{HEADER},cmd_alpha_deg,cmd_beta_deg,cmd_gamma_deg\n{ROW1},1,2,3\n{ROW2},1,200,3\n");
+    refused(&text, 3, &["column cmd_beta_deg", "outside the physical range [-180, 180]"]);
 }
 
 #[test]
@@ -208,20 +135,13 @@ fn gravity_not_unit() {
     refused(&text, 3, &["gx, gy, gz", "not a unit vector"]);
     // Within 1e-3 of unit is accepted as is.
     let text = format!("{HEADER},gx,gy,gz\n{ROW1},0,1.0009,0\n");
-    assert_eq!(
-        read_str(&text).unwrap().samples[0].gravity,
-        Some([0.0, 1.0009, 0.0])
-    );
+    assert_eq!(read_str(&text).unwrap().samples[0].gravity, Some([0.0, 1.0009, 0.0]));
 }
 
 #[test]
 fn partial_optional_group() {
     let text = format!("{HEADER},cmd_alpha_deg,cmd_gamma_deg\n{ROW1},1,2\n");
-    refused(
-        &text,
-        1,
-        &["incomplete column group", "cmd_beta_deg is missing"],
-    );
+    refused(&text, 1, &["incomplete column group", "cmd_beta_deg is missing"]);
     let text = format!("{HEADER},gx,gz\n{ROW1},0,0\n");
     refused(&text, 1, &["incomplete column group", "gy is missing"]);
 }
@@ -229,16 +149,10 @@ fn partial_optional_group() {
 #[test]
 fn physical_lines_count_quoted_newlines_and_blank_lines() {
     // Line numbers are physical lines, even past blank lines and quoted newlines.
-    let text = format!(
-        "{HEADER},note\n{ROW1},\"two\nlines\"\n\n{},x\n",
-        row_with("theta1_deg", "abc")
-    );
+    let text = format!("{HEADER},note\n{ROW1},\"two\nlines\"\n\n{},x\n", row_with("theta1_deg", "abc"));
     refused(&text, 5, &["column theta1_deg"]);
     // CRLF line ends, blank lines before the header, no final line break.
-    let text = format!(
-        "\r\n\r\n{HEADER}\r\n{ROW1}\r\n\r\n{}",
-        row_with("x_mm", "1e9")
-    );
+    let text = format!("\r\n\r\n{HEADER}\r\n{ROW1}\r\n\r\n{}", row_with("x_mm", "1e9"));
     refused(&text, 6, &["column x_mm", "outside"]);
     let text = format!("\n{HEADER}\n{ROW1}\n{ROW1}\n");
     refused(&text, 4, &["column seq", "previous seq 1 (line 3)"]);
@@ -257,15 +171,9 @@ fn invalid_utf8_names_the_line() {
 
 #[test]
 fn from_reader_names_the_source() {
-    let err = Dataset::from_reader(
-        format!("{HEADER}\n{}\n", row_with("y_mm", "?")).as_bytes(),
-        Path::new("eye0.csv"),
-    )
-    .unwrap_err();
-    assert!(
-        err.to_string().starts_with("eye0.csv:2: column y_mm"),
-        "{err}"
-    );
+    let err = Dataset::from_reader(format!("{HEADER}\n{}\n", row_with("y_mm", "?")).as_bytes(), Path::new("eye0.csv"))
+        .unwrap_err();
+    assert!(err.to_string().starts_with("eye0.csv:2: column y_mm"), "{err}");
 }
 
 #[test]
@@ -307,15 +215,7 @@ fn bits(ds: &Dataset) -> Vec<u64> {
 fn round_trip_is_bit_exact() {
     use rand::{Rng, SeedableRng};
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
-    let awkward = [
-        0.1 + 0.2,
-        1.0 / 3.0,
-        -0.0,
-        5e-324,
-        f64::MIN_POSITIVE,
-        1e-17,
-        89.99999999999999,
-    ];
+    let awkward = [0.1 + 0.2, 1.0 / 3.0, -0.0, 5e-324, f64::MIN_POSITIVE, 1e-17, 89.99999999999999];
     let mut samples = Vec::new();
     for k in 0..200u64 {
         let mut r = |lim: f64| -> f64 {
@@ -337,10 +237,7 @@ fn round_trip_is_bit_exact() {
             extra: vec![format!("run {k}, \"quoted\""), String::new()],
         });
     }
-    let ds = Dataset {
-        samples,
-        extra_columns: vec!["note".into(), "empty".into()],
-    };
+    let ds = Dataset { samples, extra_columns: vec!["note".into(), "empty".into()] };
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("rt.csv");
     ds.write(&path).unwrap();
@@ -352,16 +249,8 @@ fn round_trip_is_bit_exact() {
         ds.samples.iter().map(|s| &s.extra).collect::<Vec<_>>()
     );
     assert_eq!(back.content_hash(), ds.content_hash());
-    let header = std::fs::read_to_string(&path)
-        .unwrap()
-        .lines()
-        .next()
-        .unwrap()
-        .to_string();
-    assert_eq!(
-        header,
-        format!("{HEADER},cmd_alpha_deg,cmd_beta_deg,cmd_gamma_deg,gx,gy,gz,note,empty")
-    );
+    let header = std::fs::read_to_string(&path).unwrap().lines().next().unwrap().to_string();
+    assert_eq!(header, format!("{HEADER},cmd_alpha_deg,cmd_beta_deg,cmd_gamma_deg,gx,gy,gz,note,empty"));
 }
 
 #[test]
@@ -385,8 +274,5 @@ fn writer_refuses_what_it_could_not_read_back() {
     ds.samples[1].cmd_deg = None;
     ds.samples[1].pose[0] = 120.0;
     let e = ds.to_writer(Vec::new()).unwrap_err().to_string();
-    assert!(
-        e.contains("column alpha_deg") && e.contains("outside"),
-        "{e}"
-    );
+    assert!(e.contains("column alpha_deg") && e.contains("outside"), "{e}");
 }

@@ -83,13 +83,7 @@ impl Iterator for Stream<'_> {
 
 impl Board {
     fn stream(&self, seed: u64) -> Stream<'_> {
-        Stream {
-            board: self,
-            n: 0,
-            next_edge: [0; 3],
-            last_edge: [0; 3],
-            noise: seed | 1,
-        }
+        Stream { board: self, n: 0, next_edge: [0; 3], last_edge: [0; 3], noise: seed | 1 }
     }
 
     /// The home counts the decoder must report, given the counts of the deciding sample:
@@ -112,10 +106,7 @@ impl Board {
                 return Ok((home, h.travel_deg(), s.counts));
             }
         }
-        panic!(
-            "homing never decided for {self:?} (travel {:.3} deg)",
-            h.travel_deg()
-        );
+        panic!("homing never decided for {self:?} (travel {:.3} deg)", h.travel_deg());
     }
 
     fn check(&self, seed: u64) -> f64 {
@@ -144,11 +135,7 @@ fn sweep(starts: i64, tol: i64, seed: u64) -> f64 {
     for k in 0..starts {
         let t0 = deg_to_counts(k as f64 * 360.0 / starts as f64, 0);
         // Exact starts (on markers too) every 7th start, perturbed ones otherwise.
-        let d = if k % 7 == 0 {
-            [0; 3]
-        } else {
-            deviation(&mut rng, tol)
-        };
+        let d = if k % 7 == 0 { [0; 3] } else { deviation(&mut rng, tol) };
         let board = Board {
             start: d.map(|x| t0 + x),
             origin: [0; 3].map(|_| rng.gen_range(-1_000_000_000i64..1_000_000_000)),
@@ -208,14 +195,7 @@ fn stream(board: &Board, n: i64) -> Vec<HomingSample> {
 
 fn plain(start_deg: f64) -> Board {
     let t = deg_to_counts(start_deg, 0);
-    Board {
-        start: [t, t + 40, t - 30],
-        origin: [123_456, -7, 1 << 40],
-        step: 16,
-        noise: 1,
-        width: 16,
-        tol: TOL,
-    }
+    Board { start: [t, t + 40, t - 30], origin: [123_456, -7, 1 << 40], step: 16, noise: 1, width: 16, tol: TOL }
 }
 
 fn homing_err(r: abvs_eye::Result<HomeCounts>) -> String {
@@ -232,10 +212,7 @@ fn batch_homing_matches_the_board() {
     let home = home_from_stream(&s).unwrap();
     // Re-find the deciding sample to get the representative.
     let mut h = Homing::new();
-    let last = s
-        .iter()
-        .find(|x| matches!(h.push(**x).unwrap(), HomingStatus::Done(_)))
-        .unwrap();
+    let last = s.iter().find(|x| matches!(h.push(**x).unwrap(), HomingStatus::Done(_))).unwrap();
     assert_eq!(home, b.expected(last.counts));
     let th = home.theta_deg(last.counts);
     assert!(th.iter().all(|t| *t > -180.0 && *t <= 180.0));
@@ -248,10 +225,7 @@ fn stream_that_stops_early_is_ambiguous() {
     let b = plain(192.0);
     let s = stream(&b, deg_to_counts(165.0, 0) / b.step);
     let m = homing_err(home_from_stream(&s));
-    assert!(
-        m.contains("ambiguous") && m.contains("need more travel") && m.contains("link 2 at +157.9"),
-        "{m}"
-    );
+    assert!(m.contains("ambiguous") && m.contains("need more travel") && m.contains("link 2 at +157.9"), "{m}");
     // No pulse at all.
     let m = homing_err(home_from_stream(&s[..100]));
     assert!(m.contains("ambiguous: no index pulse after"), "{m}");
@@ -265,10 +239,7 @@ fn spurious_pulse_is_refused() {
     let k = deg_to_counts(55.0, 0) as usize / b.step as usize;
     s[k].index[0] = true;
     let m = homing_err(home_from_stream(&s));
-    assert!(
-        m.contains("link 1: index pulse at +54.9") && m.contains("no marker can be"),
-        "{m}"
-    );
+    assert!(m.contains("link 1: index pulse at +54.9") && m.contains("no marker can be"), "{m}");
 }
 
 #[test]
@@ -276,17 +247,11 @@ fn missing_pulse_is_refused() {
     // From 5 deg: drop link 1's pulse at 180 deg (the second of its own).
     let b = plain(5.0);
     let mut s = stream(&b, N / b.step);
-    for x in s
-        .iter_mut()
-        .skip(deg_to_counts(100.0, 0) as usize / b.step as usize)
-    {
+    for x in s.iter_mut().skip(deg_to_counts(100.0, 0) as usize / b.step as usize) {
         x.index[0] = false;
     }
     let m = homing_err(home_from_stream(&s));
-    assert!(
-        m.contains("no marker hypothesis fits") && m.contains("expected index pulse"),
-        "{m}"
-    );
+    assert!(m.contains("no marker hypothesis fits") && m.contains("expected index pulse"), "{m}");
 }
 
 #[test]
@@ -295,10 +260,7 @@ fn start_angles_too_far_apart_are_refused() {
     let mut b = plain(100.0);
     b.start[1] += deg_to_counts(30.0, 0);
     let m = homing_err(home_from_stream(&stream(&b, N / b.step)));
-    assert!(
-        m.contains("no marker hypothesis fits") || m.contains("no decision"),
-        "{m}"
-    );
+    assert!(m.contains("no marker hypothesis fits") || m.contains("no decision"), "{m}");
 }
 
 #[test]

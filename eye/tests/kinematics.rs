@@ -10,25 +10,16 @@ use nalgebra::{Matrix3, SMatrix, SVector, Vector3};
 #[test]
 fn fk_of_ik_is_identity_over_the_1deg_grid() {
     let g = SpmGeometry::nominal();
-    let spec = abvs_eye::sim::SimSpec {
-        commanded: abvs_eye::sim::Commanded::Step(1.0),
-        ..Default::default()
-    };
+    let spec = abvs_eye::sim::SimSpec { commanded: abvs_eye::sim::Commanded::Step(1.0), ..Default::default() };
     let poses = abvs_eye::sim::commanded_poses(&spec);
     assert_eq!(poses.len(), 115_351);
     let mut warm = Matrix3::identity();
     let mut worst: f64 = 0.0;
     for (k, p) in poses.iter().enumerate() {
         let r = Fick::from_deg(*p).to_matrix();
-        let th = g
-            .ik_checked(&r)
-            .unwrap_or_else(|e| panic!("IK at {p:?}: {e}"));
-        let sol = if k % 97 == 0 {
-            g.fk_cold(&th)
-        } else {
-            g.fk_from(&th, &warm)
-        }
-        .unwrap_or_else(|e| panic!("FK at {p:?}: {e}"));
+        let th = g.ik_checked(&r).unwrap_or_else(|e| panic!("IK at {p:?}: {e}"));
+        let sol = if k % 97 == 0 { g.fk_cold(&th) } else { g.fk_from(&th, &warm) }
+            .unwrap_or_else(|e| panic!("FK at {p:?}: {e}"));
         assert!(sol.residual < 1e-12);
         warm = sol.r;
         let back = Fick::from_matrix(&sol.r).to_deg();
@@ -47,8 +38,7 @@ fn equal_link_motion_is_pure_roll_over_a_full_turn() {
         let th = [t.to_radians(); 3];
         let sol = g.fk_from(&th, &warm).or_else(|_| g.fk_cold(&th)).unwrap();
         warm = sol.r;
-        let want =
-            nalgebra::Rotation3::from_axis_angle(&Vector3::z_axis(), t.to_radians()).into_inner();
+        let want = nalgebra::Rotation3::from_axis_angle(&Vector3::z_axis(), t.to_radians()).into_inner();
         assert!((sol.r - want).amax() < 1e-12, "roll {t}");
     }
 }
@@ -73,9 +63,7 @@ fn fk_by_platform_vectors(g: &SpmGeometry, theta: &[f64; 3]) -> Matrix3<f64> {
     x.fixed_rows_mut::<3>(3).copy_from(&v0[1]);
     let steps = 20;
     for s in 1..=steps {
-        let w: Vec<Vector3<f64>> = (0..3)
-            .map(|i| g.w(i, theta[i] * s as f64 / steps as f64))
-            .collect();
+        let w: Vec<Vector3<f64>> = (0..3).map(|i| g.w(i, theta[i] * s as f64 / steps as f64)).collect();
         let f = |x: &SVector<f64, 6>| {
             let (v1, v2, v3) = unpack(x);
             SVector::<f64, 6>::from_column_slice(&[
@@ -115,31 +103,12 @@ fn fk_by_platform_vectors(g: &SpmGeometry, theta: &[f64; 3]) -> Matrix3<f64> {
 #[test]
 fn fk_agrees_with_platform_vector_formulation() {
     let perturbed = SpmGeometry::from_params(&[
-        LegParams {
-            d1_deg: 60.4,
-            axis_tilt_deg: [0.2, -0.1],
-            platform_axis_deg: [0.3, -0.2],
-            ..LegParams::nominal(0)
-        },
-        LegParams {
-            d2_deg: 89.6,
-            ..LegParams::nominal(1)
-        },
-        LegParams {
-            d1_deg: 59.7,
-            d2_deg: 90.3,
-            axis_tilt_deg: [-0.1, 0.15],
-            ..LegParams::nominal(2)
-        },
+        LegParams { d1_deg: 60.4, axis_tilt_deg: [0.2, -0.1], platform_axis_deg: [0.3, -0.2], ..LegParams::nominal(0) },
+        LegParams { d2_deg: 89.6, ..LegParams::nominal(1) },
+        LegParams { d1_deg: 59.7, d2_deg: 90.3, axis_tilt_deg: [-0.1, 0.15], ..LegParams::nominal(2) },
     ]);
     for g in [SpmGeometry::nominal(), perturbed] {
-        for p in [
-            [0.0, 0.0, 0.0],
-            [30.0, 15.0, 30.0],
-            [-30.0, -15.0, -30.0],
-            [12.0, -7.0, -26.0],
-            [-25.0, 9.0, 18.0],
-        ] {
+        for p in [[0.0, 0.0, 0.0], [30.0, 15.0, 30.0], [-30.0, -15.0, -30.0], [12.0, -7.0, -26.0], [-25.0, 9.0, 18.0]] {
             let th = g.ik(&Fick::from_deg(p).to_matrix()).unwrap();
             let a = g.fk_cold(&th).unwrap().r;
             let b = fk_by_platform_vectors(&g, &th);

@@ -42,9 +42,7 @@ pub fn candidates() -> Vec<PathBuf> {
     for d in ["/usr/local/lib", "/usr/lib/x86_64-linux-gnu", "/usr/lib"] {
         dirs.push(PathBuf::from(d));
     }
-    dirs.iter()
-        .flat_map(|d| NAMES.iter().map(move |n| d.join(n)))
-        .collect()
+    dirs.iter().flat_map(|d| NAMES.iter().map(move |n| d.join(n))).collect()
 }
 
 /// Where the library is, following the search order.
@@ -52,24 +50,13 @@ pub fn find_library() -> Result<PathBuf> {
     for var in ["ABVS_ORT_DYLIB", "ORT_DYLIB_PATH"] {
         if let Some(v) = std::env::var_os(var).filter(|v| !v.is_empty()) {
             let p = PathBuf::from(v);
-            return if p.is_file() {
-                Ok(p)
-            } else {
-                Err(OnnxError::BadVariable { var, path: p })
-            };
+            return if p.is_file() { Ok(p) } else { Err(OnnxError::BadVariable { var, path: p }) };
         }
     }
     let c = candidates();
-    c.iter()
-        .find(|p| p.is_file())
-        .cloned()
-        .ok_or_else(|| OnnxError::NotFound {
-            searched: c
-                .iter()
-                .map(|p| p.display().to_string())
-                .collect::<Vec<_>>()
-                .join(", "),
-        })
+    c.iter().find(|p| p.is_file()).cloned().ok_or_else(|| OnnxError::NotFound {
+        searched: c.iter().map(|p| p.display().to_string()).collect::<Vec<_>>().join(", "),
+    })
 }
 
 /// What was loaded.
@@ -87,44 +74,24 @@ static RUNTIME: OnceLock<std::result::Result<RuntimeInfo, String>> = OnceLock::n
 pub fn init() -> Result<&'static RuntimeInfo> {
     let r = RUNTIME.get_or_init(|| {
         let path = find_library().map_err(|e| e.to_string())?;
-        let builder =
-            ort::init_from(&path).map_err(|e| format!("loading {}: {e}", path.display()))?;
-        let env = builder
-            .with_name("abvs")
-            .build()
-            .map_err(|e| format!("creating the environment: {e}"))?;
-        Ok(RuntimeInfo {
-            build_info: ort::info().to_string(),
-            path,
-            env,
-        })
+        let builder = ort::init_from(&path).map_err(|e| format!("loading {}: {e}", path.display()))?;
+        let env = builder.with_name("abvs").build().map_err(|e| format!("creating the environment: {e}"))?;
+        Ok(RuntimeInfo { build_info: ort::info().to_string(), path, env })
     });
-    r.as_ref().map_err(|msg| OnnxError::Load {
-        path: PathBuf::from("(search order)"),
-        msg: msg.clone(),
-    })
+    r.as_ref().map_err(|msg| OnnxError::Load { path: PathBuf::from("(search order)"), msg: msg.clone() })
 }
 
 /// Opens a model with `threads` intra-op threads (runtime init included).
 pub fn session(path: &Path, threads: usize) -> Result<ort::session::Session> {
     let rt = init()?;
-    let err = |e: ort::Error| OnnxError::Model {
-        path: path.to_path_buf(),
-        msg: e.to_string(),
-    };
+    let err = |e: ort::Error| OnnxError::Model { path: path.to_path_buf(), msg: e.to_string() };
     if !path.is_file() {
-        return Err(OnnxError::Model {
-            path: path.to_path_buf(),
-            msg: "no such file".into(),
-        });
+        return Err(OnnxError::Model { path: path.to_path_buf(), msg: "no such file".into() });
     }
     ort::session::Session::builder(&rt.env)
         .map_err(err)?
         .with_intra_threads(threads)
-        .map_err(|e| OnnxError::Model {
-            path: path.to_path_buf(),
-            msg: e.to_string(),
-        })?
+        .map_err(|e| OnnxError::Model { path: path.to_path_buf(), msg: e.to_string() })?
         .commit_from_file(path)
         .map_err(err)
 }
@@ -137,11 +104,7 @@ mod tests {
     fn finds_and_loads_the_installed_runtime() {
         let info = init().expect("ONNX Runtime installed by scripts/setup.sh");
         assert!(info.path.is_file());
-        assert!(
-            info.build_info.starts_with("ORT Build Info"),
-            "{}",
-            info.build_info
-        );
+        assert!(info.build_info.starts_with("ORT Build Info"), "{}", info.build_info);
         // The loaded library answers real API calls: the runtime is usable, not just found.
         let ok = ort::session::Session::builder(&info.env).is_ok();
         assert!(ok);
@@ -149,9 +112,7 @@ mod tests {
 
     #[test]
     fn missing_model_is_a_clear_error() {
-        let e = session(Path::new("/nonexistent/model.onnx"), 1)
-            .unwrap_err()
-            .to_string();
+        let e = session(Path::new("/nonexistent/model.onnx"), 1).unwrap_err().to_string();
         assert!(e.contains("/nonexistent/model.onnx"), "{e}");
     }
 }

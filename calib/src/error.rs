@@ -1,0 +1,38 @@
+//! The calibration crate's error type.
+use std::path::PathBuf;
+
+#[derive(Debug, thiserror::Error)]
+pub enum CalibError {
+    #[error(transparent)]
+    Eye(#[from] abvs_eye::EyeError),
+    #[error(transparent)]
+    Onnx(#[from] abvs_onnx::OnnxError),
+    /// Training / fitting data unusable (too few samples, NaN, ...).
+    #[error("data: {0}")]
+    Data(String),
+    /// A model directory, manifest or network file is missing or malformed.
+    #[error("model {}: {msg}", path.display())]
+    Model { path: PathBuf, msg: String },
+    /// Model and data do not fit together (wrong inputs/outputs, other unit, ...).
+    #[error("mismatch: {0}")]
+    Mismatch(String),
+    #[error("{}: {source}", path.display())]
+    Io {
+        path: PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error("invalid argument: {0}")]
+    Invalid(String),
+}
+
+pub type Result<T> = std::result::Result<T, CalibError>;
+
+impl CalibError {
+    pub fn model(path: impl Into<PathBuf>, msg: impl Into<String>) -> Self {
+        CalibError::Model { path: path.into(), msg: msg.into() }
+    }
+    pub fn io(path: impl Into<PathBuf>, source: std::io::Error) -> Self {
+        CalibError::Io { path: path.into(), source }
+    }
+}

@@ -1,0 +1,370 @@
+//! Identification of a unit's physical parameters from a dataset: weighted Levenberg-Marquardt
+//! on the unit model of abvs-eye (the same model the simulator runs), with an identifiability
+//! check. Used by `mh` (camera_mount only), `hybrid` (all static effects) and the discrepancy
+//! workflow.
+//!
+//! Residual of a sample: the rotation vector of `R_pred^T R_meas` (deg) and `t_meas - t_pred`
+//! (mm), weighted by `1 / sigma_rot` and `1 / sigma_trans` so both count in units of noise.
+//!
+//! Identifiability: a parameter is fitted only if the data determine it: its standard error
+//! (from the Gauss-Newton covariance at the noise level) must be below `ident_ratio` times its
+//! typical size (effects.md). Parameters failing that are held at their starting values and
+//! reported with the parameters they are confounded with, worst first, one at a time.
+use crate::error::{CalibError, Result};
+use abvs_eye::dataset::Dataset;
+use abvs_eye::pose::rotation_vector;
+use abvs_eye::unit::{Effect, UnitModel};
+use abvs_eye::Pose;
+use nalgebra::{DMatrix, DVector};
+
+/// One free scalar: an effect and the index into its parameter vector.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Param {
+    pub effect: Effect,
+    pub index: usize,
+}
+
+impl Param {
+    pub fn name(&self) -> String {
+        format!("{}.{}", self.effect.name(), self.effect.param_names()[self.index])
+    }
+    /// Typical size in the parameter's unit (effects.md ranges): sets the finite-difference
+    /// step and the identifiability yardstick.
+    pub fn scale(&self) -> f64 {
+        match self.effect {
+            Effect::EncoderZeroOffset => 0.5,
+            Effect::LinkAngleError => 0.3,
+            Effect::InputAxisTilt => 0.2,
+            Effect::PlatformAxisError => 0.3,
+            Effect::CameraMount => {
+                if self.index < 3 {
+                    2.0
+                } else {
+                    5.0
+                }
+            }
+            Effect::CodeWheelEccentricity => 20.0,
+            Effect::EncoderScale => 5e-4,
+            Effect::HingeBacklash => 0.05,
+            Effect::GravitySag => 0.05,
+            Effect::EncoderTimeOffset => 2.0,
+            Effect::MeasurementNoise => 0.01,
+        }
+    }
+}
+
+/// All scalar parameters of the given effects.
+pub fn params_of(effects: &[Effect]) -> Vec<Param> {
+    effects.iter().flat_map(|&e| (0..e.param_names().len()).map(move |index| Param { effect: e, index })).collect()
+}
+
+fn get(unit: &UnitModel, ps: &[Param]) -> Vec<f64> {
+    ps.iter().map(|p| unit.params(p.effect)[p.index]).collect()
+}
+
+fn set(unit: &mut UnitModel, ps: &[Param], x: &[f64]) {
+    for (p, v) in ps.iter().zip(x) {
+        let mut cur = unit.params(p.effect);
+        // Clearance cannot be negative: project onto the feasible set.
+        cur[p.index] = if p.effect == Effect::HingeBacklash { v.max(0.0) } else { *v };
+        unit.set_params(p.effect, &cur).expect("length from param_names");
+    }
+}
+
+/// Options of [`fit_unit`].
+#[derive(Debug, Clone)]
+pub struct FitOptions {
+    /// Expected 1-sigma noise per axis, used as residual weights (deg, mm).
+    pub sigma_rot_deg: f64,
+    pub sigma_trans_mm: f64,
+    pub max_iter: usize,
+    /// A parameter whose standard error exceeds this fraction of its typical size is held.
+    pub ident_ratio: f64,
+    /// Skip the identifiability check (fit everything asked for).
+    pub fit_all: bool,
+    /// Samples that enter the cost (None: all). Predictions always run over the whole dataset
+    /// in acquisition order, so held-out samples still shape the motion history.
+    pub mask: Option<Vec<bool>>,
+}
+
+impl Default for FitOptions {
+    fn default() -> Self {
+        FitOptions {
+            sigma_rot_deg: 0.01,
+            sigma_trans_mm: 0.05,
+            max_iter: 40,
+            ident_ratio: 0.3,
+            fit_all: false,
+            mask: None,
+        }
+    }
+}
+
+/// A parameter that was not fitted, and why.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct Held {
+    pub name: String,
+    pub value: f64,
+    pub std_error: f64,
+    pub confounded_with: Vec<String>,
+}
+
+#[derive(Debug, Clone)]
+pub struct FitResult {
+    pub unit: UnitModel,
+    pub free: Vec<Param>,
+    /// Standard errors of the free parameters (same order), in their units.
+    pub std_error: Vec<f64>,
+    pub held: Vec<Held>,
+    pub rms_rot_deg: f64,
+    pub rms_trans_mm: f64,
+    pub iterations: usize,
+}
+
+/// Per-sample residuals (rotation vector deg, translation mm) of a unit on a dataset.
+pub fn residuals(unit: &UnitModel, data: &Dataset) -> Result<Vec<[f64; 6]>> {
+    let pred = unit.compile()?.predict_dataset(data)?;
+    Ok(pred.iter().zip(&data.samples).map(|(p, s)| residual6(p, &s.pose)).collect())
+}
+
+/// Residual between a predicted and a measured P: rotation vector of R_pred^T R_meas (deg)
+/// and t_meas - t_pred (mm).
+pub fn residual6(pred: &[f64; 6], meas: &[f64; 6]) -> [f64; 6] {
+    let (a, b) = (Pose::from_p6(pred), Pose::from_p6(meas));
+    let w = rotation_vector(&(a.r.transpose() * b.r)).map(f64::to_degrees);
+    let d = b.t - a.t;
+    [w.x, w.y, w.z, d.x, d.y, d.z]
+}
+
+/// RMS of the rotation-vector norm (deg) and of the translation norm (mm).
+pub fn rms(res: &[[f64; 6]]) -> (f64, f64) {
+    let n = res.len().max(1) as f64;
+    let r = res.iter().map(|e| e[0] * e[0] + e[1] * e[1] + e[2] * e[2]).sum::<f64>() / n;
+    let t = res.iter().map(|e| e[3] * e[3] + e[4] * e[4] + e[5] * e[5]).sum::<f64>() / n;
+    (r.sqrt(), t.sqrt())
+}
+
+struct Problem<'a> {
+    base: UnitModel,
+    free: Vec<Param>,
+    data: &'a Dataset,
+    w: [f64; 2],
+    mask: Option<&'a [bool]>,
+}
+
+impl Problem<'_> {
+    fn unit_at(&self, x: &[f64]) -> UnitModel {
+        let mut u = self.base.clone();
+        set(&mut u, &self.free, x);
+        u
+    }
+
+    fn resid(&self, x: &[f64]) -> Result<DVector<f64>> {
+        let mut r = residuals(&self.unit_at(x), self.data)?;
+        if let Some(m) = self.mask {
+            r = r.into_iter().zip(m).filter(|(_, &k)| k).map(|(e, _)| e).collect();
+        }
+        let mut v = DVector::zeros(r.len() * 6);
+        for (i, e) in r.iter().enumerate() {
+            for k in 0..6 {
+                v[6 * i + k] = e[k] * if k < 3 { self.w[0] } else { self.w[1] };
+            }
+        }
+        Ok(v)
+    }
+
+    /// Forward-difference Jacobian, the parameters split over two threads.
+    fn jacobian(&self, x: &[f64], r0: &DVector<f64>) -> Result<DMatrix<f64>> {
+        let n = self.free.len();
+        let cols: Vec<Result<DVector<f64>>> = std::thread::scope(|s| {
+            let handles: Vec<_> = (0..2)
+                .map(|t| {
+                    s.spawn(move || {
+                        (0..n)
+                            .filter(|j| j % 2 == t)
+                            .map(|j| {
+                                let h = 1e-3 * self.free[j].scale();
+                                let mut xp = x.to_vec();
+                                xp[j] += h;
+                                self.resid(&xp).map(|rp| (j, (rp - r0) / h))
+                            })
+                            .collect::<Vec<_>>()
+                    })
+                })
+                .collect();
+            let mut out: Vec<Option<Result<DVector<f64>>>> = (0..n).map(|_| None).collect();
+            for h in handles {
+                for item in h.join().expect("jacobian thread") {
+                    match item {
+                        Ok((j, c)) => out[j] = Some(Ok(c)),
+                        Err(e) => return vec![Err(e)],
+                    }
+                }
+            }
+            out.into_iter().map(|c| c.expect("every column")).collect()
+        });
+        let mut j = DMatrix::zeros(r0.len(), n);
+        for (k, c) in cols.into_iter().enumerate() {
+            j.set_column(k, &c?);
+        }
+        Ok(j)
+    }
+}
+
+/// Standard errors (in units of noise-weighted residuals) of all columns of J.
+fn std_errors(j: &DMatrix<f64>) -> Option<(DVector<f64>, DMatrix<f64>)> {
+    let jtj = j.transpose() * j;
+    let cov = jtj.clone().pseudo_inverse(1e-14 * jtj.diagonal().max()).ok()?;
+    Some((cov.diagonal().map(|v| v.max(0.0).sqrt()), cov))
+}
+
+/// Fits the parameters of `effects` (switched on if they are not) starting from `start`.
+pub fn fit_unit(start: &UnitModel, effects: &[Effect], data: &Dataset, opts: &FitOptions) -> Result<FitResult> {
+    fit_params(start, &params_of(effects), data, opts)
+}
+
+/// Fits the given scalar parameters (their effects switched on) starting from `start`; the
+/// other parameters stay as they are in `start`.
+pub fn fit_params(start: &UnitModel, params: &[Param], data: &Dataset, opts: &FitOptions) -> Result<FitResult> {
+    if data.is_empty() {
+        return Err(CalibError::Data("no samples to fit".into()));
+    }
+    let mut base = start.clone();
+    for p in params {
+        if !p.effect.is_kinematic() {
+            return Err(CalibError::Invalid(format!("{} cannot be fitted from a static dataset", p.effect)));
+        }
+        base.set_enabled(p.effect, true);
+    }
+    let all = params.to_vec();
+    let w = [1.0 / opts.sigma_rot_deg, 1.0 / opts.sigma_trans_mm];
+    if let Some(m) = &opts.mask {
+        if m.len() != data.len() {
+            return Err(CalibError::Invalid(format!("mask of {} for {} samples", m.len(), data.len())));
+        }
+    }
+    let mut prob = Problem { base: base.clone(), free: all.clone(), data, w, mask: opts.mask.as_deref() };
+    let mut held = Vec::new();
+
+    // Identifiability at the starting point, worst parameter out first.
+    if !opts.fit_all && !prob.free.is_empty() {
+        let x0 = get(&base, &prob.free);
+        let r0 = prob.resid(&x0)?;
+        let mut jac = prob.jacobian(&x0, &r0)?;
+        while let Some((se, cov)) = std_errors(&jac) {
+            let (worst, ratio) = (0..prob.free.len())
+                .map(|k| (k, se[k] / prob.free[k].scale()))
+                .fold((0, 0.0), |a, b| if b.1 > a.1 { b } else { a });
+            if ratio <= opts.ident_ratio || prob.free.len() <= 1 && ratio.is_finite() {
+                break;
+            }
+            // The parameters most correlated with it explain why it cannot be separated.
+            let mut corr: Vec<(usize, f64)> = (0..prob.free.len())
+                .filter(|&k| k != worst)
+                .map(|k| (k, (cov[(worst, k)] / (se[worst] * se[k]).max(1e-300)).abs()))
+                .collect();
+            corr.sort_by(|a, b| b.1.total_cmp(&a.1));
+            let p = prob.free[worst];
+            held.push(Held {
+                name: p.name(),
+                value: x0[all.iter().position(|q| *q == p).unwrap()],
+                std_error: se[worst],
+                confounded_with: corr.iter().take(3).filter(|c| c.1 > 0.5).map(|c| prob.free[c.0].name()).collect(),
+            });
+            prob.free.remove(worst);
+            jac = jac.remove_column(worst);
+            if prob.free.is_empty() {
+                break;
+            }
+        }
+    }
+
+    // Levenberg-Marquardt (Marquardt's diagonal scaling).
+    let mut x = get(&base, &prob.free);
+    let mut r = prob.resid(&x)?;
+    let mut cost = r.norm_squared();
+    let mut lambda = 1e-3;
+    let mut iterations = 0;
+    let mut jac = DMatrix::zeros(r.len(), prob.free.len());
+    for it in 0..opts.max_iter {
+        if prob.free.is_empty() {
+            break;
+        }
+        iterations = it + 1;
+        jac = prob.jacobian(&x, &r)?;
+        let jtj = jac.transpose() * &jac;
+        let g = jac.transpose() * &r;
+        let mut improved = false;
+        for _ in 0..10 {
+            let mut a = jtj.clone();
+            for k in 0..a.nrows() {
+                a[(k, k)] += lambda * jtj[(k, k)].max(1e-12);
+            }
+            let Some(step) = a.cholesky().map(|c| c.solve(&(-&g))) else {
+                lambda *= 10.0;
+                continue;
+            };
+            let xn: Vec<f64> = x.iter().zip(step.iter()).map(|(a, b)| a + b).collect();
+            let rn = match prob.resid(&xn) {
+                Ok(v) => v,
+                Err(_) => {
+                    lambda *= 10.0; // left the valid region (e.g. near-singular): shorter step
+                    continue;
+                }
+            };
+            let cn = rn.norm_squared();
+            if cn < cost {
+                let rel = (cost - cn) / cost.max(1e-300);
+                x = xn;
+                r = rn;
+                cost = cn;
+                lambda = (lambda / 10.0).max(1e-12);
+                improved = true;
+                if rel < 1e-12 {
+                    improved = false;
+                }
+                break;
+            }
+            lambda *= 10.0;
+        }
+        if !improved {
+            break;
+        }
+    }
+    let unit = prob.unit_at(&x);
+    // Standard errors at the solution, scaled by the achieved residual level.
+    let dof = (r.len() as f64 - x.len() as f64).max(1.0);
+    let s2 = cost / dof;
+    let std_error = if x.is_empty() {
+        vec![]
+    } else {
+        std_errors(&jac).map(|(se, _)| se.iter().map(|v| v * s2.sqrt()).collect()).unwrap_or_default()
+    };
+    let mut res = residuals(&unit, data)?;
+    if let Some(m) = &opts.mask {
+        res = res.into_iter().zip(m).filter(|(_, &k)| k).map(|(e, _)| e).collect();
+    }
+    let (rms_rot_deg, rms_trans_mm) = rms(&res);
+    Ok(FitResult { unit, free: prob.free, std_error, held, rms_rot_deg, rms_trans_mm, iterations })
+}
+
+/// The noise-weighted residual vector r (6 per sample: rotation / sigma_rot, translation /
+/// sigma_trans) of `unit` and its Jacobian with respect to `params` (finite differences).
+pub fn weighted_jacobian(
+    unit: &UnitModel,
+    params: &[Param],
+    data: &Dataset,
+    sigma: (f64, f64),
+) -> Result<(DMatrix<f64>, DVector<f64>)> {
+    let prob =
+        Problem { base: unit.clone(), free: params.to_vec(), data, w: [1.0 / sigma.0, 1.0 / sigma.1], mask: None };
+    let x = get(unit, params);
+    let r = prob.resid(&x)?;
+    let j = prob.jacobian(&x, &r)?;
+    Ok((j, r))
+}
+
+/// Effects a static dataset can reveal (everything kinematic).
+pub fn static_effects() -> Vec<Effect> {
+    Effect::ALL.into_iter().filter(|e| e.is_kinematic()).collect()
+}

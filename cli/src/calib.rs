@@ -1,0 +1,194 @@
+//! `abvs calib`: fit, fine-tune, evaluate and apply calibrated forward kinematics.
+use crate::table::{map_rows, GravityCols, Table};
+use abvs_calib::methods::{self, FitConfig, Method};
+use abvs_calib::metrics::evaluate;
+use abvs_calib::model::{save_model, FkModel};
+use abvs_calib::mpe::Target;
+use abvs_eye::dataset::Dataset;
+use clap::{Args, Subcommand};
+use indicatif::ProgressBar;
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+#[derive(Subcommand)]
+pub enum CalibCmd {
+    /// Fit a model from scratch: mh, m1, m2 or hybrid.
+    Fit(FitArgs),
+    /// Fine-tune a model of another unit: m1f, m2f, m4f, mh or hybrid.
+    Finetune(FinetuneArgs),
+    /// Error statistics of a model on a dataset (the paper's table layout).
+    Eval(EvalArgs),
+    /// Predicted poses for the theta columns of a CSV.
+    Predict(PredictArgs),
+    /// Regenerate the paper's experiments on simulated units (report.md + PNG).
+    Paper(crate::paper::PaperArgs),
+    /// Find where the model and the measurements disagree, name the missing effect, add it.
+    Explain(crate::explain::ExplainArgs),
+}
+
+#[derive(Args)]
+pub struct Common {
+    #[arg(long)]
+    method: String,
+    #[arg(long)]
+    train: PathBuf,
+    #[arg(long)]
+    val: Option<PathBuf>,
+    #[arg(long)]
+    out: PathBuf,
+    #[arg(long, default_value_t = 1000)]
+    max_epochs: usize,
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// Hidden width of the networks.
+    #[arg(long, default_value_t = 64)]
+    hidden: usize,
+    /// Adam learning rate (the paper: 1e-4).
+    #[arg(long, default_value_t = 1e-4)]
+    lr: f64,
+}
+
+#[derive(Args)]
+pub struct FitArgs {
+    #[command(flatten)]
+    c: Common,
+}
+
+#[derive(Args)]
+pub struct FinetuneArgs {
+    #[arg(long)]
+    base: PathBuf,
+    #[command(flatten)]
+    c: Common,
+}
+
+#[derive(Args)]
+pub struct EvalArgs {
+    #[arg(long)]
+    model: PathBuf,
+    #[arg(long)]
+    data: PathBuf,
+    #[arg(long)]
+    json: bool,
+}
+
+#[derive(Args)]
+pub struct PredictArgs {
+    #[arg(long)]
+    model: PathBuf,
+    #[arg(long = "in")]
+    input: PathBuf,
+    #[arg(long)]
+    out: PathBuf,
+}
+
+/// One progress bar per stage of training.
+struct Bars {
+    stage: String,
+    bar: Option<ProgressBar>,
+}
+
+impl Bars {
+    fn update(&mut self, what: &str, step: usize, total: usize, a: f64, b: f64) {
+        if self.stage != what {
+            if let Some(b) = self.bar.take() {
+                b.finish();
+            }
+            self.stage = what.to_string();
+            self.bar = Some(crate::progress_bar(total as u64, what));
+        }
+        if let Some(bar) = &self.bar {
+            bar.set_length(total as u64);
+            bar.set_position(step as u64);
+            if a.is_finite() {
+                bar.set_message(format!("{what} {a:.4} / {b:.4}"));
+            }
+        }
+    }
+    fn done(&mut self) {
+        if let Some(b) = self.bar.take() {
+            b.finish();
+        }
+    }
+}
+
+fn cfg(c: &Common) -> FitConfig {
+    FitConfig { max_epochs: c.max_epochs, seed: c.seed, hidden: c.hidden, lr: c.lr, ..FitConfig::default() }
+}
+
+fn report(parts: &abvs_calib::model::ModelParts, c: &Common) -> anyhow::Result<ExitCode> {
+    save_model(&c.out, parts)?;
+    let m = &parts.manifest;
+    eprintln!(
+        "wrote {} ({}; {} training samples, {} validation; {:.1} s)",
+        c.out.display(),
+        m.method,
+        m.training.samples,
+        m.training.val_samples,
+        m.training.seconds
+    );
+    for h in &m.held_parameters {
+        eprintln!("held (not identifiable from these data): {h}");
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+pub fn run(cmd: CalibCmd) -> anyhow::Result<ExitCode> {
+    match cmd {
+        CalibCmd::Paper(a) => crate::paper::run(a),
+        CalibCmd::Fit(FitArgs { c }) => {
+            let method = Method::parse(&c.method)?;
+            let train = Dataset::read(&c.train)?;
+            let val = c.val.as_ref().map(|p| Dataset::read(p)).transpose()?;
+            let mut bars = Bars { stage: String::new(), bar: None };
+            let parts =
+                methods::fit(method, &train, val.as_ref(), &cfg(&c), &mut |w, s, t, a, b| bars.update(w, s, t, a, b))?;
+            bars.done();
+            report(&parts, &c)
+        }
+        CalibCmd::Finetune(FinetuneArgs { base, c }) => {
+            let method = Method::parse(&c.method)?;
+            let base = FkModel::load(&base)?;
+            let train = Dataset::read(&c.train)?;
+            let val = c.val.as_ref().map(|p| Dataset::read(p)).transpose()?;
+            let mut bars = Bars { stage: String::new(), bar: None };
+            let parts = methods::finetune(method, &base, &train, val.as_ref(), &cfg(&c), &mut |w, s, t, a, b| {
+                bars.update(w, s, t, a, b)
+            })?;
+            bars.done();
+            report(&parts, &c)
+        }
+        CalibCmd::Eval(a) => {
+            let model = FkModel::load(&a.model)?;
+            let data = Dataset::read(&a.data)?;
+            let pred = model.predict_dataset(&data)?;
+            let meas: Vec<[f64; 6]> = data.samples.iter().map(|s| s.pose).collect();
+            let r = evaluate(&pred, &meas, &Target::paper());
+            if a.json {
+                println!("{}", serde_json::to_string(&r)?);
+            } else {
+                println!("model {} ({}) on {}", a.model.display(), model.method(), a.data.display());
+                print!("{}", r.table());
+            }
+            Ok(ExitCode::SUCCESS)
+        }
+        CalibCmd::Explain(a) => crate::explain::run(a),
+        CalibCmd::Predict(a) => {
+            let model = FkModel::load(&a.model)?;
+            let mut st = model.state();
+            let t = Table::read(&a.input)?;
+            let g = GravityCols::find(&t);
+            map_rows(
+                t,
+                &a.input,
+                &a.out,
+                &["theta1_deg", "theta2_deg", "theta3_deg"],
+                &["alpha_deg", "beta_deg", "gamma_deg", "x_mm", "y_mm", "z_mm"],
+                |v, line, row| {
+                    let gr = g.of(&a.input, line, row)?;
+                    model.eval(&mut st, &[v[0], v[1], v[2]], gr).map(|p| p.to_vec()).map_err(|e| e.to_string())
+                },
+            )
+        }
+    }
+}
