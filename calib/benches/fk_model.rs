@@ -59,12 +59,19 @@ fn training(c: &mut Criterion) {
     let mut g = c.benchmark_group("training");
     g.sample_size(10);
     let full = FitConfig::default();
-    g.bench_function("train_m2_4851_1000_epochs", |b| b.iter(|| fit(Method::M2, &c0, None, &full, &mut quiet()).unwrap()));
+    g.bench_function("train_m2_4851_1000_epochs", |b| {
+        b.iter(|| fit(Method::M2, &c0, None, &full, &mut quiet()).unwrap())
+    });
     let dir = tempfile::tempdir().unwrap();
-    save_model(dir.path(), &fit(Method::M2, &c0, None, &FitConfig { max_epochs: 50, ..full.clone() }, &mut quiet()).unwrap())
-        .unwrap();
+    save_model(
+        dir.path(),
+        &fit(Method::M2, &c0, None, &FitConfig { max_epochs: 50, ..full.clone() }, &mut quiet()).unwrap(),
+    )
+    .unwrap();
     let base = FkModel::load(dir.path()).unwrap();
-    g.bench_function("finetune_m4f_343", |b| b.iter(|| finetune(Method::M4f, &base, &c1, None, &full, &mut quiet()).unwrap()));
+    g.bench_function("finetune_m4f_343", |b| {
+        b.iter(|| finetune(Method::M4f, &base, &c1, None, &full, &mut quiet()).unwrap())
+    });
     g.bench_function("fit_hybrid_343", |b| b.iter(|| fit(Method::Hybrid, &c1, None, &full, &mut quiet()).unwrap()));
     g.finish();
 }

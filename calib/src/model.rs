@@ -196,11 +196,19 @@ fn check_ort_io(s: &ort::session::Session, path: &Path) -> Result<()> {
 // One model per eye and process: the size difference between variants does not matter.
 #[allow(clippy::large_enum_variant)]
 enum Kind {
-    Physics { fk: UnitFk, residual: Option<NetRunner> },
+    Physics {
+        fk: UnitFk,
+        residual: Option<NetRunner>,
+    },
     Net(NetRunner),
     /// `margin`: bound on |first-order S - exact S| over the workspace; only samples that close
     /// to the threshold pay for the exact (finite-step) S.
-    Split { internal: NetRunner, external: NetRunner, split: PscSplit, margin: f64 },
+    Split {
+        internal: NetRunner,
+        external: NetRunner,
+        split: PscSplit,
+        margin: f64,
+    },
 }
 
 /// Per-stream state of an evaluation: the motion history (backlash) and warm starts.

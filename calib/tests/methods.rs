@@ -127,7 +127,8 @@ fn bad_inputs_are_clear_errors() {
     net.trunk[0].w = vec![0.0; net.trunk[0].n_out * 4];
     net.input_norm.mean.push(0.0);
     net.input_norm.std.push(1.0);
-    let r = save_model(&dir.path().join("wrong"), &wrong).and_then(|_| FkModel::load(&dir.path().join("wrong")).map(|_| ()));
+    let r = save_model(&dir.path().join("wrong"), &wrong)
+        .and_then(|_| FkModel::load(&dir.path().join("wrong")).map(|_| ()));
     let e = r.err().expect("a 4-input network must be refused").to_string();
     assert!(e.contains('3') && e.contains('4'), "{e}");
 }

@@ -103,17 +103,26 @@ pub fn run(a: DemoArgs) -> anyhow::Result<ExitCode> {
         })
         .collect();
     let dev_png = a.out.join("nominal_error_heatmap.png");
-    crate::plot::heatmap_max(&dev, a.step_deg, &dev_png, "nominal-vs-measured rotation error")?;
+    crate::plot::workspace_heatmap(
+        &dev_png,
+        "nominal kinematics vs measured (max over roll)",
+        "rotation error, deg",
+        &dev,
+        a.step_deg,
+        abvs_plot::Reduce::Max,
+    )?;
 
     let t1 = Instant::now();
     let map = psc_map(&SpmGeometry::nominal(), a.step_deg);
     let s: Vec<f64> = map.iter().map(|p| p.s).collect();
     let psc_png = a.out.join("psc_heatmap.png");
-    crate::plot::heatmap_max(
+    crate::plot::workspace_heatmap(
+        &psc_png,
+        "pose sensitivity coefficient (max over roll)",
+        "S, rad/deg",
         &map.iter().map(|p| (p.fick_deg[0], p.fick_deg[2], p.s)).collect::<Vec<_>>(),
         a.step_deg,
-        &psc_png,
-        "PSC",
+        abvs_plot::Reduce::Max,
     )?;
     println!(
         "\nPSC over {} poses ({:.2} s): min {:.4}, median {:.4}, max {:.4} rad/deg",

@@ -4,7 +4,7 @@
 use abvs_calib::explain::{explaining_variable, ExplainResult};
 use abvs_eye::dataset::Dataset;
 use abvs_eye::unit::{Effect, MotionHistory};
-use abvs_plot::{grid_cells, heatmap, side_by_side, xy_plot, Heatmap, Reduce, Series, SeriesStyle, XyPlot};
+use abvs_plot::{heatmap, side_by_side, xy_plot, Heatmap, Reduce, Series, SeriesStyle, XyPlot};
 use std::path::Path;
 
 fn rot_norm(r: &[f64; 6]) -> f64 {
@@ -24,18 +24,8 @@ fn cell_step(ag: &[(f64, f64)]) -> f64 {
 }
 
 fn map<'a>(title: &'a str, ag: &[(f64, f64)], res: &[[f64; 6]], step: f64) -> Heatmap<'a> {
-    let pts: Vec<(f64, f64, f64)> = ag.iter().zip(res).map(|(p, r)| (p.1, p.0, rot_norm(r))).collect();
-    let (x, y, values) = grid_cells(&pts, step, Reduce::Mean);
-    Heatmap {
-        title,
-        x_label: "gamma (yaw), deg",
-        y_label: "alpha (pitch), deg",
-        colorbar_label: "held-out rotation residual, deg",
-        x,
-        y,
-        values,
-        range: None,
-    }
+    let pts: Vec<(f64, f64, f64)> = ag.iter().zip(res).map(|(p, r)| (p.0, p.1, rot_norm(r))).collect();
+    crate::plot::workspace_map(title, "held-out rotation residual, deg (mean over roll)", &pts, step, Reduce::Mean)
 }
 
 /// The variable a step's effect depends on, per sample, with its axis label.
@@ -48,7 +38,7 @@ fn variable(e: Effect, data: &Dataset, params: &[f64]) -> (Vec<f64>, String) {
         Effect::HingeBacklash => {
             let mut h = MotionHistory::new();
             let v =
-                data.samples.iter().map(|s| h.update(&s.theta_deg)[link] * 0.5 + s.theta_deg[link] / 400.0).collect();
+                data.samples.iter().map(|s| h.update(&s.theta_deg)[link] + s.theta_deg[link] / 200.0).collect();
             (v, format!("direction link {} last moved (-1 / +1; spread by its angle)", link + 1))
         }
         Effect::CodeWheelEccentricity | Effect::EncoderScale | Effect::EncoderZeroOffset => {
@@ -80,7 +70,19 @@ pub fn write(dir: &Path, data: &Dataset, r: &ExplainResult) -> anyhow::Result<Ve
 
         let params: Vec<f64> = s.params.values().copied().collect();
         let (x, xl) = variable(e, data, &params);
-        let pts = |res: &[[f64; 6]]| x.iter().zip(res).map(|(a, r)| (*a, rot_norm(r))).collect::<Vec<_>>();
+        // The residual along the direction the effect explains (the principal axis of the
+        // per-sample change), binned over the explaining variable: its signature before, flat after.
+        let mut m = nalgebra::Matrix3::<f64>::zeros();
+        for (b, a) in s.heldout_before.iter().zip(&s.heldout_after) {
+            let d = nalgebra::Vector3::new(b[0] - a[0], b[1] - a[1], b[2] - a[2]);
+            m += d * d.transpose();
+        }
+        let eig = nalgebra::SymmetricEigen::new(m);
+        let k = (0..3).max_by(|&i, &j| eig.eigenvalues[i].total_cmp(&eig.eigenvalues[j])).unwrap_or(0);
+        let u = eig.eigenvectors.column(k).into_owned();
+        let along = |res: &[[f64; 6]]| -> Vec<(f64, f64)> {
+            binned(&x, &res.iter().map(|r| r[0] * u[0] + r[1] * u[1] + r[2] * u[2]).collect::<Vec<_>>(), 30)
+        };
         let file = format!("step{}_{}_vs_variable.png", i + 1, s.effect);
         let title = format!("held-out residual vs {}", explaining_variable(e));
         xy_plot(
@@ -88,10 +90,10 @@ pub fn write(dir: &Path, data: &Dataset, r: &ExplainResult) -> anyhow::Result<Ve
             &XyPlot {
                 title: &title,
                 x_label: &xl,
-                y_label: "rotation residual, deg",
+                y_label: "rotation residual along the effect's direction, deg (bin mean)",
                 series: vec![
-                    Series { label: "before", points: pts(&s.heldout_before), style: SeriesStyle::Points },
-                    Series { label: "after", points: pts(&s.heldout_after), style: SeriesStyle::Points },
+                    Series { label: "before", points: along(&s.heldout_before), style: SeriesStyle::LinePoints },
+                    Series { label: "after", points: along(&s.heldout_after), style: SeriesStyle::LinePoints },
                 ],
                 log_y: false,
             },
@@ -102,4 +104,21 @@ pub fn write(dir: &Path, data: &Dataset, r: &ExplainResult) -> anyhow::Result<Ve
     heatmap(&dir.join(&file), &map("held-out residual, final model", &ag, &r.final_heldout, step))?;
     out.push(("final model: held-out residual over the workspace".into(), file));
     Ok(out)
+}
+
+/// Means of `y` in `bins` equal-width bins of `x` (empty bins skipped).
+fn binned(x: &[f64], y: &[f64], bins: usize) -> Vec<(f64, f64)> {
+    let (lo, hi) = x.iter().fold((f64::MAX, f64::MIN), |(l, h), v| (l.min(*v), h.max(*v)));
+    let w = ((hi - lo) / bins as f64).max(1e-12);
+    let mut acc = vec![(0.0, 0usize); bins];
+    for (a, b) in x.iter().zip(y) {
+        let k = (((a - lo) / w) as usize).min(bins - 1);
+        acc[k].0 += b;
+        acc[k].1 += 1;
+    }
+    acc.iter()
+        .enumerate()
+        .filter(|(_, c)| c.1 > 0)
+        .map(|(k, c)| (lo + (k as f64 + 0.5) * w, c.0 / c.1 as f64))
+        .collect()
 }

@@ -117,11 +117,13 @@ pub fn run(cmd: KinCmd) -> anyhow::Result<ExitCode> {
             );
             if let Some(png) = a.png {
                 let pts: Vec<(f64, f64, f64)> = map.iter().map(|p| (p.fick_deg[0], p.fick_deg[2], p.s)).collect();
-                crate::plot::heatmap_max(
+                crate::plot::workspace_heatmap(
+                    &png,
+                    "pose sensitivity coefficient (max over roll)",
+                    "S, rad/deg",
                     &pts,
                     a.step_deg,
-                    &png,
-                    "PSC S (rad/deg), max over beta: alpha (rows) x gamma (cols)",
+                    abvs_plot::Reduce::Max,
                 )?;
                 eprintln!("wrote {}", png.display());
             }
