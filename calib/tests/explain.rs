@@ -68,6 +68,17 @@ fn assert_found(hidden: Effect, seed: u64) {
     eprintln!("truth {:?}", truth.params(hidden));
     assert!((got / want - 1.0).abs() < 0.2, "{hidden}: size {got} vs truth {want}");
     let last = r.steps.last().unwrap();
+    let first = &r.steps[0];
+    eprintln!(
+        "TABLE | {hidden} | {} | {want:.4} | {got:.4} | {:.4} -> {:.4} deg, {:.4} -> {:.4} mm | floor {:.4} deg, {:.4} mm |",
+        first.effect,
+        first.rms_rot_deg_before,
+        last.rms_rot_deg_after,
+        first.rms_trans_mm_before,
+        last.rms_trans_mm_after,
+        r.noise_floor_rot_deg,
+        r.noise_floor_trans_mm
+    );
     assert!(
         last.rms_rot_deg_after < 1.5 * r.noise_floor_rot_deg,
         "{hidden}: rot {} vs floor {}",

@@ -129,6 +129,6 @@ fn bad_inputs_are_clear_errors() {
     net.input_norm.std.push(1.0);
     let r = save_model(&dir.path().join("wrong"), &wrong)
         .and_then(|_| FkModel::load(&dir.path().join("wrong")).map(|_| ()));
-    let e = r.err().expect("a 4-input network must be refused").to_string();
+    let e = r.expect_err("a 4-input network must be refused").to_string();
     assert!(e.contains('3') && e.contains('4'), "{e}");
 }

@@ -2,6 +2,10 @@
 //! (fixtures/units/c0.toml, compiled into the binary) it simulates the paper's 3 deg data
 //! collection, compares the nominal kinematics and the unit's true model with the measurements,
 //! maps the PSC, and writes CSV, PNG and a JSON summary.
+use abvs_calib::methods::{self, FitConfig, Method};
+use abvs_calib::metrics::evaluate;
+use abvs_calib::model::{save_model, FkModel};
+use abvs_calib::mpe::Target;
 use abvs_eye::pose::rotation_angle_deg;
 use abvs_eye::psc::{percentile, psc_map};
 use abvs_eye::sim::{simulate_dataset, Commanded, SimSpec};
@@ -132,9 +136,40 @@ pub fn run(a: DemoArgs) -> anyhow::Result<ExitCode> {
         percentile(&s, 0.5),
         percentile(&s, 1.0)
     );
-    println!("heatmaps (alpha rows x gamma cols): {}, {}", dev_png.display(), psc_png.display());
+    println!("heatmaps (gamma across, alpha down): {}, {}", dev_png.display(), psc_png.display());
+
+    // Calibration: hand-eye and the physics-based hybrid from the 3 deg set, scored on a
+    // separate random session (the networks of the paper take minutes: `abvs calib paper`).
+    let test_spec =
+        SimSpec { commanded: Commanded::Step(1.0), random: Some(2000), seed: a.seed + 1, ..Default::default() };
+    let (test, _) = simulate_dataset(&unit, &test_spec, |_, _| {})?;
+    let test_meas: Vec<[f64; 6]> = test.samples.iter().map(|s| s.pose).collect();
+    println!(
+        "
+calibrated FK on {} held-out poses (mean |error|)   rot (deg)  trans (mm)   MPE (px)",
+        test.len()
+    );
+    let mut calib = serde_json::Map::new();
+    for method in [Method::Mh, Method::Hybrid] {
+        let t = Instant::now();
+        let parts = methods::fit(method, &data, None, &FitConfig::default(), &mut |_, _, _, _, _| {})?;
+        let dir = a.out.join(format!("model_{}", method.name()));
+        save_model(&dir, &parts)?;
+        let model = FkModel::load(&dir)?;
+        let r = evaluate(&model.predict_dataset(&test)?, &test_meas, &Target::paper());
+        println!(
+            "{:<8} fitted in {:>5.2} s                       {:>9.4} {:>11.4} {:>10.3}",
+            method.name(),
+            t.elapsed().as_secs_f64(),
+            r.rot_norm_mean_deg,
+            r.trans_norm_mean_mm,
+            r.mpe_px
+        );
+        calib.insert(method.name().into(), serde_json::to_value(&r)?);
+    }
 
     let summary = serde_json::json!({
+        "calibration_test": calib,
         "unit": unit.name,
         "samples": stats.written,
         "commanded": stats.commanded,

@@ -37,8 +37,7 @@ fn variable(e: Effect, data: &Dataset, params: &[f64]) -> (Vec<f64>, String) {
     match e {
         Effect::HingeBacklash => {
             let mut h = MotionHistory::new();
-            let v =
-                data.samples.iter().map(|s| h.update(&s.theta_deg)[link] + s.theta_deg[link] / 200.0).collect();
+            let v = data.samples.iter().map(|s| h.update(&s.theta_deg)[link] + s.theta_deg[link] / 200.0).collect();
             (v, format!("direction link {} last moved (-1 / +1; spread by its angle)", link + 1))
         }
         Effect::CodeWheelEccentricity | Effect::EncoderScale | Effect::EncoderZeroOffset => {

@@ -169,6 +169,11 @@ fn demo_runs_on_the_embedded_default() {
     let floor = s["true_model"]["rot_norm_mean_deg"].as_f64().unwrap();
     // The reason calibration exists: the nominal model is off by far more than the noise floor.
     assert!(nominal > 10.0 * floor, "{nominal} vs {floor}");
+    // Calibration closes the gap: the hybrid reaches the floor on held-out poses, hand-eye not.
+    let hybrid = s["calibration_test"]["hybrid"]["rot_norm_mean_deg"].as_f64().unwrap();
+    let mh = s["calibration_test"]["mh"]["rot_norm_mean_deg"].as_f64().unwrap();
+    assert!(hybrid < 1.5 * floor && mh > hybrid, "hybrid {hybrid}, mh {mh}, floor {floor}");
+    assert!(d.path().join("demo/model_hybrid/manifest.json").exists());
     for f in ["demo/psc_heatmap.png", "demo/nominal_error_heatmap.png", "demo/dataset_3deg.csv"] {
         assert!(d.path().join(f).metadata().unwrap().len() > 100, "{f}");
     }
