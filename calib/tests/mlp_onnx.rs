@@ -551,3 +551,24 @@ fn bad_training_data_is_a_clear_error() {
     let e = train(&mut net, &s.x, &s.y, Some((&vx, &s.vy[..10])), &cfg, &mut |_, _, _| {}).unwrap_err();
     assert!(e.to_string().contains("validation set sample 3"), "{e}");
 }
+
+/// A network with the same contract but ops we do not run natively (here Sigmoid activations,
+/// as a PyTorch user might train) drops into a model directory and runs through ONNX Runtime.
+#[test]
+fn foreign_network_drops_into_a_model_directory() {
+    use abvs_calib::model::{FkModel, Manifest, MANIFEST};
+    let dir = tempfile::tempdir().unwrap();
+    let (ni, no) = norms();
+    let net = Net::m1(16, 4, ni, no, 5);
+    let path = write(dir.path(), "net.onnx", &torch_m1(&net, "Sigmoid"));
+    let mut m = Manifest::new("m1");
+    m.networks.insert("net".into(), "net.onnx".into());
+    std::fs::write(dir.path().join(MANIFEST), serde_json::to_string(&m).unwrap()).unwrap();
+    let model = FkModel::load(dir.path()).unwrap();
+    assert!(model.native_net("net").is_none(), "a Sigmoid graph must not run natively");
+    let xs = &set().vx[..20];
+    let want = ort_eval(&path, xs);
+    let mut st = model.state();
+    let got: Vec<[f64; 6]> = xs.iter().map(|x| model.eval(&mut st, x, [0.0, 1.0, 0.0]).unwrap()).collect();
+    assert_close(&got, &want, 1e-6);
+}
