@@ -101,29 +101,6 @@ pub struct ExplainResult {
     pub final_candidates: Vec<CandidateScore>,
 }
 
-/// Upper end of each effect's plausible size (effects.md ranges x 3), per parameter.
-fn plausible_max(p: &Param) -> f64 {
-    3.0 * match p.effect {
-        Effect::EncoderZeroOffset => 1.0,
-        Effect::LinkAngleError => 0.5,
-        Effect::InputAxisTilt => 0.3,
-        Effect::PlatformAxisError => 0.5,
-        Effect::CameraMount => {
-            if p.index < 3 {
-                3.0
-            } else {
-                12.0
-            }
-        }
-        Effect::CodeWheelEccentricity => 30.0,
-        Effect::EncoderScale => 1e-3,
-        Effect::HingeBacklash => 0.1,
-        Effect::GravitySag => 0.1,
-        Effect::EncoderTimeOffset => 5.0,
-        Effect::MeasurementNoise => 0.02,
-    }
-}
-
 /// The observable size of an effect: the Euclidean norm of its parameter vector (natural
 /// units), without the components no pose relative to home can show. A zero offset common to
 /// all three links is a pure roll of the whole mechanism (equal link motion is pure roll), which
@@ -358,7 +335,7 @@ pub fn explain(
                 let implausible: Vec<String> = f_c
                     .iter()
                     .filter(|p| p.effect == c)
-                    .filter(|p| full.unit.params(c)[p.index].abs() > plausible_max(p))
+                    .filter(|p| full.unit.params(c)[p.index].abs() > p.plausible_max())
                     .map(|p| p.name())
                     .collect();
                 if !implausible.is_empty() {

@@ -28,28 +28,32 @@ impl Param {
     pub fn name(&self) -> String {
         format!("{}.{}", self.effect.name(), self.effect.param_names()[self.index])
     }
-    /// Typical size in the parameter's unit (effects.md ranges): sets the finite-difference
-    /// step and the identifiability yardstick.
-    pub fn scale(&self) -> f64 {
+    /// (typical, upper) size in the parameter's unit, from the ranges of effects.md. The one
+    /// table of effect magnitudes used for fitting and plausibility.
+    fn sizes(&self) -> (f64, f64) {
         match self.effect {
-            Effect::EncoderZeroOffset => 0.5,
-            Effect::LinkAngleError => 0.3,
-            Effect::InputAxisTilt => 0.2,
-            Effect::PlatformAxisError => 0.3,
-            Effect::CameraMount => {
-                if self.index < 3 {
-                    2.0
-                } else {
-                    5.0
-                }
-            }
-            Effect::CodeWheelEccentricity => 20.0,
-            Effect::EncoderScale => 5e-4,
-            Effect::HingeBacklash => 0.05,
-            Effect::GravitySag => 0.05,
-            Effect::EncoderTimeOffset => 2.0,
-            Effect::MeasurementNoise => 0.01,
+            Effect::EncoderZeroOffset => (0.5, 1.0),
+            Effect::LinkAngleError => (0.3, 0.5),
+            Effect::InputAxisTilt => (0.2, 0.3),
+            Effect::PlatformAxisError => (0.3, 0.5),
+            Effect::CameraMount if self.index < 3 => (2.0, 3.0),
+            Effect::CameraMount => (5.0, 12.0),
+            Effect::CodeWheelEccentricity => (20.0, 30.0),
+            Effect::EncoderScale => (5e-4, 1e-3),
+            Effect::HingeBacklash => (0.05, 0.1),
+            Effect::GravitySag => (0.05, 0.1),
+            Effect::EncoderTimeOffset => (2.0, 5.0),
+            Effect::MeasurementNoise => (0.01, 0.02),
         }
+    }
+    /// Typical size: sets the finite-difference step and the identifiability yardstick.
+    pub fn scale(&self) -> f64 {
+        self.sizes().0
+    }
+    /// Largest size still physically plausible (3x the top of the effects.md range): a fit
+    /// needing more is explaining something else.
+    pub fn plausible_max(&self) -> f64 {
+        3.0 * self.sizes().1
     }
 }
 
