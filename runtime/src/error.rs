@@ -1,0 +1,17 @@
+//! The runtime's error type: every refusal says which stream and what was wrong.
+#[derive(Debug, thiserror::Error, PartialEq)]
+pub enum RuntimeError {
+    /// A sample older than or equal to the previous one in a stream that must increase.
+    #[error("{stream}: timestamp {t:.6} s is not after the previous {prev:.6} s")]
+    NonMonotonic { stream: &'static str, t: f64, prev: f64 },
+    /// A query outside the span the buffer holds (frame too old, or encoders not caught up).
+    #[error("{stream}: time {t:.6} s is outside the buffered span [{from:.6}, {to:.6}] s")]
+    OutOfSpan { stream: &'static str, t: f64, from: f64, to: f64 },
+    /// A gap in the encoder stream too long to interpolate across.
+    #[error("{stream}: gap of {gap_ms:.2} ms around {t:.6} s exceeds {max_ms:.2} ms")]
+    Gap { stream: &'static str, t: f64, gap_ms: f64, max_ms: f64 },
+    #[error("invalid: {0}")]
+    Invalid(String),
+}
+
+pub type Result<T> = std::result::Result<T, RuntimeError>;
