@@ -13,6 +13,28 @@ pub enum SimCmd {
     Unit(UnitArgs),
     /// Reproduce the paper's data collection on a unit and write a dataset CSV.
     Dataset(DatasetArgs),
+    /// Act as a drive board: stream encoder frames to a serial port (e.g. a pseudo-terminal).
+    Board(BoardArgs),
+}
+
+#[derive(Args)]
+pub struct BoardArgs {
+    /// Serial device to write to (a /dev/pts/N for tests).
+    #[arg(long)]
+    port: String,
+    #[arg(long, default_value_t = 1000)]
+    frames: usize,
+    #[arg(long, default_value_t = 1000.0)]
+    rate_hz: f64,
+    /// Flip a byte in every n-th frame (0: never).
+    #[arg(long, default_value_t = 0)]
+    corrupt_every: usize,
+    /// Leave out every n-th frame (0: never).
+    #[arg(long, default_value_t = 0)]
+    drop_every: usize,
+    /// Restart the board (sequence and clock from zero) after this many frames.
+    #[arg(long)]
+    reset_after: Option<usize>,
 }
 
 #[derive(Args)]
@@ -69,6 +91,27 @@ pub fn parse_effects(s: &str) -> anyhow::Result<Vec<Effect>> {
 
 pub fn run(cmd: SimCmd) -> anyhow::Result<ExitCode> {
     match cmd {
+        SimCmd::Board(a) => {
+            use std::io::Write;
+            let sim = abvs_runtime::encoder_link::BoardSim {
+                frames: a.frames,
+                rate_hz: a.rate_hz,
+                corrupt_every: a.corrupt_every,
+                drop_every: a.drop_every,
+                reset_after: a.reset_after,
+            };
+            let mut port = abvs_runtime::encoder_link::open_port(&a.port, 1_000_000).map_err(anyhow::Error::msg)?;
+            let period = std::time::Duration::from_secs_f64(1.0 / a.rate_hz.max(1.0));
+            let mut sent = 0usize;
+            for f in sim.frames() {
+                port.write_all(&f).with_context(|| format!("writing to {}", a.port))?;
+                sent += 1;
+                std::thread::sleep(period);
+            }
+            port.flush()?;
+            eprintln!("sent {sent} frames to {}", a.port);
+            Ok(ExitCode::SUCCESS)
+        }
         SimCmd::Unit(a) => {
             let mut u = draw_unit(a.seed, &parse_effects(&a.effects)?);
             if let Some(n) = a.name {

@@ -201,3 +201,46 @@ fn doctor_finds_onnx_runtime_without_variables() {
     let out = String::from_utf8_lossy(&o.stdout);
     assert!(!o.status.success() && out.contains("/nope/libonnxruntime.so"), "{out}");
 }
+
+/// The encoder link end to end: a simulated drive board (a separate `abvs sim board` process)
+/// writes frames into one end of a pseudo-terminal pair, the decoder reads the other end; CRC
+/// errors, lost frames and a board reset are counted, nothing crashes.
+#[test]
+fn encoder_stream_through_a_pseudo_terminal() {
+    use abvs_runtime::encoder_link::{Decoder, LinkEvent};
+    use std::io::Read;
+    let (mut master, slave) = serialport::TTYPort::pair().expect("pseudo-terminal pair");
+    let name = serialport::SerialPort::name(&slave).expect("pty name");
+    let mut child = Command::new(env!("CARGO_BIN_EXE_abvs"))
+        .args(["sim", "board", "--port", &name, "--frames", "1500", "--rate-hz", "5000"])
+        .args(["--corrupt-every", "97", "--drop-every", "101", "--reset-after", "1000"])
+        .spawn()
+        .unwrap();
+    serialport::SerialPort::set_timeout(&mut master, std::time::Duration::from_millis(300)).unwrap();
+    let mut d = Decoder::new();
+    let mut events = vec![];
+    let mut buf = [0u8; 4096];
+    let deadline = std::time::Instant::now() + std::time::Duration::from_secs(30);
+    loop {
+        match master.read(&mut buf) {
+            Ok(0) => {}
+            Ok(n) => events.extend(d.feed(&buf[..n])),
+            Err(e) if e.kind() == std::io::ErrorKind::TimedOut => {
+                if child.try_wait().unwrap().is_some() {
+                    break;
+                }
+            }
+            Err(e) => panic!("reading the pty: {e}"),
+        }
+        assert!(std::time::Instant::now() < deadline, "board process did not finish");
+    }
+    assert!(child.wait().unwrap().success());
+    drop(slave);
+    let dropped = (0..1500).filter(|k| k % 101 == 100).count() as u64;
+    let corrupted = (0..1500).filter(|k| k % 97 == 96 && k % 101 != 100).count() as u64;
+    assert_eq!(d.stats.frames, 1500 - dropped - corrupted, "{:?}", d.stats);
+    assert!(d.stats.crc_errors >= corrupted, "{:?}", d.stats);
+    assert_eq!(d.stats.lost_frames, dropped + corrupted, "{:?}", d.stats);
+    assert_eq!(d.stats.resets, 1);
+    assert_eq!(events.iter().filter(|e| matches!(e, LinkEvent::Reset(_))).count(), 1);
+}
