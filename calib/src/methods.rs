@@ -167,6 +167,26 @@ fn finish(mut m: Manifest, train_data: &Dataset, val: &Dataset, cfg: &FitConfig,
     m
 }
 
+/// The parts of a one-network model (m1, m2, m1f, m2f), with its validation metrics.
+#[allow(clippy::too_many_arguments)]
+fn single_net(
+    method: Method,
+    net: Net,
+    epochs: usize,
+    base: Option<String>,
+    tr: &Dataset,
+    va: &Dataset,
+    cfg: &FitConfig,
+    t0: Instant,
+) -> ModelParts {
+    let mut m = Manifest::new(method.name());
+    m.training.epochs = vec![epochs];
+    m.training.base = base;
+    let (xv, yv) = xy(va);
+    m.validation = Some(serde_json::to_value(evaluate(&net.eval_batch(&xv), &yv, &Target::paper())).expect("json"));
+    ModelParts { manifest: finish(m, tr, va, cfg, t0), nets: vec![("net".into(), net)], unit: None }
+}
+
 /// Fits a model from scratch: mh, m1, m2 or hybrid.
 pub fn fit(
     method: Method,
@@ -192,11 +212,7 @@ pub fn fit(
                 (Net::m2(cfg.hidden, 4, 3, ni, no, cfg.seed), W_M2)
             };
             let (epochs, _) = train_net(&mut net, &tr, &va, &train_cfg(cfg, w, 0), method.name(), progress)?;
-            let mut m = Manifest::new(method.name());
-            m.training.epochs = vec![epochs];
-            let pred = net.eval_batch(&xy(&va).0);
-            m.validation = Some(serde_json::to_value(evaluate(&pred, &xy(&va).1, &Target::paper())).expect("json"));
-            Ok(ModelParts { manifest: finish(m, &tr, &va, cfg, t0), nets: vec![("net".into(), net)], unit: None })
+            Ok(single_net(method, net, epochs, None, &tr, &va, cfg, t0))
         }
         _ => Err(CalibError::Invalid(format!(
             "{} is a fine-tuning method: use finetune with a base model",
@@ -323,12 +339,7 @@ pub fn finetune(
             let (tr, va) = train_val(data, val, cfg);
             let w = if method == Method::M1f { W_M1 } else { W_M2 };
             let (epochs, _) = train_net(&mut net, &tr, &va, &train_cfg(cfg, w, 4), method.name(), progress)?;
-            let mut m = Manifest::new(method.name());
-            m.training.epochs = vec![epochs];
-            m.training.base = base_id;
-            let pred = net.eval_batch(&xy(&va).0);
-            m.validation = Some(serde_json::to_value(evaluate(&pred, &xy(&va).1, &Target::paper())).expect("json"));
-            Ok(ModelParts { manifest: finish(m, &tr, &va, cfg, t0), nets: vec![("net".into(), net)], unit: None })
+            Ok(single_net(method, net, epochs, base_id, &tr, &va, cfg, t0))
         }
         Method::M4f => {
             if !base.method().starts_with("m2") {
