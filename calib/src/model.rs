@@ -11,7 +11,7 @@ use crate::mlp::Net;
 use crate::onnx_io::{export_onnx, import_onnx};
 use abvs_eye::dataset::Dataset;
 use abvs_eye::psc::{psc_at, psc_first_order, psc_map};
-use abvs_eye::unit::{Conditions, MotionHistory, UnitFk};
+use abvs_eye::unit::{UnitFk, UnitStream};
 use abvs_eye::{SpmGeometry, UnitModel};
 use nalgebra::Matrix3;
 use serde::{Deserialize, Serialize};
@@ -214,8 +214,8 @@ enum Kind {
 /// Per-stream state of an evaluation: the motion history (backlash) and warm starts.
 #[derive(Debug, Clone)]
 pub struct FkState {
-    hist: MotionHistory,
-    warm: Matrix3<f64>,
+    /// The unit's stream (physics-based models).
+    unit: Option<UnitStream>,
     nominal_warm: Matrix3<f64>,
 }
 
@@ -289,11 +289,11 @@ impl FkModel {
     }
 
     pub fn state(&self) -> FkState {
-        let warm = match &self.kind {
-            Kind::Physics { fk, .. } => fk.home_platform(),
-            _ => Matrix3::identity(),
+        let unit = match &self.kind {
+            Kind::Physics { fk, .. } => Some(fk.stream()),
+            _ => None,
         };
-        FkState { hist: MotionHistory::new(), warm, nominal_warm: Matrix3::identity() }
+        FkState { unit, nominal_warm: Matrix3::identity() }
     }
 
     /// The pose sensitivity coefficient of link angles (deg) on the nominal kinematics.
@@ -308,10 +308,8 @@ impl FkModel {
     pub fn eval(&self, st: &mut FkState, theta_deg: &[f64; 3], gravity: [f64; 3]) -> Result<[f64; 6]> {
         match &self.kind {
             Kind::Physics { fk, residual } => {
-                let cond = Conditions { dir: st.hist.update(theta_deg), gravity };
-                let (p, r) = fk.pose(theta_deg, &cond, Some(&st.warm))?;
-                st.warm = r;
-                let mut out = p.to_p6();
+                let stream = st.unit.get_or_insert_with(|| fk.stream());
+                let mut out = fk.next(stream, theta_deg, gravity)?.to_p6();
                 if let Some(n) = residual {
                     let d = n.eval(theta_deg)?;
                     for k in 0..6 {

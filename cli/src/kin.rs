@@ -3,7 +3,6 @@
 //! the command exits non-zero if any row failed.
 use crate::table::{map_rows, GravityCols, Table};
 use abvs_eye::psc::{percentile, psc_map};
-use abvs_eye::unit::{Conditions, MotionHistory};
 use abvs_eye::{Fick, SpmGeometry, UnitModel};
 use anyhow::Context;
 use clap::{Args, Subcommand};
@@ -74,8 +73,7 @@ pub fn run(cmd: KinCmd) -> anyhow::Result<ExitCode> {
             };
             let fk = unit.compile()?;
             // Rows are a motion history (backlash): walk them in order; gravity per row if given.
-            let mut hist = MotionHistory::new();
-            let mut warm = fk.home_platform();
+            let mut stream = fk.stream();
             let t = Table::read(&a.input)?;
             let gcols = GravityCols::find(&t);
             map_rows(
@@ -85,11 +83,8 @@ pub fn run(cmd: KinCmd) -> anyhow::Result<ExitCode> {
                 &["theta1_deg", "theta2_deg", "theta3_deg"],
                 &["alpha_deg", "beta_deg", "gamma_deg", "x_mm", "y_mm", "z_mm"],
                 |v, line, row| {
-                    let q = [v[0], v[1], v[2]];
-                    let cond = Conditions { dir: hist.update(&q), gravity: gcols.of(&a.input, line, row)? };
-                    let (p, r) = fk.pose(&q, &cond, Some(&warm)).map_err(|e| e.to_string())?;
-                    warm = r;
-                    Ok(p.to_p6().to_vec())
+                    let g = gcols.of(&a.input, line, row)?;
+                    Ok(fk.next(&mut stream, &[v[0], v[1], v[2]], g).map_err(|e| e.to_string())?.to_p6().to_vec())
                 },
             )
         }

@@ -7,7 +7,7 @@ use crate::error::{EyeError, Result};
 use crate::pose::{exp_so3, rotation_angle_deg, Fick, Pose};
 use crate::psc::grid;
 use crate::spm::SpmGeometry;
-use crate::unit::{Conditions, Effect, MotionHistory, UnitModel};
+use crate::unit::{Effect, UnitModel};
 use nalgebra::Vector3;
 use rand::seq::SliceRandom;
 use rand::{Rng, SeedableRng};
@@ -174,8 +174,7 @@ pub fn simulate_dataset(
     let n_tr = Normal::new(0.0, nt).map_err(|e| EyeError::Invalid(e.to_string()))?;
 
     let mut stats = SimStats { commanded: poses.len(), ..Default::default() };
-    let mut hist = MotionHistory::new();
-    let mut warm = fk.home_platform();
+    let mut stream = fk.stream();
     let mut samples = Vec::new();
     let mut t = 0.0f64;
     let mut last_reading = [0.0f64; 3];
@@ -197,20 +196,14 @@ pub fn simulate_dataset(
         };
         // Motors servo until each encoder reads the commanded angle, to the count.
         let reading = th_cmd.map(|x| quantize_deg(x.to_degrees()));
-        let dir = hist.update(&reading);
         // Travel at ~200 deg/s between poses, then settle and expose.
         let travel = (0..3).map(|i| (reading[i] - last_reading[i]).abs()).fold(0.0, f64::max);
         t += travel / 200.0 + 0.25;
         last_reading = reading;
-        let cond = Conditions { dir, gravity: spec.gravity };
-        let (truth, r) = match fk.pose(&reading, &cond, Some(&warm)) {
-            Ok(x) => x,
-            Err(_) => {
-                stats.unreachable_unit += 1;
-                continue;
-            }
+        let Ok(truth) = fk.next(&mut stream, &reading, spec.gravity) else {
+            stats.unreachable_unit += 1;
+            continue;
         };
-        warm = r;
         if drop_meas {
             stats.failed_measurement += 1;
             continue;

@@ -692,23 +692,42 @@ impl UnitFk {
         Ok(self.pose(reading_deg, cond, Some(&self.home_r))?.0.to_p6())
     }
 
+    /// A new stream of readings in acquisition order (one per eye): see [`UnitFk::next`].
+    pub fn stream(&self) -> UnitStream {
+        UnitStream { hist: MotionHistory::new(), warm: self.home_r }
+    }
+
+    /// The next reading of a stream -> camera pose relative to home. The reading updates the
+    /// motion history (backlash direction) even if the pose fails, as the links did move; the
+    /// warm start advances only on success.
+    pub fn next(&self, st: &mut UnitStream, reading_deg: &[f64; 3], gravity: [f64; 3]) -> Result<Pose> {
+        let cond = Conditions { dir: st.hist.update(reading_deg), gravity };
+        let (p, r) = self.pose(reading_deg, &cond, Some(&st.warm))?;
+        st.warm = r;
+        Ok(p)
+    }
+
     /// Predicted poses for a dataset, walking it in acquisition order so motion history
     /// (backlash) and per-sample gravity are applied as recorded. Errors name the sample.
     pub fn predict_dataset(&self, data: &crate::dataset::Dataset) -> Result<Vec<[f64; 6]>> {
-        let mut hist = MotionHistory::new();
-        let mut warm = self.home_r;
-        let mut out = Vec::with_capacity(data.samples.len());
-        for s in &data.samples {
-            let dir = hist.update(&s.theta_deg);
-            let cond = Conditions { dir, gravity: s.gravity_or_default() };
-            let (p, r) = self
-                .pose(&s.theta_deg, &cond, Some(&warm))
-                .map_err(|e| EyeError::Invalid(format!("sample seq {}: {e}", s.seq)))?;
-            warm = r;
-            out.push(p.to_p6());
-        }
-        Ok(out)
+        let mut st = self.stream();
+        data.samples
+            .iter()
+            .map(|s| {
+                self.next(&mut st, &s.theta_deg, s.gravity_or_default())
+                    .map(|p| p.to_p6())
+                    .map_err(|e| EyeError::Invalid(format!("sample seq {}: {e}", s.seq)))
+            })
+            .collect()
     }
+}
+
+/// Per-stream state of a unit's true FK: the motion history and the previous platform
+/// orientation (warm start).
+#[derive(Debug, Clone)]
+pub struct UnitStream {
+    hist: MotionHistory,
+    warm: Matrix3<f64>,
 }
 
 #[cfg(test)]
