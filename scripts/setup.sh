@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # Installs everything abvs needs on a fresh Debian/Ubuntu machine (run as root or with sudo):
-#   - system libraries from Debian: OpenCV 4 (+ clang/libclang for the opencv and v4l bindings)
+#   - system libraries from Debian: OpenCV 4 (+ clang/libclang for the opencv and v4l bindings);
+#     opencv-doc ships the real test images (chessboard stereo set, Middlebury Aloe) the tests use
 #   - the ONNX Runtime shared library, taken from the onnxruntime wheel on PyPI and unpacked into
 #     .deps/onnxruntime/ inside this checkout, where the built `abvs` finds it without any variable
 # Idempotent: a second run only checks.
@@ -10,7 +11,7 @@ ORT_VERSION=1.31.1
 SUDO=""
 if [ "$(id -u)" -ne 0 ]; then SUDO="sudo"; fi
 
-pkgs=(build-essential pkg-config clang libclang-dev libopencv-dev python3-pip unzip curl fonts-dejavu-core)
+pkgs=(build-essential pkg-config clang libclang-dev libopencv-dev opencv-doc python3-pip unzip curl fonts-dejavu-core)
 missing=()
 for p in "${pkgs[@]}"; do
   dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
