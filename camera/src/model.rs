@@ -266,8 +266,8 @@ mod tests {
     fn cameras() -> Vec<Camera> {
         let mut plumb = Camera::pinhole(640, 480, 500.0);
         plumb.distortion = Distortion::PlumbBob([-0.28, 0.07, 0.001, -0.0005, 0.0]);
-        let mut rational = Camera::pinhole(1600, 1200, 600.0);
-        rational.distortion = Distortion::Rational([0.2, -0.05, 0.0003, 0.0002, 0.001, 0.55, -0.02, 0.003]);
+        let mut rational = Camera::pinhole(1600, 1200, 900.0);
+        rational.distortion = Distortion::Rational([0.05, 0.0, 0.0003, 0.0002, 0.0, 0.15, 0.0, 0.0]);
         vec![Camera::ov8856(), Camera::ov8856().scaled(320, 240), Camera::pinhole(320, 240, 240.0), plumb, rational]
     }
 
