@@ -1,1 +1,2 @@
 //! Sinks: where results leave the pipeline inside this process (latency statistics, recording, rerun).
+pub mod stats;

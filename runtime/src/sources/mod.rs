@@ -1,5 +1,6 @@
 //! Sources: where data enters the runtime (cameras, the encoder board, recorded sessions).
 pub mod encoder_link;
+pub mod replay;
 
 /// One grayscale camera frame as it leaves a source: 8-bit luma, row-major, tightly packed.
 #[derive(Clone, Debug, PartialEq)]
