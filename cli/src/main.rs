@@ -7,6 +7,8 @@ mod explain_plots;
 mod kin;
 mod paper;
 mod plot;
+mod rerun_sink;
+mod run;
 mod sim;
 mod table;
 
@@ -33,6 +35,8 @@ enum Cmd {
     Calib(calib::CalibCmd),
     /// The main job on the embedded default unit: simulate, measure, compare, map.
     Demo(demo::DemoArgs),
+    /// The runtime: replay a session (default: the embedded fixture) through the whole pipeline.
+    Run(run::RunArgs),
     /// Report what abvs found on this machine (ONNX Runtime library, version).
     Doctor,
 }
@@ -44,6 +48,7 @@ fn main() -> ExitCode {
         Cmd::Kin(c) => kin::run(c),
         Cmd::Calib(c) => calib::run(c),
         Cmd::Demo(a) => demo::run(a),
+        Cmd::Run(a) => run::run(a),
         Cmd::Doctor => doctor(),
     };
     match r {

@@ -10,6 +10,7 @@ pub mod pipeline;
 pub mod session;
 pub mod sinks;
 pub mod sources;
+pub mod synth;
 pub mod tasks;
 
 pub use error::{Result, RuntimeError};

@@ -34,6 +34,11 @@ pub struct SessionMeta {
     pub width: u32,
     pub height: u32,
     pub fps: f64,
+    /// Duration of one loop when the recording is periodic (synthetic sessions): a looped replay shifts by
+    /// exactly this, so motion continues seamlessly. Without it a loop lasts from the first to the last
+    /// timestamp plus one frame period.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub loop_period_ns: Option<i64>,
     /// Stereo calibration at home (relative path).
     pub stereo: String,
     /// Per-eye FK model directories or unit-model TOML files (relative paths), left then right.

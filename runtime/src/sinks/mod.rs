@@ -1,2 +1,3 @@
 //! Sinks: where results leave the pipeline inside this process (latency statistics, recording, rerun).
 pub mod stats;
+pub mod truth;

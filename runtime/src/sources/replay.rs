@@ -121,7 +121,7 @@ impl ReplaySource {
         encoders.sort_by_key(|e| (e.t_ns, e.eye));
         let t_first = frames[0].t_start_ns.min(encoders[0].t_ns);
         let t_last = frames.last().map(|f| f.t_start_ns).unwrap_or(0).max(encoders.last().map(|e| e.t_ns).unwrap_or(0));
-        let period_ns = t_last - t_first + (1e9 / session.meta.fps) as i64;
+        let period_ns = session.meta.loop_period_ns.unwrap_or(t_last - t_first + (1e9 / session.meta.fps) as i64);
         Ok(ReplaySource {
             session,
             frames,
