@@ -38,7 +38,8 @@ pub struct RunArgs {
     /// Horizontal field of view of the rectified images (deg).
     #[arg(long, default_value_t = 100.0)]
     pub rect_hfov: f64,
-    /// FK used for the eyes: the session's calibrated models, or the ideal mechanism (for comparison).
+    /// FK used for the eyes: the session's calibrated models, the ideal mechanism (nominal), or the true units
+    /// of a synthetic session (truth: the floor set by stereo matching alone).
     #[arg(long, default_value = "calibrated")]
     pub fk: String,
     /// Process every frame (queues block instead of dropping the oldest) and replay as fast as possible.
@@ -56,6 +57,9 @@ pub struct RunArgs {
     /// Score depth against the session's ground truth every N-th point (synthetic sessions; 0: off).
     #[arg(long, default_value_t = 8)]
     pub truth_stride: usize,
+    /// Write each frame's rectified pair and depth as PNG into this directory (slow; for looking).
+    #[arg(long)]
+    pub dump: Option<PathBuf>,
     /// Do not print the latency table.
     #[arg(long)]
     pub quiet: bool,
@@ -86,8 +90,14 @@ pub fn run(a: RunArgs) -> anyhow::Result<ExitCode> {
     let stereo_path = session.path(&session.meta.stereo);
     let stereo = StereoCalibration::read_yaml(&stereo_path)?;
     let (left, right) = match a.fk.as_str() {
-        "calibrated" => (EyeFk::load(&session.path(&session.meta.fk[0]))?, EyeFk::load(&session.path(&session.meta.fk[1]))?),
+        "calibrated" => {
+            (EyeFk::load(&session.path(&session.meta.fk[0]))?, EyeFk::load(&session.path(&session.meta.fk[1]))?)
+        }
         "nominal" => (EyeFk::nominal(), EyeFk::nominal()),
+        "truth" => {
+            let t = session.meta.truth.as_ref().context("--fk truth needs a synthetic session (with truth/)")?;
+            (EyeFk::load(&session.path(&t.units[0]))?, EyeFk::load(&session.path(&t.units[1]))?)
+        }
         other => bail!("--fk `{other}`: expected calibrated or nominal"),
     };
     let mut kin = StereoKinematics::new(left, right, stereo.rotation, stereo.translation_mm / 1000.0);
@@ -110,12 +120,21 @@ pub fn run(a: RunArgs) -> anyhow::Result<ExitCode> {
             sinks.push(Box::new(t));
         }
     }
+    if let Some(d) = &a.dump {
+        sinks.push(Box::new(abvs_runtime::sinks::dump::DumpSink { dir: d.clone(), every: 1 }));
+    }
     if let Some(p) = &a.rerun {
         sinks.push(crate::rerun_sink::open(p, &out)?);
     }
     let description = session.meta.description.clone();
     let source = ReplaySource::open(session)?;
-    let cfg = PipelineConfig { out, lossless: a.lossless, paced: !(a.no_pace || a.lossless), frames: a.frames, ..Default::default() };
+    let cfg = PipelineConfig {
+        out,
+        lossless: a.lossless,
+        paced: !(a.no_pace || a.lossless),
+        frames: a.frames,
+        ..Default::default()
+    };
     let engine_name = engine.name().to_string();
     let mut stats = run_replay(source, kin, (stereo.left, stereo.right), engine, sinks, cfg)?;
     stats.extra.insert("session".into(), serde_json::json!(dir.display().to_string()));

@@ -35,7 +35,7 @@ pub struct SessionArgs {
     #[arg(long, default_value_t = 600)]
     height: u32,
     /// FK calibration method fitted for each eye on a simulated calibration dataset (mh, hybrid, m2, ...).
-    #[arg(long, default_value = "mh")]
+    #[arg(long, default_value = "hybrid")]
     fk_method: String,
     /// Grid step (deg) of that calibration dataset.
     #[arg(long, default_value_t = 6.0)]

@@ -230,7 +230,8 @@ pub fn render_with_rays(
 
     let quantise = |v: f32| v.round().clamp(0.0, 255.0) as u8;
     let gray8 = out[0].iter().map(|&v| quantise(v)).collect();
-    let rgb8 = with_rgb.then(|| (0..w * h).flat_map(|k| (1..4).map(move |p| (p, k))).map(|(p, k)| quantise(out[p][k])).collect());
+    let rgb8 = with_rgb
+        .then(|| (0..w * h).flat_map(|k| (1..4).map(move |p| (p, k))).map(|(p, k)| quantise(out[p][k])).collect());
     let linear = opts.keep_linear.then(|| out.into_iter().next().expect("gray plane"));
     Ok(Rendered { width: w, height: h, gray: gray8, rgb: rgb8, depth, linear })
 }
@@ -265,7 +266,10 @@ fn gaussian_blur(src: &[f32], w: usize, h: usize, sigma: f64, threads: usize) ->
     par_rows(h, threads, |y| {
         (0..w)
             .map(|x| {
-                k.iter().enumerate().map(|(j, kv)| kv * tmp[clampi(y as isize + j as isize - r, h) * w + x]).sum::<f32>()
+                k.iter()
+                    .enumerate()
+                    .map(|(j, kv)| kv * tmp[clampi(y as isize + j as isize - r, h) * w + x])
+                    .sum::<f32>()
             })
             .collect::<Vec<_>>()
     })

@@ -36,8 +36,7 @@ fn pose(rx: f64, ry: f64, rz: f64, t: [f64; 3]) -> Isometry3<f64> {
 #[test]
 fn fronto_parallel_plane_depth_is_exact() {
     for (camera, name) in [(pinhole(320, 240, 300.0), "pinhole"), (fisheye().scaled(400, 300), "fisheye")] {
-        for (world_from_camera, d) in
-            [(Isometry3::identity(), 1.5), (pose(10.0, -25.0, 40.0, [0.3, -0.2, 1.0]), 0.37)]
+        for (world_from_camera, d) in [(Isometry3::identity(), 1.5), (pose(10.0, -25.0, 40.0, [0.3, -0.2, 1.0]), 0.37)]
         {
             let plane = world_from_camera * Isometry3::translation(0.0, 0.0, d);
             let scene = Scene::new(0.0).with(Surface::rect_centred(plane, 40.0, 40.0, Texture::constant(0.5)).unwrap());
@@ -60,7 +59,8 @@ fn box_depth_matches_analytic() {
     // A cube rotated 45 deg about y: the centre ray hits its front vertical edge.
     let (c, h) = (1.0, 0.2);
     let world_from_box = pose(0.0, 45.0, 0.0, [0.0, 0.0, c]);
-    let scene = Scene::new(0.0).with(Surface::cuboid(world_from_box, Vector3::new(h, h, h), Texture::constant(1.0)).unwrap());
+    let scene =
+        Scene::new(0.0).with(Surface::cuboid(world_from_box, Vector3::new(h, h, h), Texture::constant(1.0)).unwrap());
     let r = render(&scene, &camera, &Isometry3::identity(), &RenderOptions::default()).unwrap();
     let table = RayTable::new(&camera).unwrap();
     // Pixel centre (159.5, 119.5) is between pixels: check the 4 around it against the edge
@@ -349,7 +349,8 @@ fn rgb_textures_from_files_render_in_colour() {
     let tex = Texture::from_file(&path).unwrap().with_filter(Filter::Nearest);
     assert!(tex.is_rgb());
     let camera = pinhole(100, 50, 100.0);
-    let scene = Scene::new(0.0).with(Surface::rect_centred(Isometry3::translation(0.0, 0.0, 1.0), 2.0, 2.0, tex).unwrap());
+    let scene =
+        Scene::new(0.0).with(Surface::rect_centred(Isometry3::translation(0.0, 0.0, 1.0), 2.0, 2.0, tex).unwrap());
     let r = render(&scene, &camera, &Isometry3::identity(), &RenderOptions::default()).unwrap();
     let rgb = r.rgb.as_ref().unwrap();
     let (left, right) = (25 * 100 + 10, 25 * 100 + 90);
@@ -388,12 +389,21 @@ fn bad_input_is_reported() {
     // A surface built by hand is checked at render time, with its index.
     let scene = Scene::new(0.0)
         .with(Surface::sphere(Point3::new(0.0, 0.0, 2.0), 0.1, Texture::constant(1.0)).unwrap())
-        .with(Surface::Rect { world_from_local: Isometry3::identity(), size: [1.0, 0.0], texture: Arc::new(Texture::constant(1.0)) });
+        .with(Surface::Rect {
+            world_from_local: Isometry3::identity(),
+            size: [1.0, 0.0],
+            texture: Arc::new(Texture::constant(1.0)),
+        });
     let camera = pinhole(10, 10, 10.0);
     let err = render(&scene, &camera, &Isometry3::identity(), &RenderOptions::default()).unwrap_err();
     assert!(err.to_string().contains("#1"), "{err}");
-    let err = render(&Scene::new(0.0), &camera, &Isometry3::identity(), &RenderOptions { supersample: 0, ..Default::default() })
-        .unwrap_err();
+    let err = render(
+        &Scene::new(0.0),
+        &camera,
+        &Isometry3::identity(),
+        &RenderOptions { supersample: 0, ..Default::default() },
+    )
+    .unwrap_err();
     assert!(matches!(err, RenderError::InvalidOptions(_)), "{err}");
     assert!(matches!(RayTable::new(&pinhole(0, 10, 10.0)), Err(RenderError::InvalidCamera(_))));
 }

@@ -46,7 +46,7 @@ fn noise_texture(rng: &mut ChaCha8Rng, n: usize, size_m: [f64; 2]) -> Result<Tex
         .enumerate()
         .map(|(k, &g)| {
             let vals = (0..(g + 1) * (g + 1)).map(|_| rng.gen::<f32>()).collect();
-            (g, vals, [0.35f32, 0.3, 0.22, 0.13][k])
+            (g, vals, [0.3f32, 0.26, 0.26, 0.22][k])
         })
         .collect();
     let base = rng.gen_range(0.25f32..0.6);
@@ -74,9 +74,19 @@ fn noise_texture(rng: &mut ChaCha8Rng, n: usize, size_m: [f64; 2]) -> Result<Tex
 pub fn scene(seed: u64) -> Result<Scene> {
     let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0x5ce4e);
     let mut s = Scene::new(0.5);
-    let iso = |t: [f64; 3], r: Rotation3<f64>| Isometry3::from_parts(Translation3::new(t[0], t[1], t[2]), UnitQuaternion::from_rotation_matrix(&r));
+    let iso = |t: [f64; 3], r: Rotation3<f64>| {
+        Isometry3::from_parts(Translation3::new(t[0], t[1], t[2]), UnitQuaternion::from_rotation_matrix(&r))
+    };
     // back wall at 1.5 m, floor 0.45 m below the eyes
-    s = s.with(Surface::rect_centred(iso([0.0, 0.0, 1.5], Rotation3::identity()), 4.0, 3.0, noise_texture(&mut rng, 1024, [4.0, 3.0])?).map_err(inv)?);
+    s = s.with(
+        Surface::rect_centred(
+            iso([0.0, 0.0, 1.5], Rotation3::identity()),
+            4.0,
+            3.0,
+            noise_texture(&mut rng, 1024, [4.0, 3.0])?,
+        )
+        .map_err(inv)?,
+    );
     s = s.with(
         Surface::rect_centred(
             iso([0.0, 0.45, 0.85], Rotation3::from_axis_angle(&Vector3::x_axis(), std::f64::consts::FRAC_PI_2)),
@@ -90,7 +100,10 @@ pub fn scene(seed: u64) -> Result<Scene> {
     let yaw = rng.gen_range(-0.9..0.9);
     s = s.with(
         Surface::rect_centred(
-            iso([rng.gen_range(-0.3..0.3), rng.gen_range(-0.15..0.05), rng.gen_range(0.8..1.1)], Rotation3::from_euler_angles(0.2, yaw, 0.0)),
+            iso(
+                [rng.gen_range(-0.3..0.3), rng.gen_range(-0.15..0.05), rng.gen_range(0.8..1.1)],
+                Rotation3::from_euler_angles(0.2, yaw, 0.0),
+            ),
             0.5,
             0.4,
             noise_texture(&mut rng, 512, [0.5, 0.4])?,
@@ -100,12 +113,15 @@ pub fn scene(seed: u64) -> Result<Scene> {
     for _ in 0..4 {
         let h = Vector3::new(rng.gen_range(0.04..0.12), rng.gen_range(0.04..0.12), rng.gen_range(0.04..0.12));
         let c = [rng.gen_range(-0.4..0.4), rng.gen_range(-0.2..0.3), rng.gen_range(0.4..1.2)];
-        let r = Rotation3::from_euler_angles(rng.gen_range(-0.3..0.3), rng.gen_range(-1.0..1.0), rng.gen_range(-0.2..0.2));
+        let r =
+            Rotation3::from_euler_angles(rng.gen_range(-0.3..0.3), rng.gen_range(-1.0..1.0), rng.gen_range(-0.2..0.2));
         s = s.with(Surface::cuboid(iso(c, r), h, noise_texture(&mut rng, 256, [0.3, 0.3])?).map_err(inv)?);
     }
     for _ in 0..2 {
         let c = Point3::new(rng.gen_range(-0.35..0.35), rng.gen_range(-0.15..0.25), rng.gen_range(0.5..1.2));
-        s = s.with(Surface::sphere(c, rng.gen_range(0.05..0.12), noise_texture(&mut rng, 512, [1.0, 1.0])?).map_err(inv)?);
+        s = s.with(
+            Surface::sphere(c, rng.gen_range(0.05..0.12), noise_texture(&mut rng, 512, [1.0, 1.0])?).map_err(inv)?,
+        );
     }
     Ok(s)
 }
@@ -139,7 +155,7 @@ impl Default for SessionSpec {
             width: 800,
             height: 600,
             encoder_hz: 1000.0,
-            fk_method: "mh".into(),
+            fk_method: "hybrid".into(),
             calib_step_deg: 6.0,
             supersample: 2,
             noise_sigma: 1.5,
@@ -173,8 +189,8 @@ impl Gaze {
         let mut segments = Vec::new();
         let mut t = 0.0;
         let mut cur = first;
-        while t < period - 0.25 {
-            let fix = rng.gen_range(0.15..0.35);
+        loop {
+            let fix = rng.gen_range(0.15..0.35f64).min(period * 0.6);
             let last = t + fix + 0.12 > period - 0.2;
             let next = if last { first } else { target(rng) };
             let pursuit = if !last && rng.gen_bool(0.4) {
@@ -184,8 +200,9 @@ impl Gaze {
             };
             // the pursued target drifts during the fixation; the saccade starts from where it got to
             let from = cur;
-            let amp = 30.0; // deg, a typical amplitude for the duration law below
-            let vpeak = (200.0 + 30.0 * amp).min(1561.0);
+            // saccade duration from its amplitude: peak speed grows with amplitude up to the eyes' 1561 deg/s
+            let amp: f64 = (from + pursuit * fix).angle(&next).to_degrees().max(1.0);
+            let vpeak = (200.0 + 40.0 * amp).min(1561.0);
             let saccade_s = (1.875 * amp / vpeak).max(0.025);
             let end = if last { period } else { (t + fix + saccade_s).min(period) };
             segments.push(Segment { t0: t, saccade_s, from, to: next, pursuit, end });
@@ -225,17 +242,40 @@ pub fn generate(spec: &SessionSpec, dir: &Path, progress: &mut dyn FnMut(&str, u
     let mut rng = ChaCha8Rng::seed_from_u64(spec.seed);
     let fdir = dir.join("frames");
     for d in [dir.to_path_buf(), fdir.clone(), dir.join("calib"), dir.join("truth")] {
-        std::fs::create_dir_all(&d).map_err(|e| RuntimeError::File { path: d.clone(), line: None, msg: e.to_string() })?;
+        std::fs::create_dir_all(&d).map_err(|e| RuntimeError::File {
+            path: d.clone(),
+            line: None,
+            msg: e.to_string(),
+        })?;
     }
-    let io = |p: &Path, e: &dyn std::fmt::Display| RuntimeError::File { path: p.to_path_buf(), line: None, msg: e.to_string() };
-    let units: [UnitModel; 2] = [draw_unit(spec.seed * 2 + 11, &Effect::ALL), draw_unit(spec.seed * 2 + 12, &Effect::ALL)];
+    let io = |p: &Path, e: &dyn std::fmt::Display| RuntimeError::File {
+        path: p.to_path_buf(),
+        line: None,
+        msg: e.to_string(),
+    };
+    let units: [UnitModel; 2] =
+        [draw_unit(spec.seed * 2 + 11, &Effect::ALL), draw_unit(spec.seed * 2 + 12, &Effect::ALL)];
     // stereo rig at home: T_lH^rH (metres inside, mm in the file)
-    let r_home = Rotation3::from_euler_angles(rng.gen_range(-0.008..0.008), rng.gen_range(-0.008..0.008), rng.gen_range(-0.005..0.005));
-    let t_home = Vector3::new(-0.065 + rng.gen_range(-0.001..0.001), rng.gen_range(-0.0005..0.0005), rng.gen_range(-0.0005..0.0005));
+    let r_home = Rotation3::from_euler_angles(
+        rng.gen_range(-0.008..0.008),
+        rng.gen_range(-0.008..0.008),
+        rng.gen_range(-0.005..0.005),
+    );
+    let t_home = Vector3::new(
+        -0.065 + rng.gen_range(-0.001..0.001),
+        rng.gen_range(-0.0005..0.0005),
+        rng.gen_range(-0.0005..0.0005),
+    );
     let home_l_to_r = Pose::new(r_home.into_inner(), t_home);
     let world_from_rhome = home_l_to_r.inverse();
     let camera = Camera::ov8856().scaled(spec.width, spec.height);
-    let stereo = StereoCalibration { left: camera, right: camera, rotation: r_home.into_inner(), translation_mm: t_home * 1000.0, rms_px: None };
+    let stereo = StereoCalibration {
+        left: camera,
+        right: camera,
+        rotation: r_home.into_inner(),
+        translation_mm: t_home * 1000.0,
+        rms_px: None,
+    };
     let cam_err = |e: abvs_camera::CameraError| inv(e);
     stereo.write_yaml(dir.join("calib/stereo.yaml")).map_err(cam_err)?;
     stereo.write_yaml(dir.join("truth/stereo.yaml")).map_err(cam_err)?;
@@ -266,7 +306,13 @@ pub fn generate(spec: &SessionSpec, dir: &Path, progress: &mut dyn FnMut(&str, u
             let c = th.map(|d| (d * COUNTS_PER_REV as f64 / 360.0).round() as i64);
             // the board stamps a sample `latency` after the links were there
             let stamp = unit.encoder_time_for_camera(0.0).abs();
-            encoders.push(EncoderRecord { t_ns: ns(t + stamp), eye: eye as u8, count1: c[0], count2: c[1], count3: c[2] });
+            encoders.push(EncoderRecord {
+                t_ns: ns(t + stamp),
+                eye: eye as u8,
+                count1: c[0],
+                count2: c[1],
+                count3: c[2],
+            });
         }
     }
     encoders.sort_by_key(|e| (e.t_ns, e.eye));
@@ -324,7 +370,11 @@ pub fn generate(spec: &SessionSpec, dir: &Path, progress: &mut dyn FnMut(&str, u
     let method = Method::parse(&spec.fk_method).map_err(inv)?;
     for (eye, unit) in units.iter().enumerate() {
         progress("calibrate", eye, 2);
-        let sim = SimSpec { commanded: Commanded::Step(spec.calib_step_deg), seed: spec.seed * 7 + eye as u64, ..SimSpec::default() };
+        let sim = SimSpec {
+            commanded: Commanded::Step(spec.calib_step_deg),
+            seed: spec.seed * 7 + eye as u64,
+            ..SimSpec::default()
+        };
         let (data, _) = simulate_dataset(unit, &sim, |_, _| {}).map_err(inv)?;
         let cfg = FitConfig { seed: spec.seed, ..FitConfig::default() };
         let mut parts = fit(method, &data, None, &cfg, &mut |_, _, _, _, _| {}).map_err(inv)?;

@@ -29,7 +29,10 @@ impl TruthSink {
     /// The session's truth, or `None` for a recorded (non-synthetic) session.
     pub fn for_session(session: &Session, stride: usize) -> Result<Option<TruthSink>> {
         let Some(truth) = &session.meta.truth else { return Ok(None) };
-        let model = |p: &std::path::Path, e: &dyn std::fmt::Display| RuntimeError::Model { path: p.to_path_buf(), msg: e.to_string() };
+        let model = |p: &std::path::Path, e: &dyn std::fmt::Display| RuntimeError::Model {
+            path: p.to_path_buf(),
+            msg: e.to_string(),
+        };
         if truth.scene_generator != crate::synth::SCENE_GENERATOR {
             return Err(RuntimeError::Invalid(format!("unknown scene generator `{}`", truth.scene_generator)));
         }
@@ -44,11 +47,16 @@ impl TruthSink {
         let mut stream = fk.stream();
         let mut poses = Vec::new();
         for (i, line) in text.lines().enumerate().skip(1) {
-            let v: Vec<f64> = line.split(',').map(|x| x.trim().parse::<f64>()).collect::<std::result::Result<_, _>>().map_err(
-                |e| RuntimeError::File { path: pp.clone(), line: Some(i as u64 + 1), msg: e.to_string() },
-            )?;
+            let v: Vec<f64> =
+                line.split(',').map(|x| x.trim().parse::<f64>()).collect::<std::result::Result<_, _>>().map_err(
+                    |e| RuntimeError::File { path: pp.clone(), line: Some(i as u64 + 1), msg: e.to_string() },
+                )?;
             if v.len() != 7 {
-                return Err(RuntimeError::File { path: pp.clone(), line: Some(i as u64 + 1), msg: format!("{} columns, expected 7", v.len()) });
+                return Err(RuntimeError::File {
+                    path: pp.clone(),
+                    line: Some(i as u64 + 1),
+                    msg: format!("{} columns, expected 7", v.len()),
+                });
             }
             let p = fk.next(&mut stream, &[v[1], v[2], v[3]], session.meta.gravity).map_err(|e| model(&up, &e))?;
             poses.push(Pose::new(p.r, p.t * 1e-3));
