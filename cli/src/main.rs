@@ -2,6 +2,7 @@
 //! library crate (abvs-eye for the physics, abvs-onnx for ONNX Runtime).
 mod calib;
 mod demo;
+mod echo;
 mod explain;
 mod explain_plots;
 mod kin;
@@ -33,6 +34,8 @@ enum Cmd {
     Calib(calib::CalibCmd),
     /// The main job on the embedded default unit: simulate, measure, compare, map.
     Demo(demo::DemoArgs),
+    /// Subscribe to the runtime's depth or cloud (iceoryx2) and print rate and latency.
+    Echo(echo::EchoArgs),
     /// Report what abvs found on this machine (ONNX Runtime library, version).
     Doctor,
 }
@@ -44,6 +47,7 @@ fn main() -> ExitCode {
         Cmd::Kin(c) => kin::run(c),
         Cmd::Calib(c) => calib::run(c),
         Cmd::Demo(a) => demo::run(a),
+        Cmd::Echo(a) => echo::run(a),
         Cmd::Doctor => doctor(),
     };
     match r {
