@@ -2,6 +2,7 @@
 //! library crate (abvs-eye for the physics, abvs-onnx for ONNX Runtime).
 mod calib;
 mod demo;
+mod echo;
 mod explain;
 mod explain_plots;
 mod kin;
@@ -37,6 +38,8 @@ enum Cmd {
     Demo(demo::DemoArgs),
     /// The runtime: replay a session (default: the embedded fixture) through the whole pipeline.
     Run(run::RunArgs),
+    /// Subscribe to the runtime's depth or cloud (iceoryx2) and print rate and latency.
+    Echo(echo::EchoArgs),
     /// Report what abvs found on this machine (ONNX Runtime library, version).
     Doctor,
 }
@@ -49,6 +52,7 @@ fn main() -> ExitCode {
         Cmd::Calib(c) => calib::run(c),
         Cmd::Demo(a) => demo::run(a),
         Cmd::Run(a) => run::run(a),
+        Cmd::Echo(a) => echo::run(a),
         Cmd::Doctor => doctor(),
     };
     match r {

@@ -1,1 +1,2 @@
 //! Bridges: publishing to other processes (iceoryx2 shared memory).
+pub mod iceoryx;
