@@ -296,15 +296,8 @@ fn run(cfg: PairerConfig, streams: [Vec<Frame>; 2], picks: &[bool]) -> (Vec<Fram
     let mut pick = picks.iter().cycle();
     let mut done = [false; 2];
     while !(done[0] && done[1]) {
-        let s = if done[0] {
-            1
-        } else if done[1] {
-            0
-        } else if *pick.next().unwrap_or(&true) {
-            0
-        } else {
-            1
-        };
+        let left_next = done[1] || (!done[0] && *pick.next().unwrap_or(&true));
+        let s = usize::from(!left_next);
         match its[s].next() {
             Some(f) => pairs.extend(p.push(if s == 0 { Side::Left } else { Side::Right }, f)),
             None => done[s] = true,
@@ -365,8 +358,8 @@ proptest! {
         for pair in &pairs {
             prop_assert_eq!(pair.left.seq + offset, pair.right.seq);
         }
-        for s in 0..2 {
-            let seqs: Vec<u64> = streams[s].iter().map(|f| f.seq).collect();
+        for (s, stream) in streams.iter().enumerate() {
+            let seqs: Vec<u64> = stream.iter().map(|f| f.seq).collect();
             let gaps = match (seqs.first(), seqs.last()) {
                 (Some(a), Some(b)) => b - a + 1 - seqs.len() as u64,
                 _ => 0,

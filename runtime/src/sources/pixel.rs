@@ -153,12 +153,12 @@ impl PixelFormat {
             return bad("empty image");
         }
         match self {
-            PixelFormat::Yuyv if width % 2 != 0 => return bad("YUYV needs an even width"),
-            PixelFormat::Nv12 if width % 2 != 0 || height % 2 != 0 => return bad("NV12 needs even dimensions"),
-            PixelFormat::Bayer10 { .. } if width % 2 != 0 || height % 2 != 0 => {
+            PixelFormat::Yuyv if width & 1 != 0 => return bad("YUYV needs an even width"),
+            PixelFormat::Nv12 if width & 1 != 0 || height & 1 != 0 => return bad("NV12 needs even dimensions"),
+            PixelFormat::Bayer10 { .. } if width & 1 != 0 || height & 1 != 0 => {
                 return bad("Bayer needs even dimensions (whole 2x2 CFA blocks)")
             }
-            PixelFormat::Bayer10 { packing: Bayer10Packing::MipiPacked, .. } if width % 4 != 0 => {
+            PixelFormat::Bayer10 { packing: Bayer10Packing::MipiPacked, .. } if width & 3 != 0 => {
                 return bad("RAW10 packed needs a width divisible by 4")
             }
             _ => {}

@@ -414,7 +414,8 @@ impl FrameSource for V4lCamera {
             seq: meta.sequence,
             source,
         })?;
-        let stamp = timeval_to_ns(meta.timestamp.sec as i64, meta.timestamp.usec as i64);
+        #[allow(clippy::useless_conversion)] // time_t is i32 on 32-bit ARM
+        let stamp = timeval_to_ns(i64::from(meta.timestamp.sec), i64::from(meta.timestamp.usec));
         let (seq, _) = self.seq.step(meta.sequence);
         Ok(Frame {
             seq,
