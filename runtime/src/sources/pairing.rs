@@ -23,7 +23,8 @@ pub enum Side {
 }
 
 impl Side {
-    fn index(self) -> usize {
+    /// 0 for left, 1 for right: the index into the `[left, right]` arrays of [`PairStats`].
+    pub fn index(self) -> usize {
         match self {
             Side::Left => 0,
             Side::Right => 1,

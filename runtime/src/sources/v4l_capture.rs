@@ -143,8 +143,8 @@ pub enum CaptureError {
     Io { path: PathBuf, op: &'static str, source: io::Error },
     #[error("{path}: no frame within the poll timeout")]
     Timeout { path: PathBuf },
-    #[error("capture thread of the {0:?} camera has stopped")]
-    Stopped(Side),
+    #[error("both capture threads have stopped")]
+    Stopped,
 }
 
 impl CaptureError {
@@ -493,7 +493,7 @@ impl StereoCapture {
                 Err(mpsc::RecvTimeoutError::Timeout) => {
                     return Err(CaptureError::Timeout { path: PathBuf::from("stereo pair") })
                 }
-                Err(mpsc::RecvTimeoutError::Disconnected) => return Err(CaptureError::Stopped(Side::Left)),
+                Err(mpsc::RecvTimeoutError::Disconnected) => return Err(CaptureError::Stopped),
             };
             match res {
                 Ok(frame) => {
@@ -501,7 +501,7 @@ impl StereoCapture {
                         return Ok(pair);
                     }
                 }
-                Err(e) if e.is_transient() => self.errors[side_index(side)] += 1,
+                Err(e) if e.is_transient() => self.errors[side.index()] += 1,
                 Err(e) => return Err(e),
             }
         }
@@ -515,13 +515,6 @@ impl StereoCapture {
 
     pub fn stats(&self) -> StereoStats {
         StereoStats { pairing: self.pairer.stats(), errors: self.errors }
-    }
-}
-
-fn side_index(side: Side) -> usize {
-    match side {
-        Side::Left => 0,
-        Side::Right => 1,
     }
 }
 
