@@ -60,6 +60,12 @@ pub struct RunArgs {
     /// Write each frame's rectified pair and depth as PNG into this directory (slow; for looking).
     #[arg(long)]
     pub dump: Option<PathBuf>,
+    /// Do not publish over iceoryx2.
+    #[arg(long)]
+    pub no_publish: bool,
+    /// iceoryx2 service name prefix (services {prefix}/depth, {prefix}/cloud).
+    #[arg(long, default_value = "abvs")]
+    pub service_prefix: String,
     /// Do not print the latency table.
     #[arg(long)]
     pub quiet: bool,
@@ -119,6 +125,10 @@ pub fn run(a: RunArgs) -> anyhow::Result<ExitCode> {
         if let Some(t) = TruthSink::for_session(&session, a.truth_stride)? {
             sinks.push(Box::new(t));
         }
+    }
+    if !a.no_publish {
+        let cfg = abvs_runtime::bridges::iceoryx::BridgeConfig::for_resolution(w, h).with_prefix(a.service_prefix.clone());
+        sinks.push(Box::new(abvs_runtime::bridges::publish::PublishSink::new(cfg)?));
     }
     if let Some(d) = &a.dump {
         sinks.push(Box::new(abvs_runtime::sinks::dump::DumpSink { dir: d.clone(), every: 1 }));
