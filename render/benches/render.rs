@@ -32,7 +32,7 @@ fn boards() -> Scene {
 /// Ten objects at 0.2-2 m: backdrop, floor, slanted boards, boxes, spheres.
 fn objects() -> Scene {
     let noise = Arc::new(
-        Texture::from_texel_fn(256, 256, |i, j| ((i * 2654435761 ^ j * 40503) % 251) as f32 / 250.0).unwrap(),
+        Texture::from_texel_fn(256, 256, |i, j| (((i * 2654435761) ^ (j * 40503)) % 251) as f32 / 250.0).unwrap(),
     );
     let tiles = Arc::new(Texture::checkerboard(8, 8).unwrap().with_metric_size(0.4, 0.4).unwrap());
     let t = |x: &Arc<Texture>| x.clone();
@@ -71,7 +71,8 @@ fn bench(c: &mut Criterion) {
     g.bench_function("640x480_fisheye_10_objects_ss1", |b| {
         b.iter(|| render_with_rays(&scene, &small, &id, &opts).unwrap())
     });
-    let opts = RenderOptions { supersample: 2, blur_sigma: 0.8, vignetting: 0.5, noise_sigma: 2.0, ..Default::default() };
+    let opts =
+        RenderOptions { supersample: 2, blur_sigma: 0.8, vignetting: 0.5, noise_sigma: 2.0, ..Default::default() };
     g.bench_function("640x480_fisheye_10_objects_ss2_blur_vignetting_noise", |b| {
         b.iter(|| render_with_rays(&scene, &small, &id, &opts).unwrap())
     });

@@ -31,12 +31,11 @@ impl RayTable {
         }
         let unproject = |x: f64, y: f64| camera.unproject(&Vector2::new(x, y));
         // Corner grid: corner (i, j) is the pixel coordinate (i - 0.5, j - 0.5).
-        let corners: Vec<Option<Vector3<f64>>> = par_rows(h + 1, 0, |j| {
-            (0..=w).map(|i| unproject(i as f64 - 0.5, j as f64 - 0.5)).collect::<Vec<_>>()
-        })
-        .into_iter()
-        .flatten()
-        .collect();
+        let corners: Vec<Option<Vector3<f64>>> =
+            par_rows(h + 1, 0, |j| (0..=w).map(|i| unproject(i as f64 - 0.5, j as f64 - 0.5)).collect::<Vec<_>>())
+                .into_iter()
+                .flatten()
+                .collect();
         let rays: Vec<[[f32; 3]; 3]> = par_rows(h, 0, |j| {
             (0..w)
                 .map(|i| {
@@ -98,11 +97,8 @@ impl RayTable {
 /// `threads == 0` means one per available core (at most 8). Work is handed out row by row, and
 /// each row's result depends only on the row, so the output never depends on the thread count.
 pub(crate) fn par_rows<T: Send>(n: usize, threads: usize, f: impl Fn(usize) -> T + Sync) -> Vec<T> {
-    let threads = if threads == 0 {
-        std::thread::available_parallelism().map_or(1, |n| n.get()).clamp(1, 8)
-    } else {
-        threads
-    };
+    let threads =
+        if threads == 0 { std::thread::available_parallelism().map_or(1, |n| n.get()).clamp(1, 8) } else { threads };
     if threads == 1 || n < 2 {
         return (0..n).map(&f).collect();
     }

@@ -276,8 +276,11 @@ impl<'a> Frame<'a> {
                         let ta = (-h[a] - o[a]) * inv;
                         let tb = (h[a] - o[a]) * inv;
                         // Entering through the -a face when the ray goes towards +a.
-                        let (tn, tf, fn_, ff) =
-                            if ta < tb { (ta, tb, 2 * a as u8 + 1, 2 * a as u8) } else { (tb, ta, 2 * a as u8, 2 * a as u8 + 1) };
+                        let (tn, tf, fn_, ff) = if ta < tb {
+                            (ta, tb, 2 * a as u8 + 1, 2 * a as u8)
+                        } else {
+                            (tb, ta, 2 * a as u8, 2 * a as u8 + 1)
+                        };
                         if tn > t0 {
                             t0 = tn;
                             f0 = fn_;

@@ -68,7 +68,11 @@ impl Texture {
     /// A gray raster texture from a row-major buffer of values in [0, 1].
     pub fn from_gray(width: usize, height: usize, gray: Vec<f32>) -> Result<Texture> {
         check_dims(width, height, gray.len())?;
-        Ok(Texture { kind: Kind::Raster { width, height, gray, rgb: None }, filter: Filter::Bilinear, metric_size: None })
+        Ok(Texture {
+            kind: Kind::Raster { width, height, gray, rgb: None },
+            filter: Filter::Bilinear,
+            metric_size: None,
+        })
     }
 
     /// An RGB raster texture from a row-major buffer of values in [0, 1]; the gray channel is
@@ -185,11 +189,14 @@ impl Texture {
     #[inline]
     pub fn sample_rgb(&self, u: f64, v: f64) -> [f32; 3] {
         match &self.kind {
-            Kind::Raster { width, height, rgb: Some(rgb), .. } => {
-                self.sample_raster(*width, *height, u, v, |i| rgb[i], |a, b, t| {
-                    [a[0] + (b[0] - a[0]) * t, a[1] + (b[1] - a[1]) * t, a[2] + (b[2] - a[2]) * t]
-                })
-            }
+            Kind::Raster { width, height, rgb: Some(rgb), .. } => self.sample_raster(
+                *width,
+                *height,
+                u,
+                v,
+                |i| rgb[i],
+                |a, b, t| [a[0] + (b[0] - a[0]) * t, a[1] + (b[1] - a[1]) * t, a[2] + (b[2] - a[2]) * t],
+            ),
             _ => {
                 let g = self.sample(u, v);
                 [g, g, g]
