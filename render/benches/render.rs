@@ -31,8 +31,9 @@ fn boards() -> Scene {
 
 /// Ten objects at 0.2-2 m: backdrop, floor, slanted boards, boxes, spheres.
 fn objects() -> Scene {
-    let noise =
-        Arc::new(Texture::from_texel_fn(256, 256, |i, j| ((i * 2654435761 ^ j * 40503) % 251) as f32 / 250.0).unwrap());
+    let noise = Arc::new(
+        Texture::from_texel_fn(256, 256, |i, j| (((i * 2654435761) ^ (j * 40503)) % 251) as f32 / 250.0).unwrap(),
+    );
     let tiles = Arc::new(Texture::checkerboard(8, 8).unwrap().with_metric_size(0.4, 0.4).unwrap());
     let t = |x: &Arc<Texture>| x.clone();
     let s = vec![

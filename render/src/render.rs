@@ -13,9 +13,12 @@ use crate::{Camera, RayTable, RenderError, Result, Scene};
 /// How to render. `Default` is one ray per pixel centre, no blur, vignetting or noise, unit gain.
 #[derive(Debug, Clone, PartialEq)]
 pub struct RenderOptions {
-    /// `n`: `n x n` stratified samples per pixel, at sub-pixel offsets `(k + 0.5) / n - 0.5`
-    /// (deterministic). 1 = the pixel-centre ray only (aliased edges); use >= 4 for calibration
-    /// boards (their corners then sit within ~0.01 px of the projection).
+    /// `n`: `n x n` samples per pixel, averaged (box filter over the pixel). With `n > 1` the
+    /// samples are multi-jittered (Chiu, Shirley & Wang 1994): one per cell of the `n x n` grid
+    /// *and* one per each of the `n^2` columns and rows, positions from a hash of the pixel
+    /// (deterministic). A regular grid would snap axis-aligned edges to 1/n px and bias board
+    /// corners by up to 1/(2n) px; this pattern leaves ~1/(2n^2) per pixel, uncorrelated between
+    /// pixels. Use >= 4 for calibration boards.
     pub supersample: u32,
     /// Gaussian blur sigma in pixels (lens PSF), applied to the supersampled radiance; 0 = none.
     pub blur_sigma: f64,
@@ -130,7 +133,6 @@ pub fn render_with_rays(
     let frame = Frame::new(scene, world_from_camera);
     let with_rgb = scene.has_rgb();
     let n = opts.supersample as usize;
-    let offsets: Vec<f64> = (0..n).map(|k| (k as f64 + 0.5) / n as f64 - 0.5).collect();
     let weight = 1.0 / (n * n) as f32;
     let bg = scene.background;
 
@@ -145,28 +147,23 @@ pub fn render_with_rays(
             rgb: if with_rgb { vec![[bg; 3]; w] } else { Vec::new() },
             depth: vec![f32::INFINITY; w],
         };
+        let mut offsets = Vec::with_capacity(n * n);
         for x in 0..w {
             let Some(centre) = rays.centre_ray(x, y) else { continue };
             let (mut g, mut c) = (0.0f32, [0.0f32; 3]);
-            let mut centre_hit = None;
-            for (sy, &dy) in offsets.iter().enumerate() {
-                for (sx, &dx) in offsets.iter().enumerate() {
-                    let ray = rays.ray(x, y, dx, dy).unwrap_or(centre);
-                    let hit = frame.trace(&ray);
-                    if n % 2 == 1 && sx == n / 2 && sy == n / 2 {
-                        centre_hit = Some(hit);
+            sample_offsets(x, y, n, &mut offsets);
+            for &(dx, dy) in &offsets {
+                let ray = rays.ray(x, y, dx, dy).unwrap_or(centre);
+                match frame.trace(&ray) {
+                    Some((i, t, aux)) if with_rgb => {
+                        let (sg, sc) = frame.shade_rgb(i, &ray, t, aux);
+                        g += sg;
+                        c = [c[0] + sc[0], c[1] + sc[1], c[2] + sc[2]];
                     }
-                    match hit {
-                        Some((i, t, aux)) if with_rgb => {
-                            let (sg, sc) = frame.shade_rgb(i, &ray, t, aux);
-                            g += sg;
-                            c = [c[0] + sc[0], c[1] + sc[1], c[2] + sc[2]];
-                        }
-                        Some((i, t, aux)) => g += frame.shade(i, &ray, t, aux),
-                        None => {
-                            g += bg;
-                            c = [c[0] + bg, c[1] + bg, c[2] + bg];
-                        }
+                    Some((i, t, aux)) => g += frame.shade(i, &ray, t, aux),
+                    None => {
+                        g += bg;
+                        c = [c[0] + bg, c[1] + bg, c[2] + bg];
                     }
                 }
             }
@@ -174,8 +171,8 @@ pub fn render_with_rays(
             if with_rgb {
                 row.rgb[x] = [c[0] * weight, c[1] * weight, c[2] * weight];
             }
-            // Depth from the exact pixel-centre ray (n odd: it was one of the samples).
-            let hit = centre_hit.unwrap_or_else(|| frame.trace(&centre));
+            // Depth from the exact pixel-centre ray (with n = 1 it is the one sample).
+            let hit = frame.trace(&centre);
             if let Some((_, t, _)) = hit {
                 row.depth[x] = (t * centre.z) as f32;
             }
@@ -234,6 +231,50 @@ pub fn render_with_rays(
         .then(|| (0..w * h).flat_map(|k| (1..4).map(move |p| (p, k))).map(|(p, k)| quantise(out[p][k])).collect());
     let linear = opts.keep_linear.then(|| out.into_iter().next().expect("gray plane"));
     Ok(Rendered { width: w, height: h, gray: gray8, rgb: rgb8, depth, linear })
+}
+
+/// Sub-pixel sample offsets (in [-0.5, 0.5]^2) of pixel `(px, py)`: the pixel centre for
+/// `n = 1`, else a multi-jittered pattern (n-rooks and n x n stratified) from a hash of the pixel.
+fn sample_offsets(px: usize, py: usize, n: usize, out: &mut Vec<(f64, f64)>) {
+    out.clear();
+    if n == 1 {
+        out.push((0.0, 0.0));
+        return;
+    }
+    let mut state = (px as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ (py as u64).wrapping_mul(0xC2B2_AE3D_27D4_EB4F);
+    let mut next = || {
+        // SplitMix64.
+        state = state.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        let mut z = state;
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        z ^ (z >> 31)
+    };
+    let unit = |r: u64| (r >> 11) as f64 / (1u64 << 53) as f64;
+    // Canonical arrangement: cell (i, j) holds x sub-column j and y sub-row i.
+    let nf = n as f64;
+    let mut sx: Vec<usize> = (0..n * n).map(|k| k / n).collect(); // sx[j * n + i] = sub-column of cell (i, j)
+    let mut sy: Vec<usize> = (0..n * n).map(|k| k % n).collect(); // sy[j * n + i] = sub-row of cell (i, j)
+                                                                  // Shuffle sub-columns within each column i, sub-rows within each row j: keeps both properties.
+    for i in 0..n {
+        for j in 0..n - 1 {
+            let k = j + (next() % (n - j) as u64) as usize;
+            sx.swap(j * n + i, k * n + i);
+        }
+    }
+    for j in 0..n {
+        for i in 0..n - 1 {
+            let k = i + (next() % (n - i) as u64) as usize;
+            sy.swap(j * n + i, j * n + k);
+        }
+    }
+    for j in 0..n {
+        for i in 0..n {
+            let x = (i as f64 + (sx[j * n + i] as f64 + unit(next())) / nf) / nf;
+            let y = (j as f64 + (sy[j * n + i] as f64 + unit(next())) / nf) / nf;
+            out.push((x - 0.5, y - 0.5));
+        }
+    }
 }
 
 /// Adds N(0, sigma^2) noise; each row has its own ChaCha stream, so the result depends only on
