@@ -115,7 +115,7 @@ fn reference_luma(px: &[u16], w: usize, h: usize, order: CfaOrder, black: f64) -
                 }
             }
             let v = s / 4.0;
-            out[y * w + x] = ((v - black).max(0.0) * 1024.0 / (1024.0 - black) / 4.0).min(255.0);
+            out[y * w + x] = ((v - black).max(0.0) * 256.0 / (1024.0 - black)).min(255.0);
         }
     }
     out
@@ -249,7 +249,7 @@ fn conversion_errors_say_expected_and_got() {
     assert!(e.to_string().contains("bytesperline 3000 is below the minimum 3200"), "{e}");
     let packed = PixelFormat::Bayer10 { order: CfaOrder::Rggb, packing: Bayer10Packing::MipiPacked };
     assert!(GrayConverter::new(packed, 1602, 1200, 4000, 0).is_err());
-    assert!(GrayConverter::new(packed, 1600, 1200, 2000, 1023).is_err());
+    assert!(GrayConverter::new(packed, 1600, 1200, 2000, 257).is_err());
     assert_eq!(packed.min_bytesperline(1600), 2000);
 }
 
