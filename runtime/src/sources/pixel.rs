@@ -229,6 +229,8 @@ pub struct GrayConverter {
     scale: u32,
     rows: [Vec<u16>; 3],
     vsum: Vec<u32>,
+    /// Per-column luma gain of an even and an odd Bayer row (plain slices vectorise; `x & 1` does not).
+    row_gains: [Vec<u32>; 2],
 }
 
 impl GrayConverter {
@@ -248,14 +250,16 @@ impl GrayConverter {
         let black = u32::from(black_level);
         // Rounded up: a truncated scale would put exact multiples (e.g. v - black = 63 of 1008) one level low.
         let (bias, scale) = (black << LUMA_SHIFT, (1u32 << 24).div_ceil(1024 - black));
-        let (rows, vsum) = match format {
-            PixelFormat::Bayer10 { .. } => {
+        let (rows, vsum, row_gains) = match format {
+            PixelFormat::Bayer10 { order, .. } => {
                 let w = width as usize;
-                ([vec![0; w], vec![0; w], vec![0; w]], vec![0; w])
+                let sites = order.sites();
+                let gains = |p: usize| (0..w).map(|x| gain(sites[p][x % 2])).collect();
+                ([vec![0; w], vec![0; w], vec![0; w]], vec![0; w], [gains(0), gains(1)])
             }
-            _ => ([Vec::new(), Vec::new(), Vec::new()], Vec::new()),
+            _ => Default::default(),
         };
-        Ok(GrayConverter { format, width, height, stride: bytesperline, bias, scale, rows, vsum })
+        Ok(GrayConverter { format, width, height, stride: bytesperline, bias, scale, rows, vsum, row_gains })
     }
 
     pub fn format(&self) -> PixelFormat {
@@ -322,7 +326,7 @@ impl GrayConverter {
                     out.copy_from_slice(&src[y * self.stride..y * self.stride + w]);
                 }
             }
-            PixelFormat::Bayer10 { order, packing } => self.bayer_to_gray(src, dst, order, packing),
+            PixelFormat::Bayer10 { packing, .. } => self.bayer_to_gray(src, dst, packing),
         }
         Ok(())
     }
@@ -349,9 +353,8 @@ impl GrayConverter {
         }
     }
 
-    fn bayer_to_gray(&mut self, src: &[u8], dst: &mut [u8], order: CfaOrder, packing: Bayer10Packing) {
+    fn bayer_to_gray(&mut self, src: &[u8], dst: &mut [u8], packing: Bayer10Packing) {
         let (w, h) = (self.width as usize, self.height as usize);
-        let sites = order.sites();
         // Row r lives in slot r % 3: rows y-1, y, y+1 are always resident (reflect-101 at the ends).
         self.unpack_row(src, 0, packing);
         self.unpack_row(src, 1, packing);
@@ -362,16 +365,10 @@ impl GrayConverter {
             let up = if y == 0 { 1 } else { y - 1 };
             let dn = if y + 1 == h { h - 2 } else { y + 1 };
             // Rows y-1 and y+1 have the same CFA parity, so one gain pair serves both.
-            let mid_sites = sites[y % 2];
-            let out_sites = sites[(y + 1) % 2];
-            let (gm0, gm1) = (2 * gain(mid_sites[0]), 2 * gain(mid_sites[1]));
-            let (go0, go1) = (gain(out_sites[0]), gain(out_sites[1]));
+            let (gm, go) = (&self.row_gains[y % 2], &self.row_gains[(y + 1) % 2]);
             let (ru, rm, rd) = (&self.rows[up % 3], &self.rows[y % 3], &self.rows[dn % 3]);
-            for (((v, u), m), d) in
-                self.vsum.chunks_exact_mut(2).zip(ru.chunks_exact(2)).zip(rm.chunks_exact(2)).zip(rd.chunks_exact(2))
-            {
-                v[0] = go0 * (u32::from(u[0]) + u32::from(d[0])) + gm0 * u32::from(m[0]);
-                v[1] = go1 * (u32::from(u[1]) + u32::from(d[1])) + gm1 * u32::from(m[1]);
+            for (((((v, u), m), d), gm), go) in self.vsum.iter_mut().zip(ru).zip(rm).zip(rd).zip(gm).zip(go) {
+                *v = go * (u32::from(*u) + u32::from(*d)) + 2 * gm * u32::from(*m);
             }
             let v = &self.vsum;
             let (bias, scale) = (self.bias, self.scale);
