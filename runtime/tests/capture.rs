@@ -539,6 +539,9 @@ struct FakeCamera {
     fail_at: Option<usize>,
     jitter_ns: i64,
     seq_offset: u64,
+    frame_sleep: Duration,
+    /// Allocations made by the capture thread between consecutive calls (thread loop included).
+    thread_allocs: Option<(std::sync::Arc<std::sync::atomic::AtomicU64>, Option<u64>)>,
 }
 
 impl FrameSource for FakeCamera {
@@ -547,6 +550,14 @@ impl FrameSource for FakeCamera {
     }
 
     fn next_frame(&mut self, mut gray: Vec<u8>) -> Result<Frame, CaptureError> {
+        // Counted while frames flow (the idle timeouts after the last frame allocate their error).
+        if let (Some((total, last)), true) = (&mut self.thread_allocs, self.next < self.n) {
+            let now = allocs();
+            if let Some(prev) = *last {
+                total.fetch_add(now - prev, std::sync::atomic::Ordering::Relaxed);
+            }
+            *last = Some(now);
+        }
         loop {
             let i = self.next;
             if i >= self.n {
@@ -564,7 +575,7 @@ impl FrameSource for FakeCamera {
                 continue;
             }
             gray.resize(16, i as u8);
-            std::thread::sleep(Duration::from_micros(200));
+            std::thread::sleep(self.frame_sleep);
             return Ok(Frame {
                 seq: i as u64 + self.seq_offset,
                 t_start_ns: 5_000_000_000 + i as i64 * PERIOD + self.jitter_ns,
@@ -578,7 +589,17 @@ impl FrameSource for FakeCamera {
 }
 
 fn fake(n: usize) -> FakeCamera {
-    FakeCamera { next: 0, n, drop_every: 0, corrupt_at: None, fail_at: None, jitter_ns: 0, seq_offset: 0 }
+    FakeCamera {
+        next: 0,
+        n,
+        drop_every: 0,
+        corrupt_at: None,
+        fail_at: None,
+        jitter_ns: 0,
+        seq_offset: 0,
+        frame_sleep: Duration::from_micros(200),
+        thread_allocs: None,
+    }
 }
 
 #[test]
@@ -624,4 +645,32 @@ fn stereo_capture_stops_on_a_fatal_error() {
     assert!(matches!(err, CaptureError::NotMonotonic { .. }), "{err}");
     assert!(n <= 3);
     drop(cap); // joins both threads
+}
+
+#[test]
+fn stereo_capture_recycles_buffers() {
+    use std::sync::atomic::{AtomicU64, Ordering};
+    use std::sync::Arc;
+    let counts = [Arc::new(AtomicU64::new(0)), Arc::new(AtomicU64::new(0))];
+    let n = 150;
+    let cam = |c: &Arc<AtomicU64>| FakeCamera {
+        frame_sleep: Duration::from_millis(1),
+        thread_allocs: Some((c.clone(), None)),
+        ..fake(n)
+    };
+    let mut cap = StereoCapture::from_sources(
+        cam(&counts[0]),
+        cam(&counts[1]),
+        PairerConfig { window: 64, ..Default::default() },
+    );
+    let mut pairs = 0;
+    while let Ok(p) = cap.next_pair(Duration::from_millis(500)) {
+        pairs += 1;
+        cap.recycle(p);
+    }
+    assert_eq!(pairs, n);
+    let allocs = [counts[0].load(Ordering::Relaxed), counts[1].load(Ordering::Relaxed)];
+    // Without recycling every frame would allocate its gray buffer (n per camera); with it only the
+    // frames in flight before the first buffers come back do.
+    assert!(allocs.iter().all(|&a| a < n as u64 / 3), "capture-thread allocations {allocs:?} for {n} frames");
 }
