@@ -125,13 +125,19 @@ fn reference_luma(px: &[u16], w: usize, h: usize, order: CfaOrder, black: f64) -
 
 #[test]
 fn yuyv_and_nv12_take_the_y_plane_honouring_the_stride() {
-    let (w, h, stride) = (6usize, 4usize, 16usize);
+    // 6: remainder only; 40: two 16-pixel blocks and a remainder.
+    for (w, h, stride) in [(6usize, 4usize, 16usize), (40, 4, 96)] {
+        y_plane_case(w, h, stride);
+    }
+}
+
+fn y_plane_case(w: usize, h: usize, stride: usize) {
     let mut yuyv = vec![0u8; stride * h];
     let mut nv12 = vec![0u8; stride * h + stride * h / 2];
     let mut want = Vec::new();
     for y in 0..h {
         for x in 0..w {
-            let v = (y * 40 + x * 7) as u8;
+            let v = (y * 40 + x * 7 + x / 16) as u8;
             want.push(v);
             yuyv[y * stride + 2 * x] = v;
             yuyv[y * stride + 2 * x + 1] = 200; // chroma, ignored
