@@ -525,12 +525,8 @@ fn missing_devices_give_clear_errors() {
         .err()
         .unwrap();
     assert!(e.to_string().contains("/dev/null"), "{e}");
-    let e = open_error(std::path::Path::new("/dev/video9"), std::io::Error::from_raw_os_error(libc_enoent()));
+    let e = open_error(std::path::Path::new("/dev/video9"), std::io::Error::from(std::io::ErrorKind::NotFound));
     assert!(matches!(e, CaptureError::DeviceMissing { .. }));
-}
-
-fn libc_enoent() -> i32 {
-    2
 }
 
 // ---------------------------------------------------------------- capture threads on stand-ins
