@@ -115,7 +115,7 @@ fn reference_luma(px: &[u16], w: usize, h: usize, order: CfaOrder, black: f64) -
                 }
             }
             let v = s / 4.0;
-            out[y * w + x] = ((v - black).max(0.0) * 1024.0 / (1024.0 - black) / 4.0).min(255.0);
+            out[y * w + x] = ((v - black).max(0.0) * 256.0 / (1024.0 - black)).min(255.0);
         }
     }
     out
@@ -125,13 +125,19 @@ fn reference_luma(px: &[u16], w: usize, h: usize, order: CfaOrder, black: f64) -
 
 #[test]
 fn yuyv_and_nv12_take_the_y_plane_honouring_the_stride() {
-    let (w, h, stride) = (6usize, 4usize, 16usize);
+    // 6: remainder only; 40: two 16-pixel blocks and a remainder.
+    for (w, h, stride) in [(6usize, 4usize, 16usize), (40, 4, 96)] {
+        y_plane_case(w, h, stride);
+    }
+}
+
+fn y_plane_case(w: usize, h: usize, stride: usize) {
     let mut yuyv = vec![0u8; stride * h];
     let mut nv12 = vec![0u8; stride * h + stride * h / 2];
     let mut want = Vec::new();
     for y in 0..h {
         for x in 0..w {
-            let v = (y * 40 + x * 7) as u8;
+            let v = (y * 40 + x * 7 + x / 16) as u8;
             want.push(v);
             yuyv[y * stride + 2 * x] = v;
             yuyv[y * stride + 2 * x + 1] = 200; // chroma, ignored
@@ -249,7 +255,7 @@ fn conversion_errors_say_expected_and_got() {
     assert!(e.to_string().contains("bytesperline 3000 is below the minimum 3200"), "{e}");
     let packed = PixelFormat::Bayer10 { order: CfaOrder::Rggb, packing: Bayer10Packing::MipiPacked };
     assert!(GrayConverter::new(packed, 1602, 1200, 4000, 0).is_err());
-    assert!(GrayConverter::new(packed, 1600, 1200, 2000, 1023).is_err());
+    assert!(GrayConverter::new(packed, 1600, 1200, 2000, 257).is_err());
     assert_eq!(packed.min_bytesperline(1600), 2000);
 }
 
@@ -519,12 +525,8 @@ fn missing_devices_give_clear_errors() {
         .err()
         .unwrap();
     assert!(e.to_string().contains("/dev/null"), "{e}");
-    let e = open_error(std::path::Path::new("/dev/video9"), std::io::Error::from_raw_os_error(libc_enoent()));
+    let e = open_error(std::path::Path::new("/dev/video9"), std::io::Error::from(std::io::ErrorKind::NotFound));
     assert!(matches!(e, CaptureError::DeviceMissing { .. }));
-}
-
-fn libc_enoent() -> i32 {
-    2
 }
 
 // ---------------------------------------------------------------- capture threads on stand-ins
@@ -539,6 +541,9 @@ struct FakeCamera {
     fail_at: Option<usize>,
     jitter_ns: i64,
     seq_offset: u64,
+    frame_sleep: Duration,
+    /// Allocations made by the capture thread between consecutive calls (thread loop included).
+    thread_allocs: Option<(std::sync::Arc<std::sync::atomic::AtomicU64>, Option<u64>)>,
 }
 
 impl FrameSource for FakeCamera {
@@ -547,6 +552,14 @@ impl FrameSource for FakeCamera {
     }
 
     fn next_frame(&mut self, mut gray: Vec<u8>) -> Result<Frame, CaptureError> {
+        // Counted while frames flow (the idle timeouts after the last frame allocate their error).
+        if let (Some((total, last)), true) = (&mut self.thread_allocs, self.next < self.n) {
+            let now = allocs();
+            if let Some(prev) = *last {
+                total.fetch_add(now - prev, std::sync::atomic::Ordering::Relaxed);
+            }
+            *last = Some(now);
+        }
         loop {
             let i = self.next;
             if i >= self.n {
@@ -564,7 +577,7 @@ impl FrameSource for FakeCamera {
                 continue;
             }
             gray.resize(16, i as u8);
-            std::thread::sleep(Duration::from_micros(200));
+            std::thread::sleep(self.frame_sleep);
             return Ok(Frame {
                 seq: i as u64 + self.seq_offset,
                 t_start_ns: 5_000_000_000 + i as i64 * PERIOD + self.jitter_ns,
@@ -578,7 +591,17 @@ impl FrameSource for FakeCamera {
 }
 
 fn fake(n: usize) -> FakeCamera {
-    FakeCamera { next: 0, n, drop_every: 0, corrupt_at: None, fail_at: None, jitter_ns: 0, seq_offset: 0 }
+    FakeCamera {
+        next: 0,
+        n,
+        drop_every: 0,
+        corrupt_at: None,
+        fail_at: None,
+        jitter_ns: 0,
+        seq_offset: 0,
+        frame_sleep: Duration::from_micros(200),
+        thread_allocs: None,
+    }
 }
 
 #[test]
@@ -624,4 +647,32 @@ fn stereo_capture_stops_on_a_fatal_error() {
     assert!(matches!(err, CaptureError::NotMonotonic { .. }), "{err}");
     assert!(n <= 3);
     drop(cap); // joins both threads
+}
+
+#[test]
+fn stereo_capture_recycles_buffers() {
+    use std::sync::atomic::{AtomicU64, Ordering};
+    use std::sync::Arc;
+    let counts = [Arc::new(AtomicU64::new(0)), Arc::new(AtomicU64::new(0))];
+    let n = 150;
+    let cam = |c: &Arc<AtomicU64>| FakeCamera {
+        frame_sleep: Duration::from_millis(1),
+        thread_allocs: Some((c.clone(), None)),
+        ..fake(n)
+    };
+    let mut cap = StereoCapture::from_sources(
+        cam(&counts[0]),
+        cam(&counts[1]),
+        PairerConfig { window: 64, ..Default::default() },
+    );
+    let mut pairs = 0;
+    while let Ok(p) = cap.next_pair(Duration::from_millis(500)) {
+        pairs += 1;
+        cap.recycle(p);
+    }
+    assert_eq!(pairs, n);
+    let allocs = [counts[0].load(Ordering::Relaxed), counts[1].load(Ordering::Relaxed)];
+    // Without recycling every frame would allocate its gray buffer (n per camera); with it only the
+    // frames in flight before the first buffers come back do.
+    assert!(allocs.iter().all(|&a| a < n as u64 / 3), "capture-thread allocations {allocs:?} for {n} frames");
 }

@@ -224,4 +224,14 @@ mod tests {
         p.flush();
         assert_eq!(p.stats().unpaired, [10, 0]);
     }
+
+    #[test]
+    fn expire_drops_only_older_frames() {
+        let mut p = Pairer::new(PairerConfig::default());
+        p.push(Side::Right, f(0, 0.0));
+        p.push(Side::Right, f(1, 40.0));
+        p.expire_before(20_000_000);
+        assert_eq!((p.pending(), p.stats().unpaired), (1, [0, 1]));
+        assert!(p.push(Side::Left, f(7, 40.5)).is_some());
+    }
 }

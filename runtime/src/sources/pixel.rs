@@ -13,9 +13,9 @@
 //! same at every CFA site, and costs one separable pass. Borders use reflect-101 padding, which keeps
 //! the CFA parity. It blurs slightly more than a real demosaic, which is harmless for matching.
 //!
-//! 10 -> 8 bit: `(v - black).max(0) * 1024 / (1024 - black) >> 2`, a lookup table: with black level
-//! 0 that is exactly `v >> 2`; with the sensor's pedestal (64 on the OV8856) the black level goes
-//! to 0 and white stays at 255.
+//! 10 -> 8 bit: `(v - black).max(0) * 256 / (1024 - black)`, truncated, in fixed point on the luma
+//! sum (no table, so the loop vectorises): with black level 0 that is exactly `v >> 2`; with the
+//! sensor's pedestal (64 on the OV8856) black goes to 0 and white stays at 255.
 
 /// Pixel layouts the converter accepts.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -60,7 +60,7 @@ pub enum PixelError {
     SrcTooShort { format: String, width: u32, height: u32, stride: usize, expected: usize, got: usize },
     #[error("gray output buffer too short: expected {expected} bytes ({width}x{height}), got {got}")]
     DstTooShort { width: u32, height: u32, expected: usize, got: usize },
-    #[error("black level {black} must be below 1023")]
+    #[error("black level {black} must be at most 256 (10-bit units)")]
     BadBlackLevel { black: u16 },
 }
 
@@ -173,12 +173,22 @@ impl PixelFormat {
 
 /// Fixed-point luma gains per CFA colour for the 3x3 tent (see the module doc): the tent gives R and
 /// B a quarter and G half of its weight at every site, so the gains are 0.299*4, 0.587*2, 0.114*4,
-/// scaled by 256 and rounded so that a flat field maps to itself exactly (306 + 2*301 + 116 = 1024).
-const GAIN_R: u32 = 306;
-const GAIN_G: u32 = 301;
-const GAIN_B: u32 = 116;
-/// Tent weight 16 times gain scale 256.
-const LUMA_SHIFT: u32 = 12;
+/// scaled by 1024 and rounded so that a flat field maps to itself exactly (1225 + 2*1202 + 467 = 4096).
+const GAIN_R: u32 = 1225;
+const GAIN_G: u32 = 1202;
+const GAIN_B: u32 = 467;
+/// Tent weight 16 times gain scale 1024: the luma sum of a 10-bit value `v` is `v << 14` (< 2^24).
+const LUMA_SHIFT: u32 = 14;
+/// Largest black level accepted (a quarter of the 10-bit range; the OV8856's is 64).
+pub const MAX_BLACK_LEVEL: u16 = 256;
+
+/// 8-bit gray from a luma sum: `((sum - bias).max(0) >> 10) * scale >> 20`, with `bias = black << 14`
+/// and `scale = ceil(2^24 / (1024 - black))` (16384 for black 0: exactly `v >> 2`). The product stays
+/// below 2^29; the rounded-up scale errs by at most 1/64 of a grey level.
+#[inline(always)]
+fn gray8(sum: u32, bias: u32, scale: u32) -> u8 {
+    ((((sum.saturating_sub(bias)) >> 10) * scale) >> 20).min(255) as u8
+}
 
 #[derive(Clone, Copy)]
 enum Cfa {
@@ -215,9 +225,12 @@ pub struct GrayConverter {
     width: u32,
     height: u32,
     stride: usize,
-    lut: Box<[u8; 1024]>,
+    bias: u32,
+    scale: u32,
     rows: [Vec<u16>; 3],
     vsum: Vec<u32>,
+    /// Per-column luma gain of an even and an odd Bayer row (plain slices vectorise; `x & 1` does not).
+    row_gains: [Vec<u32>; 2],
 }
 
 impl GrayConverter {
@@ -231,23 +244,22 @@ impl GrayConverter {
         black_level: u16,
     ) -> Result<Self, PixelError> {
         format.validate(width, height, bytesperline)?;
-        if black_level >= 1023 {
+        if black_level > MAX_BLACK_LEVEL {
             return Err(PixelError::BadBlackLevel { black: black_level });
         }
-        let mut lut = Box::new([0u8; 1024]);
         let black = u32::from(black_level);
-        for (v, out) in lut.iter_mut().enumerate() {
-            let above = (v as u32).saturating_sub(black);
-            *out = ((above * 1024 / (1024 - black)) >> 2).min(255) as u8;
-        }
-        let (rows, vsum) = match format {
-            PixelFormat::Bayer10 { .. } => {
+        // Rounded up: a truncated scale would put exact multiples (e.g. v - black = 63 of 1008) one level low.
+        let (bias, scale) = (black << LUMA_SHIFT, (1u32 << 24).div_ceil(1024 - black));
+        let (rows, vsum, row_gains) = match format {
+            PixelFormat::Bayer10 { order, .. } => {
                 let w = width as usize;
-                ([vec![0; w], vec![0; w], vec![0; w]], vec![0; w])
+                let sites = order.sites();
+                let gains = |p: usize| (0..w).map(|x| gain(sites[p][x % 2])).collect();
+                ([vec![0; w], vec![0; w], vec![0; w]], vec![0; w], [gains(0), gains(1)])
             }
-            _ => ([Vec::new(), Vec::new(), Vec::new()], Vec::new()),
+            _ => Default::default(),
         };
-        Ok(GrayConverter { format, width, height, stride: bytesperline, lut, rows, vsum })
+        Ok(GrayConverter { format, width, height, stride: bytesperline, bias, scale, rows, vsum, row_gains })
     }
 
     pub fn format(&self) -> PixelFormat {
@@ -304,7 +316,15 @@ impl GrayConverter {
             PixelFormat::Yuyv => {
                 for (y, out) in dst.chunks_exact_mut(w).enumerate() {
                     let row = &src[y * self.stride..y * self.stride + 2 * w];
-                    for (o, px) in out.iter_mut().zip(row.chunks_exact(2)) {
+                    // Fixed-size blocks let the compiler turn the byte gather into shuffles.
+                    let mut outs = out.chunks_exact_mut(16);
+                    let mut pxs = row.chunks_exact(32);
+                    for (o, px) in (&mut outs).zip(&mut pxs) {
+                        for i in 0..16 {
+                            o[i] = px[2 * i];
+                        }
+                    }
+                    for (o, px) in outs.into_remainder().iter_mut().zip(pxs.remainder().chunks_exact(2)) {
                         *o = px[0];
                     }
                 }
@@ -314,7 +334,7 @@ impl GrayConverter {
                     out.copy_from_slice(&src[y * self.stride..y * self.stride + w]);
                 }
             }
-            PixelFormat::Bayer10 { order, packing } => self.bayer_to_gray(src, dst, order, packing),
+            PixelFormat::Bayer10 { packing, .. } => self.bayer_to_gray(src, dst, packing),
         }
         Ok(())
     }
@@ -341,9 +361,8 @@ impl GrayConverter {
         }
     }
 
-    fn bayer_to_gray(&mut self, src: &[u8], dst: &mut [u8], order: CfaOrder, packing: Bayer10Packing) {
+    fn bayer_to_gray(&mut self, src: &[u8], dst: &mut [u8], packing: Bayer10Packing) {
         let (w, h) = (self.width as usize, self.height as usize);
-        let sites = order.sites();
         // Row r lives in slot r % 3: rows y-1, y, y+1 are always resident (reflect-101 at the ends).
         self.unpack_row(src, 0, packing);
         self.unpack_row(src, 1, packing);
@@ -354,25 +373,19 @@ impl GrayConverter {
             let up = if y == 0 { 1 } else { y - 1 };
             let dn = if y + 1 == h { h - 2 } else { y + 1 };
             // Rows y-1 and y+1 have the same CFA parity, so one gain pair serves both.
-            let mid_sites = sites[y % 2];
-            let out_sites = sites[(y + 1) % 2];
-            let (gm0, gm1) = (2 * gain(mid_sites[0]), 2 * gain(mid_sites[1]));
-            let (go0, go1) = (gain(out_sites[0]), gain(out_sites[1]));
+            let (gm, go) = (&self.row_gains[y % 2], &self.row_gains[(y + 1) % 2]);
             let (ru, rm, rd) = (&self.rows[up % 3], &self.rows[y % 3], &self.rows[dn % 3]);
-            for (((v, u), m), d) in
-                self.vsum.chunks_exact_mut(2).zip(ru.chunks_exact(2)).zip(rm.chunks_exact(2)).zip(rd.chunks_exact(2))
-            {
-                v[0] = go0 * (u32::from(u[0]) + u32::from(d[0])) + gm0 * u32::from(m[0]);
-                v[1] = go1 * (u32::from(u[1]) + u32::from(d[1])) + gm1 * u32::from(m[1]);
+            for (((((v, u), m), d), gm), go) in self.vsum.iter_mut().zip(ru).zip(rm).zip(rd).zip(gm).zip(go) {
+                *v = go * (u32::from(*u) + u32::from(*d)) + 2 * gm * u32::from(*m);
             }
             let v = &self.vsum;
-            let round = 1u32 << (LUMA_SHIFT - 1);
-            let luma = |s: u32| self.lut[((s + round) >> LUMA_SHIFT).min(1023) as usize];
-            out[0] = luma(2 * v[1] + 2 * v[0]);
-            for (o, win) in out[1..w - 1].iter_mut().zip(v.windows(3)) {
-                *o = luma(win[0] + 2 * win[1] + win[2]);
+            let (bias, scale) = (self.bias, self.scale);
+            out[0] = gray8(2 * v[1] + 2 * v[0], bias, scale);
+            // Three shifted slices rather than `windows(3)`: this form vectorises.
+            for (((o, a), b), c) in out[1..w - 1].iter_mut().zip(&v[..w - 2]).zip(&v[1..w - 1]).zip(&v[2..]) {
+                *o = gray8(a + 2 * b + c, bias, scale);
             }
-            out[w - 1] = luma(2 * v[w - 2] + 2 * v[w - 1]);
+            out[w - 1] = gray8(2 * v[w - 2] + 2 * v[w - 1], bias, scale);
         }
     }
 }
@@ -391,14 +404,20 @@ mod tests {
     }
 
     #[test]
-    fn lut_is_shift_without_black_level() {
+    fn ten_to_eight_bits() {
         let c = GrayConverter::new(PixelFormat::Nv12, 2, 2, 2, 0).unwrap();
-        for v in 0..1024 {
-            assert_eq!(c.lut[v], (v >> 2) as u8);
+        for v in 0..1024u32 {
+            assert_eq!(gray8(v << LUMA_SHIFT, c.bias, c.scale), (v >> 2) as u8);
         }
-        let c = GrayConverter::new(PixelFormat::Nv12, 2, 2, 2, 64).unwrap();
-        assert_eq!(c.lut[0], 0);
-        assert_eq!(c.lut[64], 0);
-        assert_eq!(c.lut[1023], 255);
+        for black in [16u32, 64, 256] {
+            let c = GrayConverter::new(PixelFormat::Nv12, 2, 2, 2, black as u16).unwrap();
+            for v in 0..1024u32 {
+                let want = (f64::from(v) - f64::from(black)).max(0.0) * 256.0 / f64::from(1024 - black);
+                let got = f64::from(gray8(v << LUMA_SHIFT, c.bias, c.scale));
+                assert!(got <= want.min(255.0) + 0.02 && got > want.min(255.0) - 1.0, "{black} {v}: {got} vs {want}");
+            }
+            assert_eq!(gray8(1023 << LUMA_SHIFT, c.bias, c.scale), 255);
+        }
+        assert!(GrayConverter::new(PixelFormat::Nv12, 2, 2, 2, 257).is_err());
     }
 }

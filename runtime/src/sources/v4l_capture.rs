@@ -433,7 +433,8 @@ impl FrameSource for V4lCamera {
 pub struct StereoStats {
     /// Pairing counts (frames in, pairs, unpaired, out of order, driver drops from sequence gaps).
     pub pairing: PairStats,
-    /// Frames lost to transient errors (corrupt buffer, conversion failure), left and right.
+    /// Frames lost to transient errors (corrupt buffer, conversion failure), left and right; they
+    /// also show as sequence gaps in `pairing.dropped`.
     pub errors: [u64; 2],
 }
 
