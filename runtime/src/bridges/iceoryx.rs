@@ -270,6 +270,21 @@ fn node(cfg: &BridgeConfig, role: &str) -> Result<(Node<Ipc>, u64), BridgeError>
     Ok((node, cleaned))
 }
 
+/// Process ids of iceoryx2 nodes on this machine whose process died without cleaning up (a crash, a kill).
+/// Their resources are removed by the next node creation or [`Publisher::cleanup_dead_nodes`].
+pub fn dead_node_pids() -> Result<Vec<i32>, BridgeError> {
+    use iceoryx2::node::NodeView;
+    let mut pids = Vec::new();
+    Node::<Ipc>::list(Config::global_config(), |state| {
+        if let NodeState::Dead(view) = state {
+            pids.push(view.details().as_ref().map_or(-1, |d| d.process_id().value()));
+        }
+        CallbackProgression::Continue
+    })
+    .map_err(iox("iceoryx2 nodes", "listing the nodes"))?;
+    Ok(pids)
+}
+
 type PubSubFactory<T> = iceoryx2::service::port_factory::publish_subscribe::PortFactory<Ipc, [T], FrameHeader>;
 type EventFactory = iceoryx2::service::port_factory::event::PortFactory<Ipc>;
 
