@@ -60,7 +60,8 @@ pub type Ipc = ipc_threadsafe::Service;
 pub const FRAME_ID: &str = "left_home_camera";
 
 /// User header of both services: what the sample is, when it was seen and sent, and the geometry it was
-/// computed with.
+/// computed with. iceoryx2 matches types by name, size and alignment: the name `abvs::FrameHeader/1` (and
+/// `abvs::CloudPoint/1`) must change with the layout, so an old subscriber is refused instead of misreading.
 #[derive(Debug, Clone, Copy, PartialEq, Default, ZeroCopySend)]
 #[repr(C)]
 #[type_name("abvs::FrameHeader/1")]
