@@ -29,6 +29,31 @@ fn cloud_frame(n: usize) -> Vec<CloudPoint> {
 
 fn bench(c: &mut Criterion) {
     let pid = std::process::id();
+    // the fixed cost of a sample (loan, header, send, notify / wake-up), without the payload copy
+    {
+        let cfg = BridgeConfig::for_resolution(16, 16).with_prefix(format!("abvs-bench-{pid}-1pt"));
+        let mut cp = CloudPublisher::new(&cfg).unwrap();
+        let mut cs = CloudSubscriber::new(&cfg).unwrap();
+        let mut seq = 0u64;
+        let one = [CloudPoint { x: 0.0, y: 0.0, z: 1.0, rgba: 0 }];
+        let mut g = c.benchmark_group("bridge_overhead");
+        g.sample_size(30).measurement_time(Duration::from_secs(3)).warm_up_time(Duration::from_millis(500));
+        g.bench_function("publish_cloud_1pt", |b| {
+            b.iter(|| {
+                seq += 1;
+                cp.publish_cloud(&header(seq, 16, 16), 1, |p| copy_into(p, &one)).unwrap()
+            })
+        });
+        while cs.try_receive().unwrap().is_some() {}
+        g.bench_function("round_trip_cloud_1pt", |b| {
+            b.iter(|| {
+                seq += 1;
+                cp.publish_cloud(&header(seq, 16, 16), 1, |p| copy_into(p, &one)).unwrap();
+                cs.wait(Duration::from_secs(1)).unwrap().unwrap();
+            })
+        });
+        g.finish();
+    }
     for (w, h) in [(320u32, 240u32), (640, 480)] {
         let n = (w * h) as usize;
         let cfg = BridgeConfig::for_resolution(w, h).with_prefix(format!("abvs-bench-{pid}-{w}"));

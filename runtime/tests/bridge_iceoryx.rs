@@ -248,3 +248,36 @@ fn publishers_and_subscribers_can_move_to_a_pipeline_thread() {
     send::<CloudSubscriber>();
     send::<Received<CloudPoint>>();
 }
+
+#[test]
+fn a_subscriber_may_start_first_and_a_mismatching_configuration_is_refused() {
+    let cfg = unique_config(16, 8);
+    // the subscriber creates the services with the shared configuration; the publisher opens them
+    let mut ds = DepthSubscriber::new(&cfg).unwrap();
+    let mut dp = DepthPublisher::new(&cfg).unwrap();
+    let mut h = header(3, 16, 8);
+    h.valid = 128;
+    dp.publish_depth(&h, |d| {
+        for v in d.iter_mut() {
+            v.write(2.5);
+        }
+    })
+    .unwrap();
+    let r = ds.wait(Duration::from_secs(2)).unwrap().expect("sample");
+    assert_eq!((r.header().seq, r.data().len()), (3, 128));
+    assert!(r.data().iter().all(|&v| v == 2.5));
+    drop(r);
+
+    // an empty cloud is a valid sample too
+    let mut cp = CloudPublisher::new(&cfg).unwrap();
+    let mut cs = CloudSubscriber::new(&cfg).unwrap();
+    cp.publish_cloud(&header(4, 16, 8), 0, |_| 0).unwrap();
+    let r = cs.wait(Duration::from_secs(2)).unwrap().expect("empty cloud");
+    assert_eq!((r.header().seq, r.header().valid, r.data().len()), (4, 0, 0));
+
+    // a process built with other settings (more subscribers than the service was created for) fails clearly
+    let other = BridgeConfig { max_subscribers: 16, ..cfg.clone() };
+    let e = DepthSubscriber::new(&other).err().expect("mismatching configuration");
+    let msg = e.to_string();
+    assert!(msg.contains(&cfg.service_name("depth")) && msg.contains("BridgeConfig"), "{msg}");
+}

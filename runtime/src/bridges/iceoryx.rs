@@ -60,7 +60,8 @@ pub type Ipc = ipc_threadsafe::Service;
 pub const FRAME_ID: &str = "left_home_camera";
 
 /// User header of both services: what the sample is, when it was seen and sent, and the geometry it was
-/// computed with.
+/// computed with. iceoryx2 matches types by name, size and alignment: the name `abvs::FrameHeader/1` (and
+/// `abvs::CloudPoint/1`) must change with the layout, so an old subscriber is refused instead of misreading.
 #[derive(Debug, Clone, Copy, PartialEq, Default, ZeroCopySend)]
 #[repr(C)]
 #[type_name("abvs::FrameHeader/1")]
@@ -268,6 +269,21 @@ fn node(cfg: &BridgeConfig, role: &str) -> Result<(Node<Ipc>, u64), BridgeError>
     // resources of processes that died (killed, crashed) are removed here, so a restart works
     let cleaned = node.try_cleanup_dead_nodes().cleanups;
     Ok((node, cleaned))
+}
+
+/// Process ids of iceoryx2 nodes on this machine whose process died without cleaning up (a crash, a kill).
+/// Their resources are removed by the next node creation or [`Publisher::cleanup_dead_nodes`].
+pub fn dead_node_pids() -> Result<Vec<i32>, BridgeError> {
+    use iceoryx2::node::NodeView;
+    let mut pids = Vec::new();
+    Node::<Ipc>::list(Config::global_config(), |state| {
+        if let NodeState::Dead(view) = state {
+            pids.push(view.details().as_ref().map_or(-1, |d| d.process_id().value()));
+        }
+        CallbackProgression::Continue
+    })
+    .map_err(iox("iceoryx2 nodes", "listing the nodes"))?;
+    Ok(pids)
 }
 
 type PubSubFactory<T> = iceoryx2::service::port_factory::publish_subscribe::PortFactory<Ipc, [T], FrameHeader>;
