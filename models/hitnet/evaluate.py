@@ -139,6 +139,7 @@ def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--variant", required=True, choices=list(VARIANTS))
     ap.add_argument("--ckpt", required=True)
+    ap.add_argument("--arch", default=None, help="architecture config (default = variant)")
     ap.add_argument("--heldout", required=True)
     ap.add_argument("--train-json", default=None)
     ap.add_argument("--out-dir", default=None)
@@ -149,7 +150,7 @@ def main():
     W, H, MD = cfg["width"], cfg["height"], cfg["max_disparity"]
     out_dir = args.out_dir or os.path.join(HERE, args.variant)
     os.makedirs(out_dir, exist_ok=True)
-    model = build(args.variant).eval()
+    model = build(args.arch or args.variant).eval()
     ck = torch.load(args.ckpt, weights_only=False)
     model.load_state_dict(ck["model"])
     onnx_path = os.path.join(out_dir, "model.onnx")

@@ -34,10 +34,16 @@ VARIANTS = {
     # ch: feature channels at 1/2, 1/4, 1/8, 1/16(, 1/32); init_level: feature level (0 = 1/2) whose
     # features build the init cost volume; tiles are 2x2 of that level. upd: widths of the
     # propagation CNNs from the tile level down to 1/2; upd_blocks: residual blocks each.
+    # init_mode "pixel": per-pixel L1 cost of 1x1-projected features at the init level for every
+    # integer disparity of that level, averaged over the 2x2 pixels of a tile; "tile" (v0):
+    # HITNet's tile features (2x2/s2 conv left, 2x1/(2,1) conv right).
     "hitnet-s": dict(width=320, height=240, max_disparity=40, ch=(8, 12, 24, 32), init_level=0,
-                     desc=8, upd=(16, 8), upd_blocks=(1, 0)),
+                     desc=8, upd=(16, 8), upd_blocks=(1, 0), init_mode="pixel", fuse2=True, match_ch=8, lcn=True),
     "hitnet-m": dict(width=640, height=480, max_disparity=80, ch=(8, 16, 24, 32, 48), init_level=1,
-                     desc=8, upd=(32, 16, 8), upd_blocks=(2, 1, 0)),
+                     desc=8, upd=(32, 16, 8), upd_blocks=(2, 1, 0), init_mode="pixel", fuse2=True, match_ch=16, lcn=True),
+    # first (weaker) design, kept so its checkpoints stay loadable
+    "hitnet-s-v0": dict(width=320, height=240, max_disparity=40, ch=(8, 12, 24, 32), init_level=0,
+                        desc=8, upd=(16, 8), upd_blocks=(1, 0)),
 }
 
 
@@ -61,10 +67,10 @@ class ResBlock(nn.Module):
 class FeatureUNet(nn.Module):
     """Encoder to 1/2^(len(ch)), decoder back to 1/2. Returns [f_1/2, f_1/4, ...]."""
 
-    def __init__(self, ch):
+    def __init__(self, ch, fuse2=False, cin=1):
         super().__init__()
         self.down = nn.ModuleList()
-        ci = 1
+        ci = cin
         for i, c in enumerate(ch):
             if i == 0:
                 self.down.append(conv(ci, c, 3, 2))
@@ -75,7 +81,8 @@ class FeatureUNet(nn.Module):
         self.fuse = nn.ModuleList()
         for i in range(len(ch) - 1, 0, -1):
             self.up.append(nn.Sequential(nn.ConvTranspose2d(ch[i], ch[i - 1], 2, 2), nn.LeakyReLU(0.2)))
-            self.fuse.append(conv(ch[i - 1], ch[i - 1]) if i > 1 else nn.Identity())
+            self.fuse.append(conv(ch[i - 1], ch[i - 1]) if (i > 1 or fuse2) else nn.Identity())
+        self.fuse2 = fuse2
 
     def forward(self, x):
         skips = []
@@ -85,7 +92,7 @@ class FeatureUNet(nn.Module):
         outs = [x]
         for j, (u, fz) in enumerate(zip(self.up, self.fuse)):
             i = len(skips) - 2 - j
-            x = fz(u(x) + skips[i]) if i > 0 else F.leaky_relu(u(x) + skips[i], 0.2)
+            x = fz(u(x) + skips[i]) if (i > 0 or self.fuse2) else F.leaky_relu(u(x) + skips[i], 0.2)
             outs.append(x)
         return outs[::-1]  # finest (1/2) first
 
@@ -160,20 +167,33 @@ class Propagation(nn.Module):
 
 
 class HITNetLite(nn.Module):
-    def __init__(self, width, height, max_disparity, ch, init_level, desc, upd, upd_blocks):
+    def __init__(self, width, height, max_disparity, ch, init_level, desc, upd, upd_blocks, init_mode="tile",
+                 fuse2=False, match_ch=16, lcn=False):
         super().__init__()
+        self.init_mode = init_mode
+        self.lcn = lcn
         self.max_disp = float(max_disparity)
         self.ch = ch
         self.init_level = init_level  # index into feature list (0 = 1/2)
         self.init_scale = 2 ** (init_level + 1)  # feature scale of the init cost volume
         self.tile_scale = self.init_scale * 2  # tiles = 2x2 init-level pixels
         self.nd = int(-(-max_disparity // self.init_scale)) + 1  # integer disparities at init level
-        self.feat = FeatureUNet(ch)
+        self.feat = FeatureUNet(ch, fuse2, 2 if lcn else 1)
         cm = ch[init_level]
         # HITNet-style tile features: left 2x2 stride 2; right 2x1 stride (2,1) keeps the
         # init-level x resolution, so every init-level integer disparity can be tested.
-        self.match_l = nn.Conv2d(cm, 16, 2, 2)
-        self.match_r = nn.Conv2d(cm, 16, (2, 1), (2, 1))
+        if init_mode == "tile":
+            self.match_l = nn.Conv2d(cm, match_ch, 2, 2)
+            self.match_r = nn.Conv2d(cm, match_ch, (2, 1), (2, 1))
+        else:
+            self.match_l = nn.Conv2d(cm, match_ch, 1)
+            self.match_r = self.match_l  # shared projection
+            self.log_temp = nn.Parameter(torch.tensor(3.0))  # softmax(-exp(log_temp) * cost)
+        # larger initial matching features -> a discriminative (non-uniform) init cost volume from the start
+        with torch.no_grad():
+            self.match_l.weight.mul_(4.0)
+            if self.match_r is not self.match_l:
+                self.match_r.weight.mul_(4.0)
         self.desc_init = nn.Sequential(conv(ch[init_level + 1] + 5, 16), nn.Conv2d(16, desc, 1))
         # propagation levels: tile level (1/tile_scale) down to 1/2
         self.levels = []
@@ -188,7 +208,12 @@ class HITNetLite(nn.Module):
             self.prop.append(Propagation(ch[li], desc, wdt, nb))
         self.register_buffer("temp", torch.tensor(1.0))
 
+    def temperature(self):
+        return torch.exp(self.log_temp) if self.init_mode == "pixel" else 20.0
+
     def init_hypotheses(self, fl, fr):
+        if self.init_mode == "pixel":
+            return self.init_pixel(fl, fr)
         ml, mr = self.match_l(fl), self.match_r(fr)  # [B,16,h/2,w/2], [B,16,h/2,w]
         B, C, h, wt = ml.shape
         W2 = mr.shape[-1]
@@ -204,9 +229,27 @@ class HITNetLite(nn.Module):
         cv = (mlt - g).abs().mean(3)  # [nd,wt,B,h]
         return cv.permute(2, 0, 3, 1)  # [B,nd,h,wt] tile cost
 
+    def init_pixel(self, fl, fr):
+        ml, mr = self.match_l(fl), self.match_r(fr)  # [B,C,h,w] at the init level
+        B, C, h, w = ml.shape
+        mrp = F.pad(mr, (1, 0))
+        k = torch.arange(self.nd, device=ml.device).view(self.nd, 1)
+        x = torch.arange(w, device=ml.device).view(1, w)
+        idx = (x - k + 1).clamp(min=0).view(-1)  # column x-k of mr (zero column if < 0)
+        g = torch.index_select(mrp.permute(3, 0, 1, 2), 0, idx).view(self.nd, w, B, C, h)
+        cv = (ml.permute(3, 0, 1, 2).unsqueeze(0) - g).abs().mean(3)  # [nd,w,B,h]
+        cv = cv.permute(2, 0, 3, 1)  # [B,nd,h,w]
+        return F.avg_pool2d(cv, 2)  # tile cost: mean over the tile's 2x2 init-level pixels
+
     def forward(self, x, return_all=False):
         B = x.shape[0]
         img = torch.cat([x[:, 0:1], x[:, 1:2]], 0)  # [2B,1,H,W]
+        if self.lcn:
+            # local contrast normalisation (7x7): invariance to gain / offset / vignetting between the eyes
+            mu = F.avg_pool2d(img, 7, 1, 3, count_include_pad=False)
+            var = F.avg_pool2d(img * img, 7, 1, 3, count_include_pad=False) - mu * mu
+            xn = (img - mu) / torch.sqrt(F.relu(var) + 4e-4)
+            img = torch.cat([xn * 0.25, img - 0.5], 1)
         feats = self.feat(img)
         fl = [f[:B] for f in feats]
         fr = [f[B:] for f in feats]
@@ -216,7 +259,7 @@ class HITNetLite(nn.Module):
         win = torch.arange(-2, 3, device=x.device).view(1, 5, 1, 1)
         widx = (idx + win).clamp(0, self.nd - 1)
         wc = torch.gather(cv, 1, widx)
-        prob = torch.softmax(-wc * 20.0, 1)
+        prob = torch.softmax(-wc * self.temperature(), 1)
         d0 = (prob * widx.float()).sum(1, keepdim=True) * self.init_scale
         tile_feat = fl[self.init_level + 1]
         p = self.desc_init(torch.cat([tile_feat, wc], 1))

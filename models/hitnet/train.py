@@ -68,7 +68,7 @@ def tile_gt(gt, valid, tile):
     return mean, ok
 
 
-def losses(model, x, gt, max_disp):
+def losses(model, x, gt, max_disp, w_init=0.3):
     dfull, cv, outs = model(x, return_all=True)
     valid = (gt > 0) & (gt < max_disp)
     vf = valid.float()
@@ -87,13 +87,13 @@ def losses(model, x, gt, max_disp):
     t = (tg / model.init_scale).clamp(0, model.nd - 1.001)
     lo = t.floor().long()
     w_hi = t - lo.float()
-    logp = torch.log_softmax(-cv * 20.0, 1)
+    logp = torch.log_softmax(-cv * model.temperature(), 1)
     lp_lo = logp.gather(1, lo)
     lp_hi = logp.gather(1, (lo + 1).clamp(max=model.nd - 1))
     ce = -((1 - w_hi) * lp_lo + w_hi * lp_hi)
     okf = ok.float()
     l_init = (ce * okf).sum() / okf.sum().clamp(min=1)
-    loss = l_final + 0.5 * l_mid + 0.3 * l_init
+    loss = l_final + 0.5 * l_mid + w_init * l_init
     return loss, dict(final=l_final.item(), mid=float(l_mid), init=l_init.item(), epe=epe.item())
 
 
@@ -101,12 +101,14 @@ def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--variant", required=True, choices=list(VARIANTS))
     ap.add_argument("--data", required=True)
+    ap.add_argument("--arch", default=None, help="architecture config (default = variant)")
     ap.add_argument("--out", required=True)
     ap.add_argument("--steps", type=int, default=3000)
     ap.add_argument("--batch", type=int, default=4)
     ap.add_argument("--crop", type=str, default=None, help="WxH (default: variant specific)")
     ap.add_argument("--lr", type=float, default=2e-3)
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--init-weight", type=float, default=0.3, help="weight of the init cost-volume cross-entropy")
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--ckpt-every", type=int, default=200)
     ap.add_argument("--resume", default=None)
@@ -116,14 +118,14 @@ def main():
     torch.set_num_threads(args.threads)
     torch.manual_seed(args.seed)
     rng = np.random.default_rng(args.seed)
-    cfg = VARIANTS[args.variant]
+    cfg = VARIANTS[args.arch or args.variant]
     max_disp = cfg["max_disparity"]
     if args.crop:
         cw, chh = map(int, args.crop.split("x"))
     else:
         cw, chh = (288, 192) if args.variant == "hitnet-s" else (384, 256)
     data = Data(args.data)
-    model = build(args.variant)
+    model = build(args.arch or args.variant)
     opt = torch.optim.Adam(model.parameters(), lr=args.lr)
 
     def lr_at(frac):  # linear warm-up (3%), then cosine to lr/100; frac = progress in [0,1]
@@ -165,7 +167,7 @@ def main():
             gparam["lr"] = lr_at(frac)
         x, gt = data.batch(rng, args.batch, cw, chh)
         model.train()
-        loss, parts = losses(model, x, gt, max_disp)
+        loss, parts = losses(model, x, gt, max_disp, args.init_weight)
         opt.zero_grad()
         loss.backward()
         torch.nn.utils.clip_grad_norm_(model.parameters(), 5.0)
@@ -189,11 +191,11 @@ def main():
     save(step)
     info = dict(variant=args.variant, seed=args.seed, data=data.meta.get("command"), data_seed=data.meta.get("seed"),
                 data_count=data.n, crop=f"{cw}x{chh}", batch=args.batch, steps_planned=args.steps, steps_done=step,
-                optimizer=f"Adam(lr={args.lr})", lr_schedule="3% linear warm-up from lr/10, then cosine to lr/100; progress = max(step/steps, elapsed/time_limit)",
+                optimizer=f"Adam(lr={args.lr})", init_weight=args.init_weight, lr_schedule="3% linear warm-up from lr/10, then cosine to lr/100; progress = max(step/steps, elapsed/time_limit)",
                 time_limit_min=args.time_limit_min,
                 loss="smooth-L1(beta=1) final full-res disparity + 0.5 * mean smooth-L1 of the slanted-plane-upsampled "
-                     "intermediate hypotheses (init + every propagation level) + 0.3 * cross-entropy of the init tile "
-                     "cost volume (softmax(-20*cost)) vs two-hot tile GT on fully valid near-planar tiles",
+                     "intermediate hypotheses (init + every propagation level) + init_weight * cross-entropy of the init tile "
+                     "cost volume (softmax(-T*cost), T = 20 or learned) vs two-hot tile GT on fully valid near-planar tiles",
                 wall_time_s=round(time.time() - t0, 1), threads=args.threads, torch=torch.__version__,
                 command=" ".join(["python", "models/hitnet/train.py"] + sys.argv[1:]))
     if args.resume and os.path.exists(os.path.join(args.out, "train.json")):
