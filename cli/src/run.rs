@@ -127,7 +127,8 @@ pub fn run(a: RunArgs) -> anyhow::Result<ExitCode> {
         }
     }
     if !a.no_publish {
-        let cfg = abvs_runtime::bridges::iceoryx::BridgeConfig::for_resolution(w, h).with_prefix(a.service_prefix.clone());
+        let cfg =
+            abvs_runtime::bridges::iceoryx::BridgeConfig::for_resolution(w, h).with_prefix(a.service_prefix.clone());
         sinks.push(Box::new(abvs_runtime::bridges::publish::PublishSink::new(cfg)?));
     }
     if let Some(d) = &a.dump {

@@ -97,8 +97,10 @@ fn truncated_and_desynchronised_encoder_streams_are_reported_not_panics() {
     let d = fixture_copy();
     let s = d.path().join("s");
     let enc = std::fs::read_to_string(s.join("encoders.csv")).unwrap();
-    // cut mid-line: the reader names the file and line
-    std::fs::write(s.join("encoders.csv"), &enc[..enc.len() / 2]).unwrap();
+    // cut mid-line (after "t_ns,eye,"): the reader names the file and line
+    let line_start = enc[..enc.len() / 2].rfind('\n').unwrap() + 1;
+    let second_comma = line_start + enc[line_start..].match_indices(',').nth(1).unwrap().0 + 1;
+    std::fs::write(s.join("encoders.csv"), &enc[..second_comma]).unwrap();
     let e = run(&s, &["--engine", "sgbm", "--lossless"]).unwrap_err();
     assert!(e.contains("encoders.csv:") && !e.contains("panicked"), "{e}");
     // whole lines, but the stream ends half way: the frames it does not cover are counted, the rest published
@@ -130,7 +132,7 @@ fn truncated_and_desynchronised_encoder_streams_are_reported_not_panics() {
     lines.swap(3, 4);
     std::fs::write(s.join("frames.csv"), lines.join("\n") + "\n").unwrap();
     let e = run(&s, &["--engine", "sgbm"]).unwrap_err();
-    assert!(e.contains("frames.csv:4") && e.contains("not after"), "{e}");
+    assert!(e.contains("frames.csv:5") && e.contains("not after"), "{e}");
 }
 
 #[test]
@@ -175,7 +177,18 @@ fn real_subscriber_processes_receive_clouds_while_another_crashes() {
     let dir = tempfile::tempdir().unwrap();
     let stats = dir.path().join("stats.json");
     let run = abvs()
-        .args(["run", "--quiet", "--engine", "sgbm", "--frames", "60", "--truth-stride", "0", "--service-prefix", &prefix])
+        .args([
+            "run",
+            "--quiet",
+            "--engine",
+            "sgbm",
+            "--frames",
+            "60",
+            "--truth-stride",
+            "0",
+            "--service-prefix",
+            &prefix,
+        ])
         .arg("--session")
         .arg(fixture())
         .arg("--stats-json")

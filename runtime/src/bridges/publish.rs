@@ -18,7 +18,11 @@ pub struct PublishSink {
 impl PublishSink {
     pub fn new(config: BridgeConfig) -> Result<PublishSink> {
         let err = |e: crate::bridges::iceoryx::BridgeError| RuntimeError::Invalid(e.to_string());
-        Ok(PublishSink { depth: Publisher::new(&config).map_err(err)?, cloud: Publisher::new(&config).map_err(err)?, config })
+        Ok(PublishSink {
+            depth: Publisher::new(&config).map_err(err)?,
+            cloud: Publisher::new(&config).map_err(err)?,
+            config,
+        })
     }
 }
 
@@ -68,6 +72,8 @@ impl Sink for PublishSink {
 
     fn finish(&mut self, stats: &mut RunStats) {
         let (d, c) = (self.depth.stats(), self.cloud.stats());
-        stats.extra.insert("publish".into(), serde_json::json!({ "depth": format!("{d:?}"), "cloud": format!("{c:?}") }));
+        stats
+            .extra
+            .insert("publish".into(), serde_json::json!({ "depth": format!("{d:?}"), "cloud": format!("{c:?}") }));
     }
 }
