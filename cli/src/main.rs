@@ -2,6 +2,7 @@
 //! library crate (abvs-eye for the physics, abvs-onnx for ONNX Runtime).
 mod calib;
 mod demo;
+mod disparity;
 mod echo;
 mod explain;
 mod explain_plots;
@@ -40,6 +41,10 @@ enum Cmd {
     Run(run::RunArgs),
     /// Subscribe to the runtime's depth or cloud (iceoryx2) and print rate and latency.
     Echo(echo::EchoArgs),
+    /// Left-view disparity of a rectified pair with the shipped network or SGBM, written as PFM.
+    Disparity(disparity::DisparityArgs),
+    /// Score the disparity engines (each model variant and SGBM) against a ground-truth map, with timing.
+    DisparityEval(disparity::EvalArgs),
     /// Report what abvs found on this machine (ONNX Runtime library, version).
     Doctor,
 }
@@ -53,6 +58,8 @@ fn main() -> ExitCode {
         Cmd::Demo(a) => demo::run(a),
         Cmd::Run(a) => run::run(a),
         Cmd::Echo(a) => echo::run(a),
+        Cmd::Disparity(a) => disparity::run_disparity(a),
+        Cmd::DisparityEval(a) => disparity::run_eval(a),
         Cmd::Doctor => doctor(),
     };
     match r {

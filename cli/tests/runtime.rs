@@ -145,15 +145,12 @@ fn missing_calibration_and_a_model_with_wrong_inputs_are_clear_errors() {
     std::fs::remove_file(s.join("calib/stereo.yaml")).unwrap();
     let e = run(&s, &["--engine", "sgbm"]).unwrap_err();
     assert!(e.contains("stereo.yaml") && e.contains("no such file"), "{e}");
-    // an FK model (theta [N,3] -> pose) is not a disparity model
-    let fk_onnx = std::fs::read_dir(fixture().join("calib/eye0"))
-        .unwrap()
-        .map(|e| e.unwrap().path())
-        .find(|p| p.extension().is_some_and(|x| x == "onnx"));
-    if let Some(m) = fk_onnx {
-        let e = run(&fixture(), &["--engine", "onnx", "--model", m.to_str().unwrap()]).unwrap_err();
-        assert!(e.contains("disparity model takes one input") || e.contains("expected a static [1,2,H,W]"), "{e}");
-    }
+    // an FK network (theta [N,3] -> pose [N,6]) is not a disparity model
+    use abvs_calib::mlp::{Affine, Net};
+    let m = d.path().join("fk_net.onnx");
+    abvs_calib::onnx_io::export_onnx(&Net::m1(8, 2, Affine::identity(3), Affine::identity(6), 1), &m).unwrap();
+    let e = run(&fixture(), &["--engine", "onnx", "--model", m.to_str().unwrap()]).unwrap_err();
+    assert!(e.contains("fk_net.onnx") && e.contains("expected a static [1,2,H,W]"), "{e}");
     let e = run(&fixture(), &["--engine", "onnx", "--model", "/nonexistent/model.onnx"]).unwrap_err();
     assert!(e.contains("/nonexistent/model.onnx"), "{e}");
 }
