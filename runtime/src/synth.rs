@@ -347,8 +347,8 @@ pub fn generate(spec: &SessionSpec, dir: &Path, progress: &mut dyn FnMut(&str, u
                 blur_sigma: 0.5,
                 vignetting: 0.35,
                 gain: if eye == 0 { 1.0 } else { 0.93 },
-                offset: if eye == 0 { 0.0 } else { 0.02 },
-                noise_sigma: spec.noise_sigma / 255.0,
+                offset: if eye == 0 { 0.0 } else { 4.0 },
+                noise_sigma: spec.noise_sigma,
                 seed: spec.seed * 1_000_003 + (k * 2 + eye) as u64,
                 threads: spec.threads,
                 ..RenderOptions::default()

@@ -67,8 +67,9 @@ pub struct OnnxEngine {
     pub path: PathBuf,
     session: ort::session::Session,
     input: ort::value::Tensor<f32>,
+    /// Pre-allocated output, bound to the model's output: ONNX Runtime writes the disparity straight into it.
+    output: ort::value::Tensor<f32>,
     binding: ort::session::IoBinding,
-    output_name: String,
     rgb: bool,
 }
 
@@ -101,33 +102,26 @@ impl OnnxEngine {
         }
         let cerr = |e: ort::Error| RuntimeError::Model { path: model_path.clone(), msg: e.to_string() };
         let input = ort::value::Tensor::<f32>::new(session.allocator(), shape).map_err(cerr)?;
-        let output = ort::value::Tensor::<f32>::new(
-            session.allocator(),
-            [1usize, 1, manifest.height as usize, manifest.width as usize],
-        )
+        // the output buffer has the model's declared rank ([1,1,H,W] or [1,H,W])
+        let (hh, ww) = (manifest.height as usize, manifest.width as usize);
+        let out_rank = session.outputs()[0].dtype().tensor_shape().map(|s| s.len()).unwrap_or(4);
+        let mut output = if out_rank == 4 {
+            ort::value::Tensor::<f32>::new(session.allocator(), [1usize, 1, hh, ww])
+        } else {
+            ort::value::Tensor::<f32>::new(session.allocator(), [1usize, hh, ww])
+        }
         .map_err(cerr)?;
         let mut binding = session.create_binding().map_err(cerr)?;
         binding.bind_input(manifest.input_name.clone(), &input).map_err(cerr)?;
-        // Outputs declared [1,H,W] accept a [1,1,H,W] buffer of the same size? Not in ORT: match the rank.
-        let out_rank = session.outputs()[0].dtype().tensor_shape().map(|s| s.len()).unwrap_or(4);
-        if out_rank == 4 {
-            binding.bind_output(manifest.output_name.clone(), output).map_err(cerr)?;
-        } else {
-            let o3 = ort::value::Tensor::<f32>::new(
-                session.allocator(),
-                [1usize, manifest.height as usize, manifest.width as usize],
-            )
-            .map_err(cerr)?;
-            binding.bind_output(manifest.output_name.clone(), o3).map_err(cerr)?;
-        }
+        binding.bind_output(manifest.output_name.clone(), &mut output).map_err(cerr)?;
         let rgb = manifest.input_layout == "rgb6";
         Ok(OnnxEngine {
             name: format!("onnx:{}", manifest.variant),
-            output_name: manifest.output_name.clone(),
             manifest,
             path: model_path,
             session,
             input,
+            output,
             binding,
             rgb,
         })
@@ -240,9 +234,24 @@ impl DisparityEngine for OnnxEngine {
                 *d = *s as f32 * scale;
             }
         }
-        let err = |e: ort::Error| RuntimeError::Model { path: self.path.clone(), msg: e.to_string() };
-        let outputs = self.session.run_binding(&self.binding).map_err(err)?;
-        let (_, disp) = outputs[self.output_name.as_str()].try_extract_tensor::<f32>().map_err(err)?;
+        // The C API's RunWithBinding directly: `Session::run_binding` wraps the (already bound) outputs in a
+        // freshly allocated map every call, and the pipeline must not allocate per frame.
+        use ort::AsPointer;
+        let api = ort::api();
+        // SAFETY: session and binding are live for the call; input and output tensors bound to it are owned by
+        // self and not moved; ORT writes the output into our pre-allocated tensor.
+        let status =
+            unsafe { (api.RunWithBinding)(self.session.ptr().cast_mut(), std::ptr::null(), self.binding.ptr()) };
+        if !status.0.is_null() {
+            // SAFETY: a non-null status carries a NUL-terminated message; we release it once read.
+            let msg = unsafe {
+                let m = std::ffi::CStr::from_ptr((api.GetErrorMessage)(status.0)).to_string_lossy().into_owned();
+                (api.ReleaseStatus)(status.0);
+                m
+            };
+            return Err(RuntimeError::Model { path: self.path.clone(), msg: format!("inference failed: {msg}") });
+        }
+        let (_, disp) = self.output.extract_tensor();
         let max = self.manifest.max_disparity as f32 * 1.5;
         for (o, d) in out.iter_mut().zip(disp) {
             // a network always answers; values outside its trained range are not disparities
