@@ -214,6 +214,8 @@ def main():
     col = lambda a: cv2.applyColorMap(np.clip(a / vis_max * 255, 0, 255).astype(np.uint8), cv2.COLORMAP_TURBO)
     dsv = np.where(sv, ds, 0)
     panel = np.hstack([cv2.cvtColor(l8, cv2.COLOR_GRAY2BGR), col(g), col(d), col(dsv)])
+    if panel.shape[1] > 1280:  # keep the figure small
+        panel = cv2.resize(panel, (panel.shape[1] // 2, panel.shape[0] // 2), interpolation=cv2.INTER_AREA)
     cv2.imwrite(os.path.join(out_dir, "aloe.png"), panel)
 
     # ---- latency, interleaved
