@@ -38,9 +38,13 @@ VARIANTS = {
     # integer disparity of that level, averaged over the 2x2 pixels of a tile; "tile" (v0):
     # HITNet's tile features (2x2/s2 conv left, 2x1/(2,1) conv right).
     "hitnet-s": dict(width=320, height=240, max_disparity=40, ch=(8, 12, 24, 32), init_level=0,
-                     desc=8, upd=(16, 8), upd_blocks=(1, 0), init_mode="pixel", fuse2=True, match_ch=8, lcn=True),
+                     desc=8, upd=(16, 8), upd_blocks=(1, 0), init_mode="rows", fuse2=True, match_ch=8, lcn=True,
+                     light_last=True),
     "hitnet-m": dict(width=640, height=480, max_disparity=80, ch=(8, 16, 24, 32, 48), init_level=1,
                      desc=8, upd=(32, 16, 8), upd_blocks=(2, 1, 0), init_mode="pixel", fuse2=True, match_ch=16, lcn=True),
+    # hitnet-s as trained in the 08:19 run (1x1 matching projection, full 3x3 update at 1/2)
+    "hitnet-s-v2": dict(width=320, height=240, max_disparity=40, ch=(8, 12, 24, 32), init_level=0,
+                        desc=8, upd=(16, 8), upd_blocks=(1, 0), init_mode="pixel", fuse2=True, match_ch=8, lcn=True),
     # first (weaker) design, kept so its checkpoints stay loadable
     "hitnet-s-v0": dict(width=320, height=240, max_disparity=40, ch=(8, 12, 24, 32), init_level=0,
                         desc=8, upd=(16, 8), upd_blocks=(1, 0)),
@@ -128,13 +132,14 @@ def upsample_planes(d, dx, dy, factor, tile_px):
 
 
 class Propagation(nn.Module):
-    def __init__(self, cf, p, width, blocks, offsets=(-1.0, 0.0, 1.0)):
+    def __init__(self, cf, p, width, blocks, offsets=(-1.0, 0.0, 1.0), light=False):
         super().__init__()
         self.offsets = offsets
+        self.light = light  # last level: 1x1 output conv, no descriptor update
         cin = len(offsets) + cf + 3 + p
         self.inp = conv(cin, width)
         self.blocks = nn.Sequential(*[ResBlock(width, d) for d in [1, 2, 1, 2][:blocks]]) if blocks else nn.Identity()
-        self.out = nn.Conv2d(width, 3 + p, 3, 1, 1)
+        self.out = nn.Conv2d(width, 3, 1) if light else nn.Conv2d(width, 3 + p, 3, 1, 1)
         nn.init.zeros_(self.out.weight)
         nn.init.zeros_(self.out.bias)
 
@@ -162,13 +167,14 @@ class Propagation(nn.Module):
         d = d + u[:, 0:1] * scale
         dx = dx + u[:, 1:2]
         dy = dy + u[:, 2:3]
-        p = p + u[:, 3:]
+        if not self.light:
+            p = p + u[:, 3:]
         return d, dx, dy, p
 
 
 class HITNetLite(nn.Module):
     def __init__(self, width, height, max_disparity, ch, init_level, desc, upd, upd_blocks, init_mode="tile",
-                 fuse2=False, match_ch=16, lcn=False):
+                 fuse2=False, match_ch=16, lcn=False, light_last=False):
         super().__init__()
         self.init_mode = init_mode
         self.lcn = lcn
@@ -185,6 +191,11 @@ class HITNetLite(nn.Module):
         if init_mode == "tile":
             self.match_l = nn.Conv2d(cm, match_ch, 2, 2)
             self.match_r = nn.Conv2d(cm, match_ch, (2, 1), (2, 1))
+        elif init_mode == "rows":
+            # shared (2,1)/(2,1) projection: the 2 rows of a tile -> one row, x resolution kept
+            self.match_l = nn.Conv2d(cm, match_ch, (2, 1), (2, 1))
+            self.match_r = self.match_l
+            self.log_temp = nn.Parameter(torch.tensor(3.0))
         else:
             self.match_l = nn.Conv2d(cm, match_ch, 1)
             self.match_r = self.match_l  # shared projection
@@ -203,16 +214,16 @@ class HITNetLite(nn.Module):
             s //= 2
         assert len(self.levels) == len(upd), (self.levels, upd)
         self.prop = nn.ModuleList()
-        for s, wdt, nb in zip(self.levels, upd, upd_blocks):
+        for j, (s, wdt, nb) in enumerate(zip(self.levels, upd, upd_blocks)):
             li = {2: 0, 4: 1, 8: 2, 16: 3}[s]
-            self.prop.append(Propagation(ch[li], desc, wdt, nb))
+            self.prop.append(Propagation(ch[li], desc, wdt, nb, light=light_last and j == len(upd) - 1))
         self.register_buffer("temp", torch.tensor(1.0))
 
     def temperature(self):
-        return torch.exp(self.log_temp) if self.init_mode == "pixel" else 20.0
+        return torch.exp(self.log_temp) if self.init_mode in ("pixel", "rows") else 20.0
 
     def init_hypotheses(self, fl, fr):
-        if self.init_mode == "pixel":
+        if self.init_mode in ("pixel", "rows"):
             return self.init_pixel(fl, fr)
         ml, mr = self.match_l(fl), self.match_r(fr)  # [B,16,h/2,w/2], [B,16,h/2,w]
         B, C, h, wt = ml.shape
@@ -239,6 +250,8 @@ class HITNetLite(nn.Module):
         g = torch.index_select(mrp.permute(3, 0, 1, 2), 0, idx).view(self.nd, w, B, C, h)
         cv = (ml.permute(3, 0, 1, 2).unsqueeze(0) - g).abs().mean(3)  # [nd,w,B,h]
         cv = cv.permute(2, 0, 3, 1)  # [B,nd,h,w]
+        if self.init_mode == "rows":
+            return F.avg_pool2d(cv, (1, 2))  # rows already merged: mean over the tile's 2 columns
         return F.avg_pool2d(cv, 2)  # tile cost: mean over the tile's 2x2 init-level pixels
 
     def forward(self, x, return_all=False):

@@ -112,6 +112,9 @@ def main():
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--ckpt-every", type=int, default=200)
     ap.add_argument("--resume", default=None)
+    ap.add_argument("--init-from", default=None,
+                    help="checkpoint of a related architecture: equal-shape weights are copied, a 1x1 matching "
+                         "projection becomes a (2,1) one (halved per row), a 3x3 update head its centre tap")
     ap.add_argument("--time-limit-min", type=float, default=0,
                     help="wall-clock budget: the lr schedule follows max(step/steps, time/budget) and training stops at the budget")
     args = ap.parse_args()
@@ -134,6 +137,24 @@ def main():
         q = (frac - 0.03) / 0.97
         return args.lr * (0.01 + 0.99 * 0.5 * (1 + math.cos(math.pi * min(q, 1.0))))
 
+    if args.init_from:
+        src = torch.load(args.init_from, weights_only=False)["model"]
+        dst = model.state_dict()
+        copied, adapted = 0, []
+        for k, v in dst.items():
+            if k not in src:
+                continue
+            w = src[k]
+            if w.shape == v.shape:
+                dst[k] = w.clone(); copied += 1
+            elif w.dim() == 4 and v.dim() == 4 and w.shape[2:] == (1, 1) and v.shape[2:] == (2, 1) and w.shape[:2] == v.shape[:2]:
+                dst[k] = w.repeat(1, 1, 2, 1) / 2; adapted.append(k)
+            elif w.dim() == 4 and v.dim() == 4 and w.shape[2:] == (3, 3) and v.shape[2:] == (1, 1):
+                dst[k] = w[: v.shape[0], :, 1:2, 1:2].clone(); adapted.append(k)
+            elif w.dim() == 1 and v.dim() == 1 and w.shape[0] > v.shape[0]:
+                dst[k] = w[: v.shape[0]].clone(); adapted.append(k)
+        model.load_state_dict(dst)
+        print(f"[train] init from {args.init_from}: {copied} tensors copied, adapted {adapted}", flush=True)
     start = 0
     if args.resume:
         ck = torch.load(args.resume, weights_only=False)
@@ -191,7 +212,7 @@ def main():
     save(step)
     info = dict(variant=args.variant, seed=args.seed, data=data.meta.get("command"), data_seed=data.meta.get("seed"),
                 data_count=data.n, crop=f"{cw}x{chh}", batch=args.batch, steps_planned=args.steps, steps_done=step,
-                optimizer=f"Adam(lr={args.lr})", init_weight=args.init_weight, lr_schedule="3% linear warm-up from lr/10, then cosine to lr/100; progress = max(step/steps, elapsed/time_limit)",
+                optimizer=f"Adam(lr={args.lr})", init_from=args.init_from, init_weight=args.init_weight, lr_schedule="3% linear warm-up from lr/10, then cosine to lr/100; progress = max(step/steps, elapsed/time_limit)",
                 time_limit_min=args.time_limit_min,
                 loss="smooth-L1(beta=1) final full-res disparity + 0.5 * mean smooth-L1 of the slanted-plane-upsampled "
                      "intermediate hypotheses (init + every propagation level) + init_weight * cross-entropy of the init tile "
