@@ -9,7 +9,6 @@ mod explain_plots;
 mod kin;
 mod paper;
 mod plot;
-mod rerun_sink;
 mod run;
 mod sim;
 mod table;

@@ -51,9 +51,6 @@ pub struct RunArgs {
     /// Threads of the ONNX engine.
     #[arg(long, default_value_t = 2)]
     pub threads: usize,
-    /// Log rectified images, depth, the cloud and both camera frustums to a rerun .rrd file (feature "rerun").
-    #[arg(long)]
-    pub rerun: Option<PathBuf>,
     /// Score depth against the session's ground truth every N-th point (synthetic sessions; 0: off).
     #[arg(long, default_value_t = 8)]
     pub truth_stride: usize,
@@ -133,9 +130,6 @@ pub fn run(a: RunArgs) -> anyhow::Result<ExitCode> {
     }
     if let Some(d) = &a.dump {
         sinks.push(Box::new(abvs_runtime::sinks::dump::DumpSink { dir: d.clone(), every: 1 }));
-    }
-    if let Some(p) = &a.rerun {
-        sinks.push(crate::rerun_sink::open(p, &out)?);
     }
     let description = session.meta.description.clone();
     let source = ReplaySource::open(session)?;

@@ -2,7 +2,7 @@
 //!
 //! Grouped by role, data flowing one way: **sources** (frames, encoders) -> **tasks** (time alignment,
 //! per-eye FK and the moving extrinsic, rectification, disparity, depth and cloud) -> **sinks** (stats,
-//! recording, rerun) and **bridges** (iceoryx2 publishing to other processes). [`pipeline`] wires the stages
+//! truth scoring, dumps) and **bridges** (iceoryx2 publishing to other processes). [`pipeline`] wires the stages
 //! on threads joined by bounded channels; [`session`] is the on-disk format of recorded sessions.
 pub mod bridges;
 pub mod error;

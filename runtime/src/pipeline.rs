@@ -89,7 +89,7 @@ pub struct Published<'a> {
     pub disparity: &'a [f32],
 }
 
-/// Where finished frames go inside this process: iceoryx2 publishing, ground-truth scoring, rerun logging.
+/// Where finished frames go: iceoryx2 publishing, ground-truth scoring, PNG dumps.
 pub trait Sink: Send {
     fn name(&self) -> &'static str;
     fn consume(&mut self, out: &Published) -> Result<()>;
