@@ -93,14 +93,15 @@ pub fn run(cmd: SimCmd) -> anyhow::Result<ExitCode> {
     match cmd {
         SimCmd::Board(a) => {
             use std::io::Write;
-            let sim = abvs_runtime::encoder_link::BoardSim {
+            let sim = abvs_runtime::sources::encoder_link::BoardSim {
                 frames: a.frames,
                 rate_hz: a.rate_hz,
                 corrupt_every: a.corrupt_every,
                 drop_every: a.drop_every,
                 reset_after: a.reset_after,
             };
-            let mut port = abvs_runtime::encoder_link::open_port(&a.port, 1_000_000).map_err(anyhow::Error::msg)?;
+            let mut port =
+                abvs_runtime::sources::encoder_link::open_port(&a.port, 1_000_000).map_err(anyhow::Error::msg)?;
             let period = std::time::Duration::from_secs_f64(1.0 / a.rate_hz.max(1.0));
             let mut sent = 0usize;
             for f in sim.frames() {

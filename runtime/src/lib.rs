@@ -1,13 +1,13 @@
 //! # abvs-runtime: the perception runtime
 //!
-//! Grouped by role, data flowing one way (sources -> tasks -> sinks). Built so far:
-//! - sources: [`encoder_link`] (the drive board's framed serial protocol, clock mapping).
-//! - tasks: [`align`] (encoder samples -> link angles at each frame's mid-exposure time).
-//!
-//! The rest of the pipeline (capture, homing on the live stream, per-eye FK, rectification,
-//! disparity, publishing) is issue 6.
-pub mod align;
-pub mod encoder_link;
+//! Grouped by role, data flowing one way: **sources** (frames, encoders) -> **tasks** (time alignment,
+//! per-eye FK and the moving extrinsic, rectification, disparity, depth and cloud) -> **sinks** (stats,
+//! recording, rerun) and **bridges** (iceoryx2 publishing to other processes). [`pipeline`] wires the stages
+//! on threads joined by bounded channels; [`session`] is the on-disk format of recorded sessions.
+pub mod bridges;
 pub mod error;
+pub mod sinks;
+pub mod sources;
+pub mod tasks;
 
 pub use error::{Result, RuntimeError};

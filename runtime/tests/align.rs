@@ -3,7 +3,7 @@
 use abvs_eye::encoder::quantize_deg;
 use abvs_eye::pose::rotation_angle_deg;
 use abvs_eye::{Fick, SpmGeometry, UnitModel};
-use abvs_runtime::align::{EncoderSample, EncoderTrack};
+use abvs_runtime::tasks::align::{EncoderSample, EncoderTrack};
 use abvs_runtime::RuntimeError;
 
 /// A minimum-jerk saccade from yaw -20 to +20 deg (pitch 10, roll 3) whose peak speed is the

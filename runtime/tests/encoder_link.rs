@@ -1,5 +1,5 @@
 //! The encoder protocol: framing round trip, resync after garbage, clock mapping under jitter.
-use abvs_runtime::encoder_link::{BoardFrame, BoardSim, ClockMap, Decoder, LinkEvent, FRAME_LEN};
+use abvs_runtime::sources::encoder_link::{BoardFrame, BoardSim, ClockMap, Decoder, LinkEvent, FRAME_LEN};
 
 #[test]
 fn frames_round_trip_and_garbage_is_skipped_and_counted() {

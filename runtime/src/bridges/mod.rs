@@ -1,0 +1,1 @@
+//! Bridges: publishing to other processes (iceoryx2 shared memory).

@@ -1,0 +1,1 @@
+//! Sinks: where results leave the pipeline inside this process (latency statistics, recording, rerun).

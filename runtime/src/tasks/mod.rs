@@ -1,0 +1,2 @@
+//! Tasks: the processing stages between sources and sinks.
+pub mod align;
