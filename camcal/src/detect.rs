@@ -121,6 +121,34 @@ pub fn opencv_tags(gray: &Mat) -> Result<Vec<(u32, [[f64; 2]; 4])>> {
     Ok(out)
 }
 
+/// Stand-alone tag36h11 tags (1-bit border, as printed by the AprilTag tools): OpenCV aruco with
+/// its AprilTag corner refinement (CORNER_REFINE_APRILTAG). Corners in the AprilTag library's
+/// order (counter-clockwise in the image starting bottom-left of the upright tag), so they
+/// compare directly with that library's output.
+pub fn apriltags(gray: &Mat) -> Result<Vec<(u32, [[f64; 2]; 4])>> {
+    let dict = apriltag_dictionary()?;
+    let mut params = aruco::DetectorParameters::create()?;
+    params.set_marker_border_bits(1);
+    params.set_corner_refinement_method(3); // CORNER_REFINE_APRILTAG
+    let mut corners: Vector<Vector<Point2f>> = Vector::new();
+    let mut ids: Vector<i32> = Vector::new();
+    let mut rejected: Vector<Vector<Point2f>> = Vector::new();
+    aruco::detect_markers(gray, &dict, &mut corners, &mut ids, &params, &mut rejected)?;
+    let mut out = Vec::with_capacity(ids.len());
+    for (id, c) in ids.iter().zip(corners.iter()) {
+        if id < 0 || c.len() != 4 {
+            continue;
+        }
+        let p = |i: usize| -> [f64; 2] {
+            let q = c.get(i).unwrap_or_default();
+            [q.x as f64, q.y as f64]
+        };
+        // aruco TL, TR, BR, BL -> AprilTag BL, BR, TR, TL
+        out.push((id as u32, [p(3), p(2), p(1), p(0)]));
+    }
+    Ok(out)
+}
+
 /// Sub-pixel refinement of saddle points with a window of half-size `half` px.
 fn refine(gray: &Mat, pts: &mut [[f64; 2]], half: i32) -> Result<()> {
     let (w, h) = size_of(gray);
@@ -172,7 +200,7 @@ pub fn detect_aprilgrid_opencv(gray: &Mat, spec: &AprilGridSpec) -> Result<Detec
 /// Converts a grayscale Mat to an `image` crate image.
 pub fn mat_to_image(gray: &Mat) -> Result<image::GrayImage> {
     let (w, h) = size_of(gray);
-    let cont = if gray.is_continuous() { gray.try_clone()? } else { gray.clone() };
+    let cont = gray.try_clone()?;
     let bytes = cont.data_bytes()?.to_vec();
     image::GrayImage::from_raw(w, h, bytes).ok_or_else(|| CamcalError::Invalid("image buffer size".into()))
 }

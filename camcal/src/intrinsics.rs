@@ -5,7 +5,8 @@ use crate::detect::Detection;
 use crate::error::{CamcalError, Result};
 use crate::target::Target;
 use opencv::calib3d;
-use opencv::core::{Mat, Point2d, Point2f, Point3d, Point3f, Size, TermCriteria, TermCriteria_Type, Vec3d, Vector, CV_64F};
+use abvs_camera::{Camera, Distortion};
+use opencv::core::{Mat, Point2f, Point3f, Size, TermCriteria, TermCriteria_Type, Vec3d, Vector, CV_64F};
 use opencv::prelude::*;
 use std::str::FromStr;
 
@@ -32,79 +33,46 @@ impl FromStr for Model {
     }
 }
 
-/// Intrinsics as OpenCV stores them: camera matrix [fx, fy, cx, cy] and the distortion
-/// coefficients in OpenCV order for `model`.
-#[derive(Debug, Clone, PartialEq)]
-pub struct Intrinsics {
-    pub model: Model,
-    pub width: u32,
-    pub height: u32,
-    pub fx: f64,
-    pub fy: f64,
-    pub cx: f64,
-    pub cy: f64,
-    pub dist: Vec<f64>,
-}
-
-impl Intrinsics {
-    pub fn camera_matrix(&self) -> Result<Mat> {
-        let k = [[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]];
-        Ok(Mat::from_slice_2d(&k)?)
-    }
-    pub fn dist_mat(&self) -> Result<Mat> {
-        Ok(Mat::from_slice(&self.dist)?.try_clone()?)
-    }
-    fn from_mats(model: Model, width: u32, height: u32, k: &Mat, d: &Mat) -> Result<Intrinsics> {
-        let g = |r: i32, c: i32| -> Result<f64> { Ok(*k.at_2d::<f64>(r, c)?) };
-        let n = d.total();
-        let mut dist = Vec::with_capacity(n);
-        let dd = d.reshape(1, 1)?;
-        for i in 0..n {
-            dist.push(*dd.at_2d::<f64>(0, i as i32)?);
+impl Model {
+    /// The model of a camera (an undistorted camera counts as pinhole).
+    pub fn of(cam: &Camera) -> Model {
+        match cam.distortion {
+            Distortion::Fisheye(_) => Model::Fisheye,
+            Distortion::Rational(_) => Model::Rational,
+            _ => Model::Pinhole,
         }
-        Ok(Intrinsics { model, width, height, fx: g(0, 0)?, fy: g(1, 1)?, cx: g(0, 2)?, cy: g(1, 2)?, dist })
     }
-
-    /// Projects camera-frame points (mm, z > 0) to pixels with OpenCV's own model functions, in
-    /// double precision.
-    pub fn project(&self, pts: &[[f64; 3]]) -> Result<Vec<[f64; 2]>> {
-        let obj: Vector<Point3d> = pts.iter().map(|p| Point3d::new(p[0], p[1], p[2])).collect();
-        let zero = Mat::from_slice(&[0.0f64, 0.0, 0.0])?.try_clone()?;
-        let mut img: Vector<Point2d> = Vector::new();
-        let k = self.camera_matrix()?;
-        let d = self.dist_mat()?;
-        match self.model {
-            Model::Fisheye => {
-                let mut jac = Mat::default();
-                calib3d::fisheye_project_points_vec(&obj, &mut img, &zero, &zero, &k, &d, 0.0, &mut jac)?
-            }
-            _ => calib3d::project_points_def(&obj, &zero, &zero, &k, &d, &mut img)?,
+    /// The distortion_model name of the YAML files.
+    pub fn name(self) -> &'static str {
+        match self {
+            Model::Fisheye => "fisheye",
+            Model::Pinhole => "plumb_bob",
+            Model::Rational => "rational_polynomial",
         }
-        Ok(img.iter().map(|p| [p.x, p.y]).collect())
-    }
-
-    /// Undistorted normalised image coordinates (x/z, y/z) of pixels.
-    pub fn normalize(&self, px: &[[f64; 2]]) -> Result<Vec<[f64; 2]>> {
-        let src: Vector<Point2d> = px.iter().map(|p| Point2d::new(p[0], p[1])).collect();
-        let mut dst: Vector<Point2d> = Vector::new();
-        let k = self.camera_matrix()?;
-        let d = self.dist_mat()?;
-        match self.model {
-            Model::Fisheye => calib3d::fisheye_undistort_points_def(&src, &mut dst, &k, &d)?,
-            _ => {
-                let crit = TermCriteria::new((TermCriteria_Type::COUNT as i32) | (TermCriteria_Type::EPS as i32), 50, 1e-12)?;
-                calib3d::undistort_points_iter(&src, &mut dst, &k, &d, &Mat::default(), &Mat::default(), crit)?
-            }
-        }
-        Ok(dst.iter().map(|p| [p.x, p.y]).collect())
     }
 }
 
-fn project_view(cam: &Intrinsics, obj: &Vector<Point3f>, rvec: &Mat, tvec: &Mat) -> Result<Vec<[f64; 2]>> {
+/// OpenCV camera matrix of a camera.
+pub fn camera_matrix(cam: &Camera) -> Result<Mat> {
+    Ok(cam.camera_matrix_mat()?)
+}
+
+/// OpenCV distortion coefficients of a camera (4 for fisheye, 5 or 8 otherwise).
+pub fn dist_coeffs(cam: &Camera) -> Result<Mat> {
+    Ok(Mat::from_slice(&cam.distortion.coefficients())?.try_clone()?)
+}
+
+fn camera_from_mats(model: Model, width: u32, height: u32, k: &Mat, d: &Mat) -> Result<Camera> {
+    let d = d.reshape(1, 1)?.try_clone()?;
+    Camera::from_opencv(width, height, k, &d, model.name())?
+        .ok_or_else(|| CamcalError::Calibration(format!("OpenCV returned no valid {} camera", model.name())))
+}
+
+fn project_view(cam: &Camera, obj: &Vector<Point3f>, rvec: &Mat, tvec: &Mat) -> Result<Vec<[f64; 2]>> {
     let mut img: Vector<Point2f> = Vector::new();
-    let k = cam.camera_matrix()?;
-    let d = cam.dist_mat()?;
-    match cam.model {
+    let k = camera_matrix(cam)?;
+    let d = dist_coeffs(cam)?;
+    match Model::of(cam) {
         Model::Fisheye => {
             let mut jac = Mat::default();
             calib3d::fisheye_project_points_vec(obj, &mut img, rvec, tvec, &k, &d, 0.0, &mut jac)?
@@ -171,7 +139,7 @@ impl Default for CalibOptions {
 /// Result of an intrinsic calibration.
 #[derive(Debug, Clone)]
 pub struct Calibrated {
-    pub intrinsics: Intrinsics,
+    pub camera: Camera,
     /// RMS reprojection error over all corners of the kept images, px.
     pub rms_px: f64,
     /// (image index, RMS px) of every kept image.
@@ -205,14 +173,14 @@ fn calibrate_once(
     width: u32,
     height: u32,
     model: Model,
-) -> Result<(Intrinsics, Vec<([f64; 3], [f64; 3])>)> {
+) -> Result<(Camera, Vec<([f64; 3], [f64; 3])>)> {
     let obj: Vector<Vector<Point3f>> = views.iter().map(|v| v.object.clone()).collect();
     let img: Vector<Vector<Point2f>> = views.iter().map(|v| v.pixels.clone()).collect();
     let size = Size::new(width as i32, height as i32);
     let mut k = Mat::eye(3, 3, CV_64F)?.to_mat()?;
     let mut rvecs: Vector<Mat> = Vector::new();
     let mut tvecs: Vector<Mat> = Vector::new();
-    let (mut d, res) = match model {
+    let (d, res) = match model {
         Model::Fisheye => {
             let mut d = Mat::zeros(4, 1, CV_64F)?.to_mat()?;
             let flags = calib3d::Fisheye_CALIB_RECOMPUTE_EXTRINSIC | calib3d::Fisheye_CALIB_FIX_SKEW;
@@ -233,10 +201,7 @@ fn calibrate_once(
         }
     };
     res.map_err(|e| CamcalError::Calibration(format!("{model:?}: {e}")))?;
-    if d.total() > 8 {
-        d = d.reshape(1, 1)?.col_range(&opencv::core::Range::new(0, 8)?)?.try_clone()?;
-    }
-    let intr = Intrinsics::from_mats(model, width, height, &k, &d)?;
+    let intr = camera_from_mats(model, width, height, &k, &d)?;
     let mut ext = Vec::with_capacity(views.len());
     for (r, t) in rvecs.iter().zip(tvecs.iter()) {
         ext.push((vec3(&r)?, vec3(&t)?));
@@ -245,7 +210,7 @@ fn calibrate_once(
 }
 
 /// Squared reprojection errors of each view's corners.
-pub fn view_sq_errors(intr: &Intrinsics, view: &View, rvec: &[f64; 3], tvec: &[f64; 3]) -> Result<Vec<f64>> {
+pub fn view_sq_errors(intr: &Camera, view: &View, rvec: &[f64; 3], tvec: &[f64; 3]) -> Result<Vec<f64>> {
     let r = Mat::from_slice(rvec)?.try_clone()?;
     let t = Mat::from_slice(tvec)?.try_clone()?;
     let proj = project_view(intr, &view.object, &r, &t)?;
@@ -303,7 +268,7 @@ pub fn calibrate(all_views: &[View], width: u32, height: u32, model: Model, opts
         let thr = (opts.outlier_factor * med).max(opts.outlier_floor_px);
         let bad: Vec<(usize, f64)> = per_image.iter().copied().filter(|p| p.1 > thr).collect();
         if bad.is_empty() || round == opts.max_rounds || images.len() - bad.len() < opts.min_images {
-            return Ok(Calibrated { intrinsics: intr, rms_px, per_image, dropped, views, extrinsics: ext });
+            return Ok(Calibrated { camera: intr, rms_px, per_image, dropped, views, extrinsics: ext });
         }
         views.retain(|v| !bad.iter().any(|b| b.0 == v.image));
         dropped.extend(bad);

@@ -6,6 +6,8 @@
 pub mod detect;
 pub mod error;
 pub mod intrinsics;
+pub mod measure;
+pub mod session;
 pub mod stereo;
 pub mod target;
 

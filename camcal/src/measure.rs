@@ -8,11 +8,11 @@
 //! camera frame, batched through OpenCV's projection), analytic for the rigid motions.
 use crate::detect::Detection;
 use crate::error::{CamcalError, Result};
-use crate::intrinsics::Intrinsics;
 use crate::target::Target;
+use abvs_camera::Camera;
 use abvs_eye::pose::{exp_so3, skew};
 use abvs_eye::Pose;
-use nalgebra::{DMatrix, DVector, Matrix3, SMatrix, SVector, Vector3};
+use nalgebra::{DMatrix, DVector, SMatrix, SVector, Vector2, Vector3};
 use opencv::calib3d;
 use opencv::core::{Mat, Point2d, Point3d, Vector};
 use opencv::prelude::*;
@@ -91,9 +91,17 @@ struct Obs {
 
 /// Pose of a board in the camera (board -> camera) from one image with IPPE on undistorted
 /// normalised coordinates.
-fn pnp(intr: &Intrinsics, obs: &[(Vector3<f64>, [f64; 2])]) -> Result<Pose> {
-    let px: Vec<[f64; 2]> = obs.iter().map(|o| o.1).collect();
-    let n = intr.normalize(&px)?;
+fn pnp(intr: &Camera, obs: &[(Vector3<f64>, [f64; 2])]) -> Result<Pose> {
+    let mut n = Vec::with_capacity(obs.len());
+    for o in obs {
+        let ray = intr
+            .unproject(&Vector2::new(o.1[0], o.1[1]))
+            .ok_or_else(|| CamcalError::Calibration("pixel outside the lens model".into()))?;
+        if ray.z <= 1e-6 {
+            return Err(CamcalError::Calibration("ray beyond 90 deg".into()));
+        }
+        n.push([ray.x / ray.z, ray.y / ray.z]);
+    }
     let obj: Vector<Point3d> = obs.iter().map(|o| Point3d::new(o.0.x, o.0.y, o.0.z)).collect();
     let img: Vector<Point2d> = n.iter().map(|p| Point2d::new(p[0], p[1])).collect();
     let k = Mat::from_slice_2d(&[[1.0f64, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])?;
@@ -108,26 +116,39 @@ fn pnp(intr: &Intrinsics, obs: &[(Vector3<f64>, [f64; 2])]) -> Result<Pose> {
     Ok(Pose::new(exp_so3(&w), t))
 }
 
-/// Projections and d(pixel)/d(camera-frame point) of camera-frame points (numeric, batched).
-fn project_with_jac(intr: &Intrinsics, pc: &[Vector3<f64>]) -> Result<(Vec<[f64; 2]>, Vec<M23>)> {
-    let base: Vec<[f64; 3]> = pc.iter().map(|p| [p.x, p.y, p.z]).collect();
-    let p0 = intr.project(&base)?;
-    let mut jac = vec![M23::zeros(); pc.len()];
-    for a in 0..3 {
-        let mut pert = base.clone();
-        let mut hs = Vec::with_capacity(pc.len());
-        for p in pert.iter_mut() {
-            let h = 1e-6 * p[2].abs().max(1.0);
-            p[a] += h;
-            hs.push(h);
-        }
-        let pa = intr.project(&pert)?;
-        for i in 0..pc.len() {
-            jac[i][(0, a)] = (pa[i][0] - p0[i][0]) / hs[i];
-            jac[i][(1, a)] = (pa[i][1] - p0[i][1]) / hs[i];
-        }
-    }
-    Ok((p0, jac))
+/// Projects camera-frame points (mm); NaN where the lens model has no image.
+fn project(intr: &Camera, pts: &[[f64; 3]]) -> Result<Vec<[f64; 2]>> {
+    Ok(pts
+        .iter()
+        .map(|p| match intr.project(&Vector3::new(p[0], p[1], p[2])) {
+            Some(uv) if p[2] > 0.0 => [uv.x, uv.y],
+            _ => [f64::NAN, f64::NAN],
+        })
+        .collect())
+}
+
+/// Projections and d(pixel)/d(camera-frame point) (central differences); `None` where the
+/// point has no image.
+fn project_with_jac(intr: &Camera, pc: &[Vector3<f64>]) -> Result<Vec<Option<([f64; 2], M23)>>> {
+    Ok(pc
+        .iter()
+        .map(|p| {
+            if p.z <= 0.0 {
+                return None;
+            }
+            let uv = intr.project(p)?;
+            let mut j = M23::zeros();
+            let h = 1e-5 * p.norm().max(1.0);
+            for a in 0..3 {
+                let mut e = Vector3::zeros();
+                e[a] = h;
+                let (u1, u0) = (intr.project(&(p + e))?, intr.project(&(p - e))?);
+                j[(0, a)] = (u1.x - u0.x) / (2.0 * h);
+                j[(1, a)] = (u1.y - u0.y) / (2.0 * h);
+            }
+            Some(([uv.x, uv.y], j))
+        })
+        .collect())
 }
 
 fn apply_update(p: &Pose, d: &[f64]) -> Pose {
@@ -137,7 +158,7 @@ fn apply_update(p: &Pose, d: &[f64]) -> Pose {
 
 /// Sum of squared residuals and per-image (sum, count).
 fn cost(
-    intr: &Intrinsics,
+    intr: &Camera,
     obs: &[Vec<Obs>],
     cams: &[Option<Pose>],
     boards: &[Pose],
@@ -157,8 +178,19 @@ fn cost(
                 [p.x, p.y, p.z]
             })
             .collect();
-        let pr = intr.project(&pts)?;
-        let s: f64 = pr.iter().zip(o).map(|(p, ob)| (p[0] - ob.uv[0]).powi(2) + (p[1] - ob.uv[1]).powi(2)).sum();
+        let pr = project(intr, &pts)?;
+        let s: f64 = pr
+            .iter()
+            .zip(o)
+            .map(|(p, ob)| {
+                let e = (p[0] - ob.uv[0]).powi(2) + (p[1] - ob.uv[1]).powi(2);
+                if e.is_finite() {
+                    e
+                } else {
+                    1e4 // a point without image counts as 100 px off
+                }
+            })
+            .sum();
         per[i] = (s, o.len());
         tot += s;
     }
@@ -168,7 +200,7 @@ fn cost(
 /// Solves every image's camera pose relative to home. `dets[i]` is the detection of image i or
 /// why it failed to give one; `home[i]` marks images taken at home.
 pub fn solve(
-    intr: &Intrinsics,
+    intr: &Camera,
     target: &Target,
     dets: &[std::result::Result<Detection, Failure>],
     home: &[bool],
@@ -281,7 +313,7 @@ pub fn solve(
                 if pts.is_empty() {
                     continue;
                 }
-                let pr = intr.project(&pts)?;
+                let pr = project(intr, &pts)?;
                 let keep: Vec<bool> = pr
                     .iter()
                     .zip(&obs[i])
@@ -324,7 +356,7 @@ pub fn solve(
 
 /// Levenberg-Marquardt with the Schur complement on the board unknowns. Returns iterations.
 fn lm(
-    intr: &Intrinsics,
+    intr: &Camera,
     obs: &[Vec<Obs>],
     cams: &mut [Option<Pose>],
     boards: &mut [Pose],
@@ -356,13 +388,14 @@ fn lm(
             let rt = c.r.transpose();
             let qs: Vec<Vector3<f64>> = obs[i].iter().map(|ob| boards[ob.slot].r * ob.x + boards[ob.slot].t).collect();
             let pc: Vec<Vector3<f64>> = qs.iter().map(|q| rt * (q - c.t)).collect();
-            let (pr, jp) = project_with_jac(intr, &pc)?;
+            let pj = project_with_jac(intr, &pc)?;
             let mut hcc = M6::zeros();
             let mut gc = V6::zeros();
             let mut hcb = DMatrix::<f64>::zeros(6, nbp);
             for (k, ob) in obs[i].iter().enumerate() {
-                let r = nalgebra::Vector2::new(pr[k][0] - ob.uv[0], pr[k][1] - ob.uv[1]);
-                let jq: M23 = jp[k] * rt; // d pixel / d q (home-frame point)
+                let Some((pr, jpk)) = pj[k] else { continue };
+                let r = Vector2::new(pr[0] - ob.uv[0], pr[1] - ob.uv[1]);
+                let jq: M23 = jpk * rt; // d pixel / d q (home-frame point)
                 let rbx = boards[ob.slot].r * ob.x;
                 let mut jb = M26::zeros();
                 jb.fixed_view_mut::<2, 3>(0, 0).copy_from(&(jq * -skew(&rbx)));
@@ -376,8 +409,8 @@ fn lm(
                 if free {
                     let mut jc = M26::zeros();
                     let d = qs[k] - c.t;
-                    jc.fixed_view_mut::<2, 3>(0, 0).copy_from(&(jp[k] * (rt * skew(&d))));
-                    jc.fixed_view_mut::<2, 3>(0, 3).copy_from(&(-(jp[k] * rt)));
+                    jc.fixed_view_mut::<2, 3>(0, 0).copy_from(&(jpk * (rt * skew(&d))));
+                    jc.fixed_view_mut::<2, 3>(0, 3).copy_from(&(-(jpk * rt)));
                     hcc += jc.transpose() * jc;
                     gc += jc.transpose() * r;
                     let cross = jc.transpose() * jb;
@@ -449,6 +482,5 @@ fn lm(
             break;
         }
     }
-    let _ = Matrix3::<f64>::identity();
     Ok(it)
 }

@@ -184,3 +184,126 @@ pub fn to_iso_m(p: &Pose) -> Isometry3<f64> {
     let r = UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix_unchecked(p.r));
     Isometry3::from_parts(Translation3::from(p.t / 1000.0), r)
 }
+
+/// A unit for rendered sessions: all kinematic effects of a drawn unit, no measurement noise
+/// (the images are the measurement).
+pub fn default_unit(seed: u64) -> abvs_eye::UnitModel {
+    use abvs_eye::unit::Effect;
+    let kin: Vec<Effect> = Effect::ALL.iter().copied().filter(|e| e.is_kinematic()).collect();
+    let mut u = abvs_eye::sim::draw_unit(seed, &kin);
+    u.set_enabled(Effect::MeasurementNoise, false);
+    u
+}
+
+/// What to render in a simulated session.
+#[derive(Debug, Clone)]
+pub struct SimSessionSpec {
+    pub sim: abvs_eye::sim::SimSpec,
+    pub camera: Camera,
+    pub grid: AprilGridSpec,
+    /// Home images at the start of the session.
+    pub home_images: usize,
+    pub noise_sigma: f64,
+    pub blur_sigma: f64,
+    pub supersample: u32,
+    pub home_counts: [i64; 3],
+    /// Every n-th non-home image is written as an unreadable file (0: none).
+    pub corrupt_every: usize,
+}
+
+impl Default for SimSessionSpec {
+    fn default() -> Self {
+        SimSessionSpec {
+            sim: abvs_eye::sim::SimSpec { dropout: 0.0, ..Default::default() },
+            camera: Camera::ov8856(),
+            grid: AprilGridSpec::default(),
+            home_images: 2,
+            noise_sigma: 1.0,
+            blur_sigma: 0.6,
+            supersample: 4,
+            home_counts: [1000, 26000, 47000],
+            corrupt_every: 0,
+        }
+    }
+}
+
+/// Simulates a collection on `unit` (abvs-eye's simulator), renders the four-board scene at
+/// every true camera pose and writes a session directory (session.toml, index.csv, images/,
+/// camera.yaml = the true intrinsics, truth.csv = the true poses as a dataset file with the
+/// session's seq). Returns the truth dataset (home rows first).
+pub fn write_sim_session(
+    dir: &std::path::Path,
+    unit: &abvs_eye::UnitModel,
+    spec: &SimSessionSpec,
+    mut progress: impl FnMut(usize, usize),
+) -> Result<abvs_eye::dataset::Dataset> {
+    use crate::session::{counts_of, Row, Session, SessionMeta, FORMAT};
+    use abvs_eye::dataset::{Dataset, Sample};
+    std::fs::create_dir_all(dir.join("images"))?;
+    let (sim, _) = abvs_eye::sim::simulate_dataset(unit, &spec.sim, |_, _| {})?;
+    let nh = spec.home_images;
+    let mut truth = Vec::new();
+    for k in 0..nh {
+        truth.push(Sample {
+            seq: k as u64,
+            t_s: 0.1 * k as f64,
+            theta_deg: [0.0; 3],
+            pose: [0.0; 6],
+            cmd_deg: Some([0.0; 3]),
+            gravity: Some(spec.sim.gravity),
+            extra: vec![],
+        });
+    }
+    for s in &sim.samples {
+        let mut s = s.clone();
+        s.seq += nh as u64;
+        s.t_s += 0.1 * nh as f64;
+        truth.push(s);
+    }
+    let grid = GridScene::paper(spec.grid);
+    let scene = grid.scene()?;
+    let rays = abvs_render::RayTable::new(&spec.camera).map_err(render_err)?;
+    let mut rows = Vec::new();
+    let n = truth.len();
+    for (k, s) in truth.iter().enumerate() {
+        progress(k, n);
+        let image = format!("images/{:06}.png", s.seq);
+        let path = dir.join(&image);
+        let corrupt = spec.corrupt_every > 0 && k >= nh && (k - nh + 1) % spec.corrupt_every == 0;
+        if corrupt {
+            std::fs::write(&path, b"not a png")?;
+        } else {
+            let opts = RenderOptions {
+                supersample: spec.supersample,
+                blur_sigma: spec.blur_sigma,
+                noise_sigma: spec.noise_sigma,
+                seed: s.seq,
+                ..Default::default()
+            };
+            let cam = Pose::from_p6(&s.pose);
+            let img = abvs_render::render_with_rays(&scene, &rays, &to_iso_m(&cam), &opts).map_err(render_err)?;
+            img.gray_image().save(&path).map_err(|e| CamcalError::File { path: path.clone(), msg: e.to_string() })?;
+        }
+        let counts = if k < nh { spec.home_counts } else { counts_of(&s.theta_deg, &spec.home_counts) };
+        rows.push(Row { seq: s.seq, t_s: s.t_s, image, counts, cmd_deg: s.cmd_deg, gravity: s.gravity });
+    }
+    progress(n, n);
+    let cam_path = dir.join("camera.yaml");
+    spec.camera
+        .write_yaml(&cam_path, &abvs_camera::CalibInfo::default())
+        .map_err(|e| CamcalError::File { path: cam_path.clone(), msg: e.to_string() })?;
+    let session = Session {
+        dir: dir.to_path_buf(),
+        meta: SessionMeta {
+            format: FORMAT.into(),
+            camera: "camera.yaml".into(),
+            target: crate::target::Target::AprilGrid(spec.grid).to_string(),
+            home_counts: spec.home_counts,
+        },
+        rows,
+    };
+    session.write()?;
+    let ds = Dataset { samples: truth, extra_columns: vec![] };
+    ds.write(&dir.join("truth.csv"))?;
+    Ok(ds)
+}

@@ -3,7 +3,7 @@
 //! stereoCalibrate's R, T; T in mm).
 use crate::detect::Detection;
 use crate::error::{CamcalError, Result};
-use crate::intrinsics::{calibrate, views, CalibOptions, Calibrated, Model};
+use crate::intrinsics::{calibrate, camera_matrix, dist_coeffs, views, CalibOptions, Calibrated, Model};
 use crate::target::Target;
 use opencv::calib3d;
 use opencv::core::{Mat, Point2f, Point3f, Size, TermCriteria, TermCriteria_Type, Vector, CV_64F};
@@ -75,8 +75,8 @@ pub fn calibrate_stereo(
     if obj.is_empty() {
         return Err(CamcalError::Calibration("no image pair sees a board in both cameras".into()));
     }
-    let (mut k1, mut d1) = (cl.intrinsics.camera_matrix()?, cl.intrinsics.dist_mat()?);
-    let (mut k2, mut d2) = (cr.intrinsics.camera_matrix()?, cr.intrinsics.dist_mat()?);
+    let (mut k1, mut d1) = (camera_matrix(&cl.camera)?, dist_coeffs(&cl.camera)?);
+    let (mut k2, mut d2) = (camera_matrix(&cr.camera)?, dist_coeffs(&cr.camera)?);
     let crit = TermCriteria::new((TermCriteria_Type::COUNT as i32) | (TermCriteria_Type::EPS as i32), 100, 1e-10)?;
     let size = Size::new(wl as i32, hl as i32);
     let (mut r, mut t) = (Mat::default(), Mat::default());

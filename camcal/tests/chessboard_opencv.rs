@@ -133,7 +133,7 @@ fn stereo_and_intrinsics_match_opencv() {
     eprintln!("opencv reference: rms left {:.4} right {:.4} stereo {:.4}", rf.rms[0], rf.rms[1], rf.rms[2]);
     assert!(res.left.rms_px < 0.5 && res.right.rms_px < 0.5 && res.rms_px < 0.5);
     for (side, c) in [(0usize, &res.left), (1, &res.right)] {
-        let i = &c.intrinsics;
+        let i = &c.camera;
         let k = &rf.k[side];
         eprintln!(
             "side {side}: fx {:.3} vs {:.3}, fy {:.3} vs {:.3}, cx {:.3} vs {:.3}, cy {:.3} vs {:.3}, k1 {:.4} vs {:.4}",
@@ -145,8 +145,8 @@ fn stereo_and_intrinsics_match_opencv() {
             at(k, 0, 2),
             i.cy,
             at(k, 1, 2),
-            i.dist[0],
-            at(&rf.d[side].reshape(1, 1).unwrap(), 0, 0)
+            i.distortion.coefficients()[0],
+            at(&rf.d[side].reshape(1, 1).unwrap().try_clone().unwrap(), 0, 0)
         );
         assert!((i.fx / at(k, 0, 0) - 1.0).abs() < 0.005, "fx");
         assert!((i.fy / at(k, 1, 1) - 1.0).abs() < 0.005, "fy");
@@ -158,7 +158,7 @@ fn stereo_and_intrinsics_match_opencv() {
     let rr = nalgebra::Matrix3::from_fn(|i, j| res.rotation[i][j]);
     let rref = nalgebra::Matrix3::from_fn(|i, j| at(&rf.r, i as i32, j as i32));
     let ang = abvs_eye::pose::rotation_angle_deg(&rr, &rref);
-    let tref = rf.t.reshape(1, 3).unwrap();
+    let tref = rf.t.reshape(1, 3).unwrap().try_clone().unwrap();
     let tr = nalgebra::Vector3::new(at(&tref, 0, 0), at(&tref, 1, 0), at(&tref, 2, 0));
     let t = nalgebra::Vector3::from(res.translation_mm);
     for k in 0..3 {
