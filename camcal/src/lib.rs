@@ -7,6 +7,7 @@ pub mod detect;
 pub mod error;
 pub mod intrinsics;
 pub mod measure;
+pub mod render_grid;
 pub mod session;
 pub mod stereo;
 pub mod target;
