@@ -43,10 +43,12 @@ impl Detection {
 /// Which AprilTag detector to use.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum AprilDetector {
-    /// OpenCV aruco (DICT_APRILTAG_36h11, 2-bit border) + cornerSubPix on the saddle points.
-    #[default]
+    /// OpenCV aruco (DICT_APRILTAG_36h11, 2-bit border, AprilTag quad finder) + cornerSubPix on
+    /// the saddle points.
     OpenCv,
-    /// The crates.io `aprilgrid` crate (pure Rust, saddle-point based).
+    /// The crates.io `aprilgrid` crate (pure Rust, saddle-point based): the default, it finds
+    /// every tag of a Kalibr grid (see camcal/README.md).
+    #[default]
     AprilGridCrate,
 }
 
@@ -95,6 +97,15 @@ fn apriltag_dictionary() -> Result<Ptr<aruco::Dictionary>> {
     Ok(aruco::get_predefined_dictionary(aruco::PREDEFINED_DICTIONARY_NAME::DICT_APRILTAG_36h11)?)
 }
 
+/// OpenCV's DICT_APRILTAG_36h11 stores each code rotated by 180 deg relative to the AprilTag
+/// library (and Kalibr), so the marker's own top-left, top-right, bottom-right, bottom-left are
+/// the upright tag's bottom-right, bottom-left, top-left, top-right. Returns the AprilTag /
+/// Kalibr order: bottom-left, bottom-right, top-right, top-left (checked against AprilTag 3's
+/// own output on real photos in tests/apriltag_photos.rs).
+fn aruco_to_apriltag_order(c: [[f64; 2]; 4]) -> [[f64; 2]; 4] {
+    [c[1], c[0], c[3], c[2]]
+}
+
 /// Raw tag detections of OpenCV's aruco module: (tag id, corners in Kalibr order k = 0..4:
 /// bottom-left, bottom-right, top-right, top-left of the upright tag), before refinement.
 pub fn opencv_tags(gray: &Mat) -> Result<Vec<(u32, [[f64; 2]; 4])>> {
@@ -102,6 +113,11 @@ pub fn opencv_tags(gray: &Mat) -> Result<Vec<(u32, [[f64; 2]; 4])>> {
     let mut params = aruco::DetectorParameters::create()?;
     params.set_marker_border_bits(2);
     params.set_corner_refinement_method(0);
+    params.set_min_distance_to_border(0);
+    // Each tag touches the grid's corner squares diagonally, which merges their contours in
+    // aruco's contour finder; AprilTag 3's gradient-cluster quad finder (the APRILTAG corner
+    // mode) separates some of them (see camcal/README.md for the recall this gives).
+    params.set_corner_refinement_method(3);
     let mut corners: Vector<Vector<Point2f>> = Vector::new();
     let mut ids: Vector<i32> = Vector::new();
     let mut rejected: Vector<Vector<Point2f>> = Vector::new();
@@ -111,12 +127,11 @@ pub fn opencv_tags(gray: &Mat) -> Result<Vec<(u32, [[f64; 2]; 4])>> {
         if id < 0 || c.len() != 4 {
             continue;
         }
-        // aruco: top-left, top-right, bottom-right, bottom-left of the marker -> Kalibr k = 3, 2, 1, 0
         let p = |i: usize| -> [f64; 2] {
             let q = c.get(i).unwrap_or_default();
             [q.x as f64, q.y as f64]
         };
-        out.push((id as u32, [p(3), p(2), p(1), p(0)]));
+        out.push((id as u32, aruco_to_apriltag_order([p(0), p(1), p(2), p(3)])));
     }
     Ok(out)
 }
@@ -129,7 +144,14 @@ pub fn apriltags(gray: &Mat) -> Result<Vec<(u32, [[f64; 2]; 4])>> {
     let dict = apriltag_dictionary()?;
     let mut params = aruco::DetectorParameters::create()?;
     params.set_marker_border_bits(1);
-    params.set_corner_refinement_method(3); // CORNER_REFINE_APRILTAG
+    params.set_corner_refinement_method(3); // CORNER_REFINE_APRILTAG (AprilTag 3's quad finder)
+    // small tags (~25 px), tags near the border and tags close to each other (faces of a cube)
+    params.set_min_marker_perimeter_rate(0.01);
+    params.set_min_distance_to_border(0);
+    params.set_min_marker_distance_rate(0.001);
+    params.set_min_corner_distance_rate(0.01);
+    params.set_perspective_remove_pixel_per_cell(8);
+    params.set_min_otsu_std_dev(2.0);
     let mut corners: Vector<Vector<Point2f>> = Vector::new();
     let mut ids: Vector<i32> = Vector::new();
     let mut rejected: Vector<Vector<Point2f>> = Vector::new();
@@ -143,8 +165,7 @@ pub fn apriltags(gray: &Mat) -> Result<Vec<(u32, [[f64; 2]; 4])>> {
             let q = c.get(i).unwrap_or_default();
             [q.x as f64, q.y as f64]
         };
-        // aruco TL, TR, BR, BL -> AprilTag BL, BR, TR, TL
-        out.push((id as u32, [p(3), p(2), p(1), p(0)]));
+        out.push((id as u32, aruco_to_apriltag_order([p(0), p(1), p(2), p(3)])));
     }
     Ok(out)
 }
@@ -207,10 +228,15 @@ pub fn mat_to_image(gray: &Mat) -> Result<image::GrayImage> {
 
 /// AprilGrid corners with the `aprilgrid` crate (Kalibr grids, 2-bit border). Its corners come
 /// out in the AprilTag library's order; mapped to Kalibr's k here.
-pub fn detect_aprilgrid_crate(gray: &Mat, _spec: &AprilGridSpec) -> Result<Detection> {
+pub fn detect_aprilgrid_crate(gray: &Mat, spec: &AprilGridSpec) -> Result<Detection> {
     let (width, height) = size_of(gray);
     let img = image::DynamicImage::ImageLuma8(mat_to_image(gray)?);
-    let det = aprilgrid::detector::TagDetector::new(&aprilgrid::TagFamily::T36H11, None);
+    let params = aprilgrid::detector::DetectorParams {
+        tag_spacing_ratio: spec.spacing as f32,
+        max_num_of_boards: 16,
+        ..aprilgrid::detector::DetectorParams::default_params()
+    };
+    let det = aprilgrid::detector::TagDetector::new(&aprilgrid::TagFamily::T36H11, Some(params));
     let mut corners = Vec::new();
     for (id, c) in det.detect(&img) {
         for (j, p) in c.iter().enumerate() {

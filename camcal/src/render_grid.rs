@@ -42,7 +42,8 @@ pub fn tag_bits(id: u32) -> Result<[[bool; 10]; 10]> {
     let mut bits = [[false; 10]; 10];
     for (r, row) in bits.iter_mut().enumerate() {
         for (c, b) in row.iter_mut().enumerate() {
-            *b = *img.at_2d::<u8>(r as i32, c as i32)? < 128;
+            // OpenCV's dictionary holds the codes rotated by 180 deg (see detect): turn them back
+            *b = *img.at_2d::<u8>(9 - r as i32, 9 - c as i32)? < 128;
         }
     }
     Ok(bits)

@@ -37,8 +37,8 @@ pub struct IntrinsicsArgs {
     model: String,
     #[arg(long)]
     out: PathBuf,
-    /// AprilTag detector: opencv or aprilgrid.
-    #[arg(long, default_value = "opencv")]
+    /// AprilGrid detector: aprilgrid (the aprilgrid crate) or opencv (aruco).
+    #[arg(long, default_value = "aprilgrid")]
     detector: String,
     /// Fewest corners of one board in one image for it to be used.
     #[arg(long, default_value_t = 12)]
@@ -131,7 +131,7 @@ pub struct MeasureArgs {
     /// Dataset file to write (dataset.md).
     #[arg(long)]
     out: PathBuf,
-    #[arg(long, default_value = "opencv")]
+    #[arg(long, default_value = "aprilgrid")]
     detector: String,
     /// Fewest corners (all boards) for an image to be measured.
     #[arg(long, default_value_t = 20)]
@@ -180,7 +180,7 @@ pub struct StereoArgs {
     session: PathBuf,
     #[arg(long)]
     out: PathBuf,
-    #[arg(long, default_value = "opencv")]
+    #[arg(long, default_value = "aprilgrid")]
     detector: String,
     #[arg(long, default_value_t = 12)]
     min_corners: usize,
