@@ -190,10 +190,11 @@ fn stereo_and_intrinsics_match_opencv_on_all_images() {
 }
 
 /// With the default rejection (left02 / right02 have RMS ~1.2 px, 5x the median): OpenCV on the
-/// pairs kept must agree.
+/// pairs kept by both cameras must agree (looser: each of our intrinsics also uses the images
+/// only its own camera kept, 12 left vs the 11 common pairs of the reference).
 #[test]
 fn stereo_and_intrinsics_match_opencv_after_rejection() {
-    check(&CalibOptions::default(), 0.001, 0.5, 0.02, 0.002);
+    check(&CalibOptions::default(), 0.001, 0.5, 0.05, 0.005);
 }
 
 #[test]
