@@ -31,7 +31,7 @@ fn bench(c: &mut Criterion) {
 
     // pose solve: home + one moved image (boards and one camera pose jointly), per image
     let dets: Vec<Result<Detection, _>> =
-        imgs.iter().map(|m| Ok(detect(m, &target, AprilDetector::OpenCv).unwrap())).collect();
+        imgs.iter().map(|m| Ok(detect(m, &target, AprilDetector::AprilGridCrate).unwrap())).collect();
     let home = [true, false];
     let mut g = c.benchmark_group("solve");
     g.sample_size(10);
