@@ -25,8 +25,12 @@ fn bench(c: &mut Criterion) {
         .collect();
     let mut g = c.benchmark_group("detect_1600x1200");
     g.sample_size(10);
-    g.bench_function("opencv_aruco_cornersubpix", |b| b.iter(|| detect(&imgs[1], &target, AprilDetector::OpenCv).unwrap()));
-    g.bench_function("aprilgrid_crate", |b| b.iter(|| detect(&imgs[1], &target, AprilDetector::AprilGridCrate).unwrap()));
+    g.bench_function("opencv_aruco_cornersubpix", |b| {
+        b.iter(|| detect(&imgs[1], &target, AprilDetector::OpenCv).unwrap())
+    });
+    g.bench_function("aprilgrid_crate", |b| {
+        b.iter(|| detect(&imgs[1], &target, AprilDetector::AprilGridCrate).unwrap())
+    });
     g.finish();
 
     // pose solve: home + one moved image (boards and one camera pose jointly), per image

@@ -145,7 +145,7 @@ pub fn apriltags(gray: &Mat) -> Result<Vec<(u32, [[f64; 2]; 4])>> {
     let mut params = aruco::DetectorParameters::create()?;
     params.set_marker_border_bits(1);
     params.set_corner_refinement_method(3); // CORNER_REFINE_APRILTAG (AprilTag 3's quad finder)
-    // small tags (~25 px), tags near the border and tags close to each other (faces of a cube)
+                                            // small tags (~25 px), tags near the border and tags close to each other (faces of a cube)
     params.set_min_marker_perimeter_rate(0.01);
     params.set_min_distance_to_border(0);
     params.set_min_marker_distance_rate(0.001);

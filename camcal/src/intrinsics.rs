@@ -4,8 +4,8 @@
 use crate::detect::Detection;
 use crate::error::{CamcalError, Result};
 use crate::target::Target;
-use opencv::calib3d;
 use abvs_camera::{Camera, Distortion};
+use opencv::calib3d;
 use opencv::core::{Mat, Point2f, Point3f, Size, TermCriteria, TermCriteria_Type, Vec3d, Vector, CV_64F};
 use opencv::prelude::*;
 use std::str::FromStr;
@@ -196,7 +196,8 @@ fn calibrate_once(
         Model::Pinhole | Model::Rational => {
             let (n, flags) = if model == Model::Rational { (8, calib3d::CALIB_RATIONAL_MODEL) } else { (5, 0) };
             let mut d = Mat::zeros(n, 1, CV_64F)?.to_mat()?;
-            let r = calib3d::calibrate_camera(&obj, &img, size, &mut k, &mut d, &mut rvecs, &mut tvecs, flags, criteria()?);
+            let r =
+                calib3d::calibrate_camera(&obj, &img, size, &mut k, &mut d, &mut rvecs, &mut tvecs, flags, criteria()?);
             (d, r)
         }
     };

@@ -64,7 +64,13 @@ pub struct SolveOptions {
 
 impl Default for SolveOptions {
     fn default() -> Self {
-        SolveOptions { min_corners: 20, min_board_corners: 8, outlier_px: 1.0, max_image_rms_px: 2.0, max_iterations: 50 }
+        SolveOptions {
+            min_corners: 20,
+            min_board_corners: 8,
+            outlier_px: 1.0,
+            max_image_rms_px: 2.0,
+            max_iterations: 50,
+        }
     }
 }
 
@@ -157,12 +163,7 @@ fn apply_update(p: &Pose, d: &[f64]) -> Pose {
 }
 
 /// Sum of squared residuals and per-image (sum, count).
-fn cost(
-    intr: &Camera,
-    obs: &[Vec<Obs>],
-    cams: &[Option<Pose>],
-    boards: &[Pose],
-) -> Result<(f64, Vec<(f64, usize)>)> {
+fn cost(intr: &Camera, obs: &[Vec<Obs>], cams: &[Option<Pose>], boards: &[Pose]) -> Result<(f64, Vec<(f64, usize)>)> {
     let mut tot = 0.0;
     let mut per = vec![(0.0, 0usize); obs.len()];
     for (i, o) in obs.iter().enumerate() {
@@ -453,7 +454,8 @@ fn lm(
                 lambda *= 10.0;
                 continue;
             };
-            let nb_new: Vec<Pose> = (0..nb).map(|b| apply_update(&boards[b], &db.as_slice()[6 * b..6 * b + 6])).collect();
+            let nb_new: Vec<Pose> =
+                (0..nb).map(|b| apply_update(&boards[b], &db.as_slice()[6 * b..6 * b + 6])).collect();
             let mut nc: Vec<Option<Pose>> = cams.to_vec();
             for i in 0..n {
                 if let (Some((_, gc, hcb)), Some(hi)) = (&cam_blocks[i], &inv_blocks[i]) {

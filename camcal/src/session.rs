@@ -210,11 +210,13 @@ pub fn measure_session(
     for (k, r) in s.rows.iter().enumerate() {
         progress(k, n);
         let p = s.dir.join(&r.image);
-        dets.push(match load_gray(&p) {
-            Ok(g) => detect(&g, &target, detector),
-            Err(e) => Err(e),
-        }
-        .map_err(|e| Failure::Unreadable(e.to_string())));
+        dets.push(
+            match load_gray(&p) {
+                Ok(g) => detect(&g, &target, detector),
+                Err(e) => Err(e),
+            }
+            .map_err(|e| Failure::Unreadable(e.to_string())),
+        );
     }
     progress(n, n);
     let home: Vec<bool> = s.rows.iter().map(|r| s.is_home(r)).collect();
@@ -277,7 +279,8 @@ pub fn read_stereo_session(dir: &Path) -> Result<(StereoMeta, Vec<(PathBuf, Path
     let ip = dir.join("pairs.csv");
     let mut rd = csv::ReaderBuilder::new().from_path(&ip).map_err(|e| file_err(&ip, e.to_string()))?;
     let hdr = rd.headers().map_err(|e| file_err(&ip, e.to_string()))?.clone();
-    let col = |n: &str| hdr.iter().position(|h| h.trim() == n).ok_or_else(|| file_err(&ip, format!("missing column {n}")));
+    let col =
+        |n: &str| hdr.iter().position(|h| h.trim() == n).ok_or_else(|| file_err(&ip, format!("missing column {n}")));
     let (cl, cr) = (col("left")?, col("right")?);
     let mut pairs = Vec::new();
     for (k, rec) in rd.records().enumerate() {

@@ -46,7 +46,9 @@ fn all_reference_tags_found_within_half_a_pixel() {
         let mut missing = 0;
         for (id, rc) in &reference {
             // the detection of the same tag: same id, nearest centre
-            let centre = |c: &[[f64; 2]; 4]| [c.iter().map(|p| p[0]).sum::<f64>() / 4.0, c.iter().map(|p| p[1]).sum::<f64>() / 4.0];
+            let centre = |c: &[[f64; 2]; 4]| {
+                [c.iter().map(|p| p[0]).sum::<f64>() / 4.0, c.iter().map(|p| p[1]).sum::<f64>() / 4.0]
+            };
             let rcen = centre(rc);
             let best = found
                 .iter()
@@ -76,7 +78,11 @@ fn all_reference_tags_found_within_half_a_pixel() {
     }
     errs.sort_by(|a, b| a.total_cmp(b));
     let rms = (errs.iter().map(|e| e * e).sum::<f64>() / errs.len() as f64).sqrt();
-    eprintln!("{total} tags, {} corners: RMS {rms:.3} px, median {:.3} px, max {worst:.3} px", errs.len(), errs[errs.len() / 2]);
+    eprintln!(
+        "{total} tags, {} corners: RMS {rms:.3} px, median {:.3} px, max {worst:.3} px",
+        errs.len(),
+        errs[errs.len() / 2]
+    );
     // OpenCV 4.6's aruco decoder misses 26 of these 47 tags: all are tiny (12-20 px wide, often
     // seen edge-on on the cubes' side faces) where AprilTag 3's decoder still reads the bits.
     // The 21 it finds must stay found (and within 0.5 px); see camcal/README.md.

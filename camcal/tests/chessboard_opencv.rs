@@ -15,7 +15,10 @@ const DATA: &str = "/usr/share/doc/opencv-doc/examples/data";
 const SQUARE_MM: f64 = 25.0;
 
 fn files(side: &str) -> Vec<PathBuf> {
-    [1, 2, 3, 4, 5, 6, 7, 8, 9, 11, 12, 13, 14].iter().map(|i| PathBuf::from(format!("{DATA}/{side}{i:02}.jpg"))).collect()
+    [1, 2, 3, 4, 5, 6, 7, 8, 9, 11, 12, 13, 14]
+        .iter()
+        .map(|i| PathBuf::from(format!("{DATA}/{side}{i:02}.jpg")))
+        .collect()
 }
 
 fn target() -> Target {
@@ -43,7 +46,8 @@ struct Reference {
 }
 
 fn reference(keep: &[usize]) -> Reference {
-    let crit = TermCriteria::new((TermCriteria_Type::COUNT as i32) | (TermCriteria_Type::EPS as i32), 30, 0.01).unwrap();
+    let crit =
+        TermCriteria::new((TermCriteria_Type::COUNT as i32) | (TermCriteria_Type::EPS as i32), 30, 0.01).unwrap();
     let mut pts: [Vector<Vector<Point2f>>; 2] = [Vector::new(), Vector::new()];
     let mut obj: Vector<Vector<Point3f>> = Vector::new();
     for (i, (l, r)) in files("left").iter().zip(files("right")).enumerate() {
@@ -80,7 +84,8 @@ fn reference(keep: &[usize]) -> Reference {
     }
     assert!(obj.len() >= 8, "reference found the board in {} pairs", obj.len());
     let size = Size::new(640, 480);
-    let crit = TermCriteria::new((TermCriteria_Type::COUNT as i32) | (TermCriteria_Type::EPS as i32), 100, 1e-10).unwrap();
+    let crit =
+        TermCriteria::new((TermCriteria_Type::COUNT as i32) | (TermCriteria_Type::EPS as i32), 100, 1e-10).unwrap();
     let mut ks = Vec::new();
     let mut ds = Vec::new();
     let mut rms = [0.0; 3];
@@ -124,13 +129,8 @@ fn check(opts: &CalibOptions, f_rel: f64, c_px: f64, r_deg: f64, t_rel: f64) {
     let (l, r) = (ours("left"), ours("right"));
     assert!(l.iter().flatten().count() >= 12 && r.iter().flatten().count() >= 12);
     let res = calibrate_stereo(&l, &r, &target(), Model::Pinhole, 20, opts).unwrap();
-    let keep: Vec<usize> = res
-        .left
-        .per_image
-        .iter()
-        .map(|p| p.0)
-        .filter(|i| res.right.per_image.iter().any(|q| q.0 == *i))
-        .collect();
+    let keep: Vec<usize> =
+        res.left.per_image.iter().map(|p| p.0).filter(|i| res.right.per_image.iter().any(|q| q.0 == *i)).collect();
     let rf = reference(&keep);
     eprintln!(
         "ours: left rms {:.4} px ({} images, dropped {:?}), right rms {:.4} px (dropped {:?}), stereo rms {:.4} px over {} pairs",
@@ -142,7 +142,13 @@ fn check(opts: &CalibOptions, f_rel: f64, c_px: f64, r_deg: f64, t_rel: f64) {
         res.rms_px,
         res.pairs_used
     );
-    eprintln!("opencv on the same {} pairs: rms left {:.4} right {:.4} stereo {:.4}", keep.len(), rf.rms[0], rf.rms[1], rf.rms[2]);
+    eprintln!(
+        "opencv on the same {} pairs: rms left {:.4} right {:.4} stereo {:.4}",
+        keep.len(),
+        rf.rms[0],
+        rf.rms[1],
+        rf.rms[2]
+    );
     assert!(res.left.rms_px < 0.5 && res.right.rms_px < 0.5 && res.rms_px < 0.5);
     for (side, c) in [(0usize, &res.left), (1, &res.right)] {
         let i = &c.camera;
@@ -213,7 +219,8 @@ fn outlier_image_is_dropped_and_reported() {
     eprintln!("dropped {:?}, rms {:.4}", c.dropped, c.rms_px);
     // left02 (index 1) is a natural outlier of this set (RMS ~1.2 px, 5x the median); the
     // corrupted image must be dropped as well, and nothing else
-    let clean = calibrate(&views(&ours("left"), &target(), 20), 640, 480, Model::Pinhole, &CalibOptions::default()).unwrap();
+    let clean =
+        calibrate(&views(&ours("left"), &target(), 20), 640, 480, Model::Pinhole, &CalibOptions::default()).unwrap();
     let mut expect: Vec<usize> = clean.dropped.iter().map(|d| d.0).chain([bad]).collect();
     expect.sort();
     let mut got: Vec<usize> = c.dropped.iter().map(|d| d.0).collect();

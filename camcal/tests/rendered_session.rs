@@ -62,7 +62,8 @@ fn measured_poses_match_the_truth() {
     let s = Session::read(dir).unwrap();
     let truth = Dataset::read(&dir.join("truth.csv")).unwrap();
     let t0 = std::time::Instant::now();
-    let (ds, rep, solved) = measure_session(&s, AprilDetector::AprilGridCrate, &SolveOptions::default(), |_, _| {}).unwrap();
+    let (ds, rep, solved) =
+        measure_session(&s, AprilDetector::AprilGridCrate, &SolveOptions::default(), |_, _| {}).unwrap();
     eprintln!(
         "measured {}/{} images in {:.1} s, RMS {:.4} px, boards {:?}, {} iterations, failures {:?}",
         rep.measured,
@@ -131,7 +132,9 @@ fn bad_images_are_counted_and_the_rest_measured() {
     assert_eq!(c[0], 2, "unreadable + missing");
     assert_eq!(c[1], 1, "no board");
     assert_eq!(c[2], 1, "too few corners");
-    assert!(matches!(rep.failures.iter().find(|f| f.0 == s.rows[5].seq).unwrap().2, Failure::TooFewCorners(n) if n > 0 && n < 20));
+    assert!(
+        matches!(rep.failures.iter().find(|f| f.0 == s.rows[5].seq).unwrap().2, Failure::TooFewCorners(n) if n > 0 && n < 20)
+    );
     assert_eq!(rep.measured, rep.images - 4);
     assert_eq!(ds.samples.len(), rep.measured);
     let truth = Dataset::read(&dir.join("truth.csv")).unwrap();
@@ -153,7 +156,8 @@ fn detectors_on_rendered_grids() {
         let mut time = 0.0;
         for p6 in &poses {
             let pose = Pose::from_p6(p6);
-            let opts = RenderOptions { supersample: 4, blur_sigma: 0.6, noise_sigma: 1.0, seed: 1, ..Default::default() };
+            let opts =
+                RenderOptions { supersample: 4, blur_sigma: 0.6, noise_sigma: 1.0, seed: 1, ..Default::default() };
             let r = grid.render(&scene, &cam, &pose, &opts).unwrap();
             if let Ok(d) = std::env::var("ABVS_SAVE_RENDERS") {
                 r.gray_image().save(format!("{d}/render_{}.png", p6[0])).unwrap();
