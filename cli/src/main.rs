@@ -3,11 +3,15 @@
 mod calib;
 mod camcal;
 mod demo;
+mod disparity;
+mod echo;
 mod explain;
 mod explain_plots;
 mod kin;
 mod paper;
 mod plot;
+mod rerun_sink;
+mod run;
 mod sim;
 mod table;
 
@@ -34,6 +38,14 @@ enum Cmd {
     Calib(calib::CalibCmd),
     /// The main job on the embedded default unit: simulate, measure, compare, map.
     Demo(demo::DemoArgs),
+    /// The runtime: replay a session (default: the embedded fixture) through the whole pipeline.
+    Run(run::RunArgs),
+    /// Subscribe to the runtime's depth or cloud (iceoryx2) and print rate and latency.
+    Echo(echo::EchoArgs),
+    /// Left-view disparity of a rectified pair with the shipped network or SGBM, written as PFM.
+    Disparity(disparity::DisparityArgs),
+    /// Score the disparity engines (each model variant and SGBM) against a ground-truth map, with timing.
+    DisparityEval(disparity::EvalArgs),
     /// Report what abvs found on this machine (ONNX Runtime library, version).
     Doctor,
 }
@@ -45,6 +57,10 @@ fn main() -> ExitCode {
         Cmd::Kin(c) => kin::run(c),
         Cmd::Calib(c) => calib::run(c),
         Cmd::Demo(a) => demo::run(a),
+        Cmd::Run(a) => run::run(a),
+        Cmd::Echo(a) => echo::run(a),
+        Cmd::Disparity(a) => disparity::run_disparity(a),
+        Cmd::DisparityEval(a) => disparity::run_eval(a),
         Cmd::Doctor => doctor(),
     };
     match r {

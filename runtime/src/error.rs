@@ -12,6 +12,15 @@ pub enum RuntimeError {
     Gap { stream: &'static str, t: f64, gap_ms: f64, max_ms: f64 },
     #[error("invalid: {0}")]
     Invalid(String),
+    /// A file that cannot be read or does not follow its format; `line` when the fault has one.
+    #[error("{}{}: {msg}", path.display(), line.map(|l| format!(":{l}")).unwrap_or_default())]
+    File { path: std::path::PathBuf, line: Option<u64>, msg: String },
+    /// A calibration or model file the pipeline cannot use.
+    #[error("{}: {msg}", path.display())]
+    Model { path: std::path::PathBuf, msg: String },
+    /// A stage failed on one frame (the pipeline counts it and goes on).
+    #[error("frame {seq}: {stage}: {msg}")]
+    Frame { seq: u64, stage: &'static str, msg: String },
 }
 
 pub type Result<T> = std::result::Result<T, RuntimeError>;

@@ -6,8 +6,11 @@
 //! on threads joined by bounded channels; [`session`] is the on-disk format of recorded sessions.
 pub mod bridges;
 pub mod error;
+pub mod pipeline;
+pub mod session;
 pub mod sinks;
 pub mod sources;
+pub mod synth;
 pub mod tasks;
 
 pub use error::{Result, RuntimeError};

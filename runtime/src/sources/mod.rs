@@ -1,5 +1,9 @@
 //! Sources: where data enters the runtime (cameras, the encoder board, recorded sessions).
 pub mod encoder_link;
+pub mod pairing;
+pub mod pixel;
+pub mod replay;
+pub mod v4l_capture;
 
 /// One grayscale camera frame as it leaves a source: 8-bit luma, row-major, tightly packed.
 #[derive(Clone, Debug, PartialEq)]

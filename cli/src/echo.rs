@@ -1,0 +1,149 @@
+//! `abvs echo depth|cloud`: subscribes to the runtime's iceoryx2 bridge and prints rate and end-to-end
+//! latency (now - t_frame_ns, CLOCK_MONOTONIC).
+use std::process::ExitCode;
+use std::time::{Duration, Instant};
+
+use abvs_runtime::bridges::iceoryx::{monotonic_ns, BridgeConfig, BridgePayload, CloudPoint, FrameHeader, Subscriber};
+use clap::{Args, ValueEnum};
+
+#[derive(Clone, Copy, Debug, ValueEnum)]
+pub enum Topic {
+    Depth,
+    Cloud,
+}
+
+#[derive(Args)]
+pub struct EchoArgs {
+    /// What to receive: depth maps or point clouds.
+    topic: Topic,
+    /// Exit after this many samples.
+    #[arg(long)]
+    count: Option<u64>,
+    /// Print one JSON object at the end (received, fps, latency_ms {p50, p99}, points_mean) instead of the
+    /// periodic lines (those go to stderr then).
+    #[arg(long)]
+    json: bool,
+    /// Fail if no sample arrives for this long (seconds).
+    #[arg(long, default_value_t = 10.0)]
+    timeout_s: f64,
+    /// Service name prefix (the runtime's BridgeConfig prefix).
+    #[arg(long, default_value = "abvs")]
+    prefix: String,
+    /// Testing: abort the process right after receiving K samples, still holding the last one.
+    #[arg(long, hide = true)]
+    abort_after: Option<u64>,
+}
+
+pub fn run(a: EchoArgs) -> anyhow::Result<ExitCode> {
+    match a.topic {
+        Topic::Depth => echo::<f32>(&a),
+        Topic::Cloud => echo::<CloudPoint>(&a),
+    }
+}
+
+/// Percentile (0..=1) of sorted values, nearest rank.
+fn percentile(sorted: &[f64], q: f64) -> f64 {
+    if sorted.is_empty() {
+        return f64::NAN;
+    }
+    let i = ((q * sorted.len() as f64).ceil() as usize).clamp(1, sorted.len()) - 1;
+    sorted[i]
+}
+
+struct Window {
+    t0: Instant,
+    lat: Vec<f64>,
+    points: u64,
+}
+
+fn echo<T: BridgePayload>(a: &EchoArgs) -> anyhow::Result<ExitCode> {
+    if !(a.timeout_s > 0.0 && a.timeout_s.is_finite()) {
+        anyhow::bail!("--timeout-s must be a positive number of seconds");
+    }
+    let cfg = BridgeConfig::default().with_prefix(a.prefix.clone());
+    let mut sub = Subscriber::<T>::new(&cfg)?;
+    let service = sub.service_name().to_string();
+    let timeout = Duration::from_secs_f64(a.timeout_s);
+    let mut all_lat: Vec<f64> = Vec::new();
+    let mut points_sum = 0u64;
+    let mut received = 0u64;
+    let (mut first_rx, mut last_rx) = (None::<Instant>, None::<Instant>);
+    let mut win = Window { t0: Instant::now(), lat: Vec::new(), points: 0 };
+    let mut failure = None;
+
+    loop {
+        if a.count.is_some_and(|n| received >= n) {
+            break;
+        }
+        let Some(r) = sub.wait(timeout)? else {
+            failure = Some(format!(
+                "no sample on {service} within {} s (received {received}); is the abvs runtime publishing with prefix '{}'?",
+                a.timeout_s, a.prefix
+            ));
+            break;
+        };
+        let now_ns = monotonic_ns();
+        let now = Instant::now();
+        let h: &FrameHeader = r.header();
+        let lat_ms = (now_ns - h.t_frame_ns) as f64 * 1e-6;
+        received += 1;
+        all_lat.push(lat_ms);
+        win.lat.push(lat_ms);
+        points_sum += h.valid as u64;
+        win.points += h.valid as u64;
+        first_rx.get_or_insert(now);
+        last_rx = Some(now);
+        if a.abort_after == Some(received) {
+            // simulate a crashing subscriber: die while the sample is still borrowed
+            let _held = r;
+            std::process::abort();
+        }
+        drop(r);
+        let dt = now.duration_since(win.t0).as_secs_f64();
+        if dt >= 1.0 {
+            win.lat.sort_by(f64::total_cmp);
+            let line = format!(
+                "{service}: {:.1} Hz, latency p50 {:.2} ms p99 {:.2} ms, {} {:.0} per sample ({received} received)",
+                win.lat.len() as f64 / dt,
+                percentile(&win.lat, 0.5),
+                percentile(&win.lat, 0.99),
+                if T::TRIM_TO_VALID { "points" } else { "valid pixels" },
+                win.points as f64 / win.lat.len() as f64,
+            );
+            if a.json {
+                eprintln!("{line}");
+            } else {
+                println!("{line}");
+            }
+            win = Window { t0: now, lat: Vec::new(), points: 0 };
+        }
+    }
+
+    all_lat.sort_by(f64::total_cmp);
+    let fps = match (first_rx, last_rx) {
+        (Some(f), Some(l)) if received > 1 && l > f => (received - 1) as f64 / l.duration_since(f).as_secs_f64(),
+        _ => 0.0,
+    };
+    let points_mean = if received > 0 { points_sum as f64 / received as f64 } else { 0.0 };
+    let (p50, p99) = (percentile(&all_lat, 0.5), percentile(&all_lat, 0.99));
+    if a.json {
+        let num = |v: f64| if v.is_finite() { serde_json::json!(v) } else { serde_json::Value::Null };
+        let o = serde_json::json!({
+            "received": received,
+            "fps": num(fps),
+            "latency_ms": { "p50": num(p50), "p99": num(p99) },
+            "points_mean": num(points_mean),
+        });
+        println!("{o}");
+    } else {
+        println!(
+            "{service}: {received} received, {fps:.1} Hz, latency p50 {p50:.2} ms p99 {p99:.2} ms, mean {points_mean:.0} {} per sample",
+            if T::TRIM_TO_VALID { "points" } else { "valid pixels" }
+        );
+    }
+    if let Some(f) = failure {
+        eprintln!("error: {f}");
+        return Ok(ExitCode::FAILURE);
+    }
+    Ok(ExitCode::SUCCESS)
+}

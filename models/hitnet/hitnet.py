@@ -1,0 +1,304 @@
+"""A small HITNet-style stereo network (Tankovich et al., CVPR 2021), simplified.
+
+Input  [B,2,H,W] float32: channel 0 = left gray, 1 = right gray, in [0,1].
+Output [B,1,H,W] float32: left-view disparity in pixels (x_left - x_right).
+
+Pipeline
+  1. Shared feature U-Net on left and right (stacked on the batch axis),
+     features at 1/2, 1/4, 1/8 (and 1/16 for deeper variants).
+  2. Initialisation at the init feature level (1/2 for hitnet-s, 1/4 for
+     hitnet-m): L1 matching cost between left features and right features
+     shifted by every integer disparity of that level (Pad/Slice shifts, no
+     exotic ops), cost averaged over 2x2 -> tiles (1 tile = 4x4 px for
+     hitnet-s, 8x8 px for hitnet-m). Per tile: hard argmin + soft-argmin in a
+     +-2 window (sub-pixel, differentiable), slant dx = dy = 0 and a learned
+     descriptor from the tile feature and local costs -> tile hypothesis
+     h = (d, dx, dy, p).
+  3. Propagation/refinement from coarse to fine: at every level the right
+     features are warped by the current hypotheses (GridSample, only along x)
+     at offsets -1, 0, +1 level-pixels; the local costs + left features +
+     hypothesis go through a small residual CNN that predicts residual updates
+     (delta d, delta dx, delta dy, delta p). Between levels hypotheses are
+     upsampled as slanted planes (d + dx*ox + dy*oy).
+  4. Slanted-plane upsampling of the finest hypotheses to full resolution.
+Disparities are carried in full-resolution pixels throughout; slants in
+disparity-px per full-res px.
+"""
+from __future__ import annotations
+
+import torch
+import torch.nn as nn
+import torch.nn.functional as F
+
+VARIANTS = {
+    # ch: feature channels at 1/2, 1/4, 1/8, 1/16(, 1/32); init_level: feature level (0 = 1/2) whose
+    # features build the init cost volume; tiles are 2x2 of that level. upd: widths of the
+    # propagation CNNs from the tile level down to 1/2; upd_blocks: residual blocks each.
+    # init_mode "pixel": per-pixel L1 cost of 1x1-projected features at the init level for every
+    # integer disparity of that level, averaged over the 2x2 pixels of a tile; "tile" (v0):
+    # HITNet's tile features (2x2/s2 conv left, 2x1/(2,1) conv right).
+    "hitnet-s": dict(width=320, height=240, max_disparity=40, ch=(8, 12, 24, 32), init_level=0,
+                     desc=8, upd=(16, 8), upd_blocks=(1, 0), init_mode="rows", fuse2=True, match_ch=8, lcn=True,
+                     light_last=True),
+    "hitnet-m": dict(width=640, height=480, max_disparity=80, ch=(8, 16, 24, 32, 48), init_level=1,
+                     desc=8, upd=(32, 16, 8), upd_blocks=(2, 1, 0), init_mode="pixel", fuse2=True, match_ch=16, lcn=True),
+    # hitnet-s as trained in the 08:19 run (1x1 matching projection, full 3x3 update at 1/2)
+    "hitnet-s-v2": dict(width=320, height=240, max_disparity=40, ch=(8, 12, 24, 32), init_level=0,
+                        desc=8, upd=(16, 8), upd_blocks=(1, 0), init_mode="pixel", fuse2=True, match_ch=8, lcn=True),
+    # first (weaker) design, kept so its checkpoints stay loadable
+    "hitnet-s-v0": dict(width=320, height=240, max_disparity=40, ch=(8, 12, 24, 32), init_level=0,
+                        desc=8, upd=(16, 8), upd_blocks=(1, 0)),
+}
+
+
+def conv(ci, co, k=3, s=1, d=1, act=True):
+    layers = [nn.Conv2d(ci, co, k, s, padding=(k // 2) * d, dilation=d)]
+    if act:
+        layers.append(nn.LeakyReLU(0.2))
+    return nn.Sequential(*layers)
+
+
+class ResBlock(nn.Module):
+    def __init__(self, c, d=1):
+        super().__init__()
+        self.c1 = nn.Conv2d(c, c, 3, 1, d, d)
+        self.c2 = nn.Conv2d(c, c, 3, 1, 1)
+
+    def forward(self, x):
+        return F.leaky_relu(x + self.c2(F.leaky_relu(self.c1(x), 0.2)), 0.2)
+
+
+class FeatureUNet(nn.Module):
+    """Encoder to 1/2^(len(ch)), decoder back to 1/2. Returns [f_1/2, f_1/4, ...]."""
+
+    def __init__(self, ch, fuse2=False, cin=1):
+        super().__init__()
+        self.down = nn.ModuleList()
+        ci = cin
+        for i, c in enumerate(ch):
+            if i == 0:
+                self.down.append(conv(ci, c, 3, 2))
+            else:
+                self.down.append(nn.Sequential(conv(ci, c, 3, 2), conv(c, c)))
+            ci = c
+        self.up = nn.ModuleList()
+        self.fuse = nn.ModuleList()
+        for i in range(len(ch) - 1, 0, -1):
+            self.up.append(nn.Sequential(nn.ConvTranspose2d(ch[i], ch[i - 1], 2, 2), nn.LeakyReLU(0.2)))
+            self.fuse.append(conv(ch[i - 1], ch[i - 1]) if (i > 1 or fuse2) else nn.Identity())
+        self.fuse2 = fuse2
+
+    def forward(self, x):
+        skips = []
+        for d in self.down:
+            x = d(x)
+            skips.append(x)
+        outs = [x]
+        for j, (u, fz) in enumerate(zip(self.up, self.fuse)):
+            i = len(skips) - 2 - j
+            x = fz(u(x) + skips[i]) if (i > 0 or self.fuse2) else F.leaky_relu(u(x) + skips[i], 0.2)
+            outs.append(x)
+        return outs[::-1]  # finest (1/2) first
+
+
+def shift_right(fr, d):
+    """fr shifted so that out[..., x] = fr[..., x - d] (zero pad)."""
+    if d == 0:
+        return fr
+    return F.pad(fr, (d, 0))[..., : fr.shape[-1]]
+
+
+def plane_offsets(h, w, factor, device):
+    """Offsets (full-res px) of the children centres inside a parent tile.
+
+    factor = upsampling factor; tile_px = parent tile size in full-res px.
+    Returns ox [1,1,h*factor,w*factor] (pattern repeating every `factor`)."""
+    k = torch.arange(factor, device=device, dtype=torch.float32)
+    o = (k - (factor - 1) / 2) / factor  # in units of the parent tile
+    ox = o.repeat(w).view(1, 1, 1, w * factor).expand(1, 1, h * factor, w * factor)
+    oy = o.repeat(h).view(1, 1, h * factor, 1).expand(1, 1, h * factor, w * factor)
+    return ox, oy
+
+
+def upsample_planes(d, dx, dy, factor, tile_px):
+    """Slanted-plane upsampling of hypotheses by `factor` (tile_px = parent tile in full-res px)."""
+    h, w = d.shape[-2:]
+    ox, oy = plane_offsets(h, w, factor, d.device)
+    ox = ox * tile_px
+    oy = oy * tile_px
+    up = lambda t: F.interpolate(t, scale_factor=factor, mode="nearest")
+    dxu, dyu = up(dx), up(dy)
+    return up(d) + dxu * ox + dyu * oy, dxu, dyu
+
+
+class Propagation(nn.Module):
+    def __init__(self, cf, p, width, blocks, offsets=(-1.0, 0.0, 1.0), light=False):
+        super().__init__()
+        self.offsets = offsets
+        self.light = light  # last level: 1x1 output conv, no descriptor update
+        cin = len(offsets) + cf + 3 + p
+        self.inp = conv(cin, width)
+        self.blocks = nn.Sequential(*[ResBlock(width, d) for d in [1, 2, 1, 2][:blocks]]) if blocks else nn.Identity()
+        self.out = nn.Conv2d(width, 3, 1) if light else nn.Conv2d(width, 3 + p, 3, 1, 1)
+        nn.init.zeros_(self.out.weight)
+        nn.init.zeros_(self.out.bias)
+
+    def forward(self, fl, fr, d, dx, dy, p, scale, max_disp):
+        """fl, fr [B,C,h,w] at 1/scale; d in full-res px."""
+        B, C, h, w = fl.shape
+        dl = d / scale  # level px
+        # warp right features along x by the hypotheses (linear interpolation via GatherElements)
+        xs = torch.arange(w, device=fl.device, dtype=torch.float32).view(1, 1, 1, w)
+        xr = xs - dl  # [B,1,h,w] sampling position for offset 0
+        x0 = torch.floor(xr)
+        fr_ = (xr - x0).expand(B, C, h, w)
+        g = {}
+        for k in (-1, 0, 1, 2):
+            idx = (x0 + k).clamp(0, w - 1).long().expand(B, C, h, w)
+            g[k] = torch.gather(fr, 3, idx)
+        costs = []
+        for o in self.offsets:  # sample at xr - o
+            k = int(-o)
+            wr = g[k] * (1 - fr_) + g[k + 1] * fr_
+            costs.append((fl - wr).abs().mean(1, keepdim=True))
+        cost = torch.cat(costs, 1)
+        x = torch.cat([cost, fl, dl / (max_disp / scale) , dx, dy, p], 1)
+        u = self.out(self.blocks(self.inp(x)))
+        d = d + u[:, 0:1] * scale
+        dx = dx + u[:, 1:2]
+        dy = dy + u[:, 2:3]
+        if not self.light:
+            p = p + u[:, 3:]
+        return d, dx, dy, p
+
+
+class HITNetLite(nn.Module):
+    def __init__(self, width, height, max_disparity, ch, init_level, desc, upd, upd_blocks, init_mode="tile",
+                 fuse2=False, match_ch=16, lcn=False, light_last=False):
+        super().__init__()
+        self.init_mode = init_mode
+        self.lcn = lcn
+        self.max_disp = float(max_disparity)
+        self.ch = ch
+        self.init_level = init_level  # index into feature list (0 = 1/2)
+        self.init_scale = 2 ** (init_level + 1)  # feature scale of the init cost volume
+        self.tile_scale = self.init_scale * 2  # tiles = 2x2 init-level pixels
+        self.nd = int(-(-max_disparity // self.init_scale)) + 1  # integer disparities at init level
+        self.feat = FeatureUNet(ch, fuse2, 2 if lcn else 1)
+        cm = ch[init_level]
+        # HITNet-style tile features: left 2x2 stride 2; right 2x1 stride (2,1) keeps the
+        # init-level x resolution, so every init-level integer disparity can be tested.
+        if init_mode == "tile":
+            self.match_l = nn.Conv2d(cm, match_ch, 2, 2)
+            self.match_r = nn.Conv2d(cm, match_ch, (2, 1), (2, 1))
+        elif init_mode == "rows":
+            # shared (2,1)/(2,1) projection: the 2 rows of a tile -> one row, x resolution kept
+            self.match_l = nn.Conv2d(cm, match_ch, (2, 1), (2, 1))
+            self.match_r = self.match_l
+            self.log_temp = nn.Parameter(torch.tensor(3.0))
+        else:
+            self.match_l = nn.Conv2d(cm, match_ch, 1)
+            self.match_r = self.match_l  # shared projection
+            self.log_temp = nn.Parameter(torch.tensor(3.0))  # softmax(-exp(log_temp) * cost)
+        # larger initial matching features -> a discriminative (non-uniform) init cost volume from the start
+        with torch.no_grad():
+            self.match_l.weight.mul_(4.0)
+            if self.match_r is not self.match_l:
+                self.match_r.weight.mul_(4.0)
+        self.desc_init = nn.Sequential(conv(ch[init_level + 1] + 5, 16), nn.Conv2d(16, desc, 1))
+        # propagation levels: tile level (1/tile_scale) down to 1/2
+        self.levels = []
+        s = self.tile_scale
+        while s >= 2:
+            self.levels.append(s)
+            s //= 2
+        assert len(self.levels) == len(upd), (self.levels, upd)
+        self.prop = nn.ModuleList()
+        for j, (s, wdt, nb) in enumerate(zip(self.levels, upd, upd_blocks)):
+            li = {2: 0, 4: 1, 8: 2, 16: 3}[s]
+            self.prop.append(Propagation(ch[li], desc, wdt, nb, light=light_last and j == len(upd) - 1))
+        self.register_buffer("temp", torch.tensor(1.0))
+
+    def temperature(self):
+        return torch.exp(self.log_temp) if self.init_mode in ("pixel", "rows") else 20.0
+
+    def init_hypotheses(self, fl, fr):
+        if self.init_mode in ("pixel", "rows"):
+            return self.init_pixel(fl, fr)
+        ml, mr = self.match_l(fl), self.match_r(fr)  # [B,16,h/2,w/2], [B,16,h/2,w]
+        B, C, h, wt = ml.shape
+        W2 = mr.shape[-1]
+        # all shifted right columns with ONE Gather: column 2x-k of mr (zero column if < 0)
+        mrp = F.pad(mr, (1, 0))
+        k = torch.arange(self.nd, device=ml.device).view(self.nd, 1)
+        x = torch.arange(wt, device=ml.device).view(1, wt)
+        idx = (2 * x - k + 1).clamp(min=0).view(-1)
+        # gather on the outermost axis (contiguous blocks) -- much faster than on the inner axis
+        mrt = mrp.permute(3, 0, 1, 2)  # [W2+1,B,C,h]
+        g = torch.index_select(mrt, 0, idx).view(self.nd, wt, B, C, h)
+        mlt = ml.permute(3, 0, 1, 2).unsqueeze(0)  # [1,wt,B,C,h]
+        cv = (mlt - g).abs().mean(3)  # [nd,wt,B,h]
+        return cv.permute(2, 0, 3, 1)  # [B,nd,h,wt] tile cost
+
+    def init_pixel(self, fl, fr):
+        ml, mr = self.match_l(fl), self.match_r(fr)  # [B,C,h,w] at the init level
+        B, C, h, w = ml.shape
+        mrp = F.pad(mr, (1, 0))
+        k = torch.arange(self.nd, device=ml.device).view(self.nd, 1)
+        x = torch.arange(w, device=ml.device).view(1, w)
+        idx = (x - k + 1).clamp(min=0).view(-1)  # column x-k of mr (zero column if < 0)
+        g = torch.index_select(mrp.permute(3, 0, 1, 2), 0, idx).view(self.nd, w, B, C, h)
+        cv = (ml.permute(3, 0, 1, 2).unsqueeze(0) - g).abs().mean(3)  # [nd,w,B,h]
+        cv = cv.permute(2, 0, 3, 1)  # [B,nd,h,w]
+        if self.init_mode == "rows":
+            return F.avg_pool2d(cv, (1, 2))  # rows already merged: mean over the tile's 2 columns
+        return F.avg_pool2d(cv, 2)  # tile cost: mean over the tile's 2x2 init-level pixels
+
+    def forward(self, x, return_all=False):
+        B = x.shape[0]
+        img = torch.cat([x[:, 0:1], x[:, 1:2]], 0)  # [2B,1,H,W]
+        if self.lcn:
+            # local contrast normalisation (7x7): invariance to gain / offset / vignetting between the eyes
+            mu = F.avg_pool2d(img, 7, 1, 3, count_include_pad=False)
+            var = F.avg_pool2d(img * img, 7, 1, 3, count_include_pad=False) - mu * mu
+            xn = (img - mu) / torch.sqrt(F.relu(var) + 4e-4)
+            img = torch.cat([xn * 0.25, img - 0.5], 1)
+        feats = self.feat(img)
+        fl = [f[:B] for f in feats]
+        fr = [f[B:] for f in feats]
+        cv = self.init_hypotheses(fl[self.init_level], fr[self.init_level])
+        # hard argmin + soft-argmin in a +-2 window
+        idx = torch.argmin(cv, 1, keepdim=True)
+        win = torch.arange(-2, 3, device=x.device).view(1, 5, 1, 1)
+        widx = (idx + win).clamp(0, self.nd - 1)
+        wc = torch.gather(cv, 1, widx)
+        prob = torch.softmax(-wc * self.temperature(), 1)
+        d0 = (prob * widx.float()).sum(1, keepdim=True) * self.init_scale
+        tile_feat = fl[self.init_level + 1]
+        p = self.desc_init(torch.cat([tile_feat, wc], 1))
+        dx = torch.zeros_like(d0)
+        dy = torch.zeros_like(d0)
+        d = d0
+        outs = [(d0, dx, dy, self.tile_scale)]
+        for i, (s, prop) in enumerate(zip(self.levels, self.prop)):
+            if i > 0:
+                d, dx, dy = upsample_planes(d, dx, dy, 2, s * 2)
+                p = F.interpolate(p, scale_factor=2, mode="nearest")
+            li = {2: 0, 4: 1, 8: 2, 16: 3}[s]
+            d, dx, dy, p = prop(fl[li], fr[li], d, dx, dy, p, float(s), self.max_disp)
+            outs.append((d, dx, dy, s))
+        s = self.levels[-1]
+        dfull, _, _ = upsample_planes(d, dx, dy, s, s)
+        dfull = F.relu(dfull)
+        if return_all:
+            return dfull, cv, outs
+        return dfull
+
+
+def build(variant):
+    cfg = dict(VARIANTS[variant])
+    return HITNetLite(**cfg)
+
+
+def n_params(m):
+    return sum(p.numel() for p in m.parameters())

@@ -1,0 +1,60 @@
+//! Per-stage costs of the runtime at the two network resolutions: rectification map build (coarse grid +
+//! cubic, against the exact per-pixel build as the baseline) and remap for both eyes, disparity (SGBM and the
+//! shipped networks), depth + cloud. End-to-end latency and throughput come from `abvs run` (BENCHMARKS.md).
+use std::path::Path;
+
+use abvs_camera::Camera;
+use abvs_eye::{Fick, Pose};
+use abvs_runtime::tasks::depth::{DepthConfig, DepthFrame};
+use abvs_runtime::tasks::disparity::{DisparityEngine, OnnxEngine, SgbmEngine};
+use abvs_runtime::tasks::rectify::{rectify, RectifiedCamera, StereoRectifier};
+use criterion::{criterion_group, criterion_main, Criterion};
+use nalgebra::Vector3;
+
+fn extrinsic() -> Pose {
+    Pose::new(Fick::from_deg([2.0, -1.0, 6.0]).to_matrix(), Vector3::new(-0.0648, 0.0012, 0.004))
+}
+
+fn bench(c: &mut Criterion) {
+    let raw = Camera::ov8856().scaled(800, 600);
+    let models = Path::new(env!("CARGO_MANIFEST_DIR")).join("../models/hitnet");
+    let img: Vec<u8> = (0..800 * 600).map(|i| ((i * 7919) % 251) as u8).collect();
+    for (w, h, variant) in [(320u32, 240u32, "hitnet-s"), (640, 480, "hitnet-m")] {
+        let out = RectifiedCamera::with_hfov(w, h, 100.0);
+        let e = extrinsic();
+        let mut g = c.benchmark_group(format!("runtime_{w}x{h}"));
+        g.sample_size(20);
+        let mut grid = StereoRectifier::new(raw, raw, out, 8).unwrap();
+        g.bench_function("rectify_maps_both_eyes_grid8", |b| b.iter(|| grid.update(&e).unwrap()));
+        let mut exact = StereoRectifier::new(raw, raw, out, 1).unwrap();
+        g.bench_function("rectify_maps_both_eyes_exact_baseline", |b| b.iter(|| exact.update(&e).unwrap()));
+        let rect = grid.update(&e).unwrap();
+        let (mut l, mut r) = (vec![0u8; (w * h) as usize], vec![0u8; (w * h) as usize]);
+        g.bench_function("remap_both_eyes", |b| {
+            b.iter(|| {
+                grid.left.remap(&img, 800, 600, &mut l).unwrap();
+                grid.right.remap(&img, 800, 600, &mut r).unwrap();
+            })
+        });
+        let mut disp = vec![0f32; (w * h) as usize];
+        let mut sgbm = SgbmEngine::new(w, h, out.f * 0.065 / 0.2).unwrap();
+        g.bench_function("disparity_sgbm", |b| b.iter(|| sgbm.compute(&l, &r, &mut disp).unwrap()));
+        if models.join(variant).join("manifest.json").exists() {
+            let mut onnx = OnnxEngine::load(&models.join(variant), 2).unwrap();
+            g.bench_function(format!("disparity_onnx_{variant}_2threads"), |b| {
+                b.iter(|| onnx.compute(&l, &r, &mut disp).unwrap())
+            });
+        }
+        let d: Vec<f32> = (0..(w * h) as usize).map(|i| 5.0 + (i % 30) as f32).collect();
+        let mut depth = DepthFrame::new(w, h);
+        let cfg = DepthConfig::default();
+        g.bench_function("depth_and_cloud", |b| {
+            b.iter(|| depth.compute(&d, |_| true, &l, &out, &rect, &Pose::identity(), &cfg))
+        });
+        let _ = rectify(&e);
+        g.finish();
+    }
+}
+
+criterion_group!(benches, bench);
+criterion_main!(benches);

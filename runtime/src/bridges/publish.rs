@@ -1,0 +1,79 @@
+//! The pipeline's publishing sink: each finished frame goes out as a depth map and a point cloud on the
+//! iceoryx2 services of [`crate::bridges::iceoryx`], written straight into the loaned shared memory.
+use std::mem::MaybeUninit;
+
+use abvs_eye::Pose;
+
+use crate::bridges::iceoryx::{BridgeConfig, CloudPoint, FrameHeader, Publisher};
+use crate::error::{Result, RuntimeError};
+use crate::pipeline::{Published, Sink};
+use crate::sinks::stats::RunStats;
+
+pub struct PublishSink {
+    depth: Publisher<f32>,
+    cloud: Publisher<CloudPoint>,
+    pub config: BridgeConfig,
+}
+
+impl PublishSink {
+    pub fn new(config: BridgeConfig) -> Result<PublishSink> {
+        let err = |e: crate::bridges::iceoryx::BridgeError| RuntimeError::Invalid(e.to_string());
+        Ok(PublishSink {
+            depth: Publisher::new(&config).map_err(err)?,
+            cloud: Publisher::new(&config).map_err(err)?,
+            config,
+        })
+    }
+}
+
+/// P = [alpha, beta, gamma (deg), x, y, z (mm)] of a runtime pose (metres).
+fn p6(p: &Pose) -> [f64; 6] {
+    Pose::new(p.r, p.t * 1000.0).to_p6()
+}
+
+impl Sink for PublishSink {
+    fn name(&self) -> &'static str {
+        "iceoryx2"
+    }
+
+    fn consume(&mut self, out: &Published) -> Result<()> {
+        let err = |e: crate::bridges::iceoryx::BridgeError| RuntimeError::Invalid(e.to_string());
+        let mut h = FrameHeader::new_left_home();
+        h.seq = out.seq;
+        h.t_frame_ns = out.t_frame_ns;
+        h.pose_left = p6(&out.pose.rel_left);
+        h.pose_right = p6(&out.pose.rel_right);
+        h.intrinsics = [out.cam.f, out.cam.f, out.cam.cx, out.cam.cy];
+        h.width = out.cam.width;
+        h.height = out.cam.height;
+        h.baseline_m = out.rect.baseline_m;
+        h.valid = out.depth.n_points as u32;
+        let depth = &out.depth.depth;
+        self.depth
+            .publish_depth(&h, |s: &mut [MaybeUninit<f32>]| {
+                for (d, v) in s.iter_mut().zip(depth) {
+                    d.write(*v);
+                }
+            })
+            .map_err(err)?;
+        let n = out.depth.n_points;
+        let (pts, gray) = (&out.depth.points[..n], &out.depth.intensity[..n]);
+        self.cloud
+            .publish_cloud(&h, n, |s: &mut [MaybeUninit<CloudPoint>]| {
+                for ((d, p), g) in s.iter_mut().zip(pts).zip(gray) {
+                    let g = *g as u32;
+                    d.write(CloudPoint { x: p.x, y: p.y, z: p.z, rgba: 0xff00_0000 | g << 16 | g << 8 | g });
+                }
+                n.min(s.len())
+            })
+            .map_err(err)?;
+        Ok(())
+    }
+
+    fn finish(&mut self, stats: &mut RunStats) {
+        let (d, c) = (self.depth.stats(), self.cloud.stats());
+        stats
+            .extra
+            .insert("publish".into(), serde_json::json!({ "depth": format!("{d:?}"), "cloud": format!("{c:?}") }));
+    }
+}

@@ -1,0 +1,202 @@
+//! Latency statistics of the pipeline: a histogram per stage and end to end (HdrHistogram, allocated at
+//! start-up so recording never allocates), counters of frames in / published / dropped, printed at exit and
+//! written as JSON.
+use std::collections::BTreeMap;
+use std::time::Instant;
+
+use hdrhistogram::Histogram;
+use serde_json::{json, Value};
+
+/// CLOCK_MONOTONIC in nanoseconds: the clock of V4L2 buffer timestamps, the encoder clock map and the
+/// published headers, comparable across processes on one machine.
+pub fn monotonic_ns() -> i64 {
+    let mut ts = libc::timespec { tv_sec: 0, tv_nsec: 0 };
+    // SAFETY: clock_gettime writes into the timespec we own; CLOCK_MONOTONIC always exists on Linux.
+    unsafe { libc::clock_gettime(libc::CLOCK_MONOTONIC, &mut ts) };
+    ts.tv_sec * 1_000_000_000 + ts.tv_nsec
+}
+
+/// Latency histogram in microseconds (1 us .. 60 s, 3 significant digits).
+pub struct Latency(Histogram<u64>);
+
+impl Default for Latency {
+    fn default() -> Self {
+        Latency(Histogram::new_with_bounds(1, 60_000_000, 3).expect("valid histogram bounds"))
+    }
+}
+
+impl Latency {
+    pub fn record_ns(&mut self, ns: i64) {
+        let us = (ns.max(1000) / 1000) as u64;
+        self.0.saturating_record(us);
+    }
+    pub fn count(&self) -> u64 {
+        self.0.len()
+    }
+    /// Quantile in milliseconds (NaN when empty).
+    pub fn ms(&self, q: f64) -> f64 {
+        if self.0.is_empty() {
+            f64::NAN
+        } else {
+            self.0.value_at_quantile(q) as f64 / 1000.0
+        }
+    }
+    pub fn merge(&mut self, other: &Latency) {
+        let _ = self.0.add(&other.0);
+    }
+    fn json(&self) -> Value {
+        json!({ "p50": round3(self.ms(0.5)), "p99": round3(self.ms(0.99)), "mean": round3(self.0.mean() / 1000.0),
+                "max": round3(self.0.max() as f64 / 1000.0), "count": self.count() })
+    }
+}
+
+fn round3(x: f64) -> Value {
+    if x.is_finite() {
+        json!((x * 1000.0).round() / 1000.0)
+    } else {
+        Value::Null
+    }
+}
+
+/// Depth accuracy against ground truth (synthetic sessions).
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct DepthError {
+    /// Sum of |r_est - r_true| / r_true over valid points.
+    pub abs_rel_sum: f64,
+    /// Sum of squared 3D point errors (m^2).
+    pub sq_sum: f64,
+    pub points: u64,
+    pub pixels: u64,
+}
+
+impl DepthError {
+    pub fn json(&self) -> Value {
+        let n = self.points.max(1) as f64;
+        json!({
+            "abs_rel": self.abs_rel_sum / n,
+            "rmse_m": (self.sq_sum / n).sqrt(),
+            "valid_fraction": self.points as f64 / self.pixels.max(1) as f64,
+            "points": self.points,
+        })
+    }
+}
+
+/// Everything `abvs run` reports.
+pub struct RunStats {
+    pub started: Instant,
+    pub frames_in: u64,
+    pub frames_published: u64,
+    /// Dropped under overload (oldest first) at each queue.
+    pub frames_dropped: u64,
+    /// Frames a stage refused (bad frame file, encoders out of span, FK failure...), by reason.
+    pub frames_failed: BTreeMap<String, u64>,
+    pub stages: Vec<(&'static str, Latency)>,
+    pub end_to_end: Latency,
+    pub depth_error: Option<DepthError>,
+    pub points_total: u64,
+    /// FNV-1a over every published depth map: equal across runs of the same input in lossless mode.
+    pub output_digest: u64,
+    pub extra: BTreeMap<String, Value>,
+}
+
+impl RunStats {
+    pub fn new(stage_names: &[&'static str]) -> Self {
+        RunStats {
+            started: Instant::now(),
+            frames_in: 0,
+            frames_published: 0,
+            frames_dropped: 0,
+            frames_failed: BTreeMap::new(),
+            stages: stage_names.iter().map(|n| (*n, Latency::default())).collect(),
+            end_to_end: Latency::default(),
+            depth_error: None,
+            points_total: 0,
+            output_digest: 0xcbf29ce484222325,
+            extra: BTreeMap::new(),
+        }
+    }
+
+    pub fn stage_mut(&mut self, name: &str) -> &mut Latency {
+        &mut self.stages.iter_mut().find(|(n, _)| *n == name).expect("known stage").1
+    }
+
+    pub fn fail(&mut self, reason: &str) {
+        *self.frames_failed.entry(reason.to_string()).or_default() += 1;
+    }
+
+    pub fn digest(&mut self, data: &[f32]) {
+        let mut h = self.output_digest;
+        for v in data {
+            for b in v.to_bits().to_le_bytes() {
+                h ^= b as u64;
+                h = h.wrapping_mul(0x100000001b3);
+            }
+        }
+        self.output_digest = h;
+    }
+
+    pub fn json(&self, elapsed_s: f64) -> Value {
+        let mut stages = serde_json::Map::new();
+        for (n, l) in &self.stages {
+            stages.insert(n.to_string(), l.json());
+        }
+        let mut v = json!({
+            "frames_in": self.frames_in,
+            "frames_published": self.frames_published,
+            "frames_dropped": self.frames_dropped,
+            "frames_failed": self.frames_failed,
+            "fps": if elapsed_s > 0.0 { self.frames_published as f64 / elapsed_s } else { 0.0 },
+            "elapsed_s": elapsed_s,
+            "latency_ms": self.end_to_end.json(),
+            "stages": stages,
+            "points_mean": self.points_total as f64 / self.frames_published.max(1) as f64,
+            "output_digest": format!("{:016x}", self.output_digest),
+        });
+        if let Some(e) = &self.depth_error {
+            v["depth_error"] = e.json();
+        }
+        for (k, x) in &self.extra {
+            v[k] = x.clone();
+        }
+        v
+    }
+
+    /// The latency table printed at exit.
+    pub fn table(&self, elapsed_s: f64) -> String {
+        let mut s = String::new();
+        s += &format!(
+            "frames in {}  published {}  dropped {}  failed {}  ({:.1} fps over {:.1} s)\n",
+            self.frames_in,
+            self.frames_published,
+            self.frames_dropped,
+            self.frames_failed.values().sum::<u64>(),
+            self.frames_published as f64 / elapsed_s.max(1e-9),
+            elapsed_s
+        );
+        for (reason, n) in &self.frames_failed {
+            s += &format!("  failed: {reason}: {n}\n");
+        }
+        s += &format!("{:<22} {:>9} {:>9} {:>9} {:>7}\n", "stage (ms)", "p50", "p99", "max", "count");
+        for (n, l) in self.stages.iter().map(|(n, l)| (*n, l)).chain(std::iter::once(("end to end", &self.end_to_end)))
+        {
+            s += &format!(
+                "{:<22} {:>9.2} {:>9.2} {:>9.2} {:>7}\n",
+                n,
+                l.ms(0.5),
+                l.ms(0.99),
+                l.0.max() as f64 / 1000.0,
+                l.count()
+            );
+        }
+        if let Some(e) = &self.depth_error {
+            let j = e.json();
+            s += &format!(
+                "depth error vs truth: abs_rel {}  rmse {:.4} m  valid {:.3}\n",
+                j["abs_rel"],
+                j["rmse_m"].as_f64().unwrap_or(f64::NAN),
+                j["valid_fraction"].as_f64().unwrap_or(0.0)
+            );
+        }
+        s
+    }
+}

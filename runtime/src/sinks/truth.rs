@@ -1,0 +1,102 @@
+//! Depth accuracy against ground truth, for synthetic sessions.
+//!
+//! For a published point at rectified pixel (u, v), the pipeline's own chain says which raw pixel it came
+//! from (rectifying rotation + lens); the truth says where that raw pixel really looked: the true camera pose
+//! (true unit model at the true link angles) and a ray cast into the true scene. Errors compare the published
+//! point with that true surface point: `abs_rel` = |r_est - r_true| / r_true (ranges from the true optical
+//! centre) and `rmse_m` = RMS of the 3D distance. Points are scored on a fixed pixel stride (casting every
+//! point would cost more than the pipeline).
+use abvs_camera::{Camera, StereoCalibration};
+use abvs_eye::{Pose, UnitModel};
+use abvs_render::Scene;
+use nalgebra::{Point3, Vector2, Vector3};
+
+use crate::error::{Result, RuntimeError};
+use crate::pipeline::{Published, Sink};
+use crate::session::Session;
+use crate::sinks::stats::{DepthError, RunStats};
+
+pub struct TruthSink {
+    scene: Scene,
+    camera: Camera,
+    /// True T_rel of the left eye per session frame (metres).
+    poses: Vec<Pose>,
+    stride: usize,
+    err: DepthError,
+}
+
+impl TruthSink {
+    /// The session's truth, or `None` for a recorded (non-synthetic) session.
+    pub fn for_session(session: &Session, stride: usize) -> Result<Option<TruthSink>> {
+        let Some(truth) = &session.meta.truth else { return Ok(None) };
+        let model = |p: &std::path::Path, e: &dyn std::fmt::Display| RuntimeError::Model {
+            path: p.to_path_buf(),
+            msg: e.to_string(),
+        };
+        if truth.scene_generator != crate::synth::SCENE_GENERATOR {
+            return Err(RuntimeError::Invalid(format!("unknown scene generator `{}`", truth.scene_generator)));
+        }
+        let scene = crate::synth::scene(truth.scene_seed)?;
+        let sp = session.path(&truth.stereo);
+        let stereo = StereoCalibration::read_yaml(&sp).map_err(|e| model(&sp, &e))?;
+        let up = session.path(&truth.units[0]);
+        let unit = UnitModel::load(&up).map_err(|e| model(&up, &e))?;
+        let fk = unit.compile().map_err(|e| model(&up, &e))?;
+        let pp = session.path(&truth.poses);
+        let text = std::fs::read_to_string(&pp).map_err(|e| model(&pp, &e))?;
+        let mut stream = fk.stream();
+        let mut poses = Vec::new();
+        for (i, line) in text.lines().enumerate().skip(1) {
+            let v: Vec<f64> =
+                line.split(',').map(|x| x.trim().parse::<f64>()).collect::<std::result::Result<_, _>>().map_err(
+                    |e| RuntimeError::File { path: pp.clone(), line: Some(i as u64 + 1), msg: e.to_string() },
+                )?;
+            if v.len() != 7 {
+                return Err(RuntimeError::File {
+                    path: pp.clone(),
+                    line: Some(i as u64 + 1),
+                    msg: format!("{} columns, expected 7", v.len()),
+                });
+            }
+            let p = fk.next(&mut stream, &[v[1], v[2], v[3]], session.meta.gravity).map_err(|e| model(&up, &e))?;
+            poses.push(Pose::new(p.r, p.t * 1e-3));
+        }
+        let camera = crate::pipeline::camera_for_frames(&stereo.left, session.meta.width, session.meta.height)?;
+        Ok(Some(TruthSink { scene, camera, poses, stride: stride.max(1), err: DepthError::default() }))
+    }
+}
+
+impl Sink for TruthSink {
+    fn name(&self) -> &'static str {
+        "truth"
+    }
+
+    fn consume(&mut self, out: &Published) -> Result<()> {
+        let Some(true_pose) = self.poses.get(out.index) else { return Ok(()) };
+        let w = out.cam.width as usize;
+        let cam_from_rect = out.rect.rect_from_left.transpose();
+        let origin = Point3::from(true_pose.t);
+        self.err.pixels += (out.depth.depth.len() / self.stride) as u64;
+        for j in (0..out.depth.n_points).step_by(self.stride) {
+            let i = out.depth.pixel[j] as usize;
+            let (u, v) = ((i % w) as f64, (i / w) as f64);
+            let ray = cam_from_rect * Vector3::new((u - out.cam.cx) / out.cam.f, (v - out.cam.cy) / out.cam.f, 1.0);
+            let Some(raw) = self.camera.project(&ray) else { continue };
+            let Some(dir) = self.camera.unproject(&Vector2::new(raw.x, raw.y)) else { continue };
+            let Some(hit) = self.scene.cast(&origin, &(true_pose.r * dir)) else { continue };
+            let p = out.depth.points[j];
+            let est = Vector3::new(p.x as f64, p.y as f64, p.z as f64);
+            let r_true = (hit.point - origin).norm();
+            let r_est = (est - origin.coords).norm();
+            self.err.abs_rel_sum += (r_est - r_true).abs() / r_true;
+            self.err.sq_sum += (est - hit.point.coords).norm_squared();
+            self.err.points += 1;
+        }
+        Ok(())
+    }
+
+    fn finish(&mut self, stats: &mut RunStats) {
+        // valid_fraction over the scored pixel stride
+        stats.depth_error = Some(self.err);
+    }
+}

@@ -1,0 +1,137 @@
+//! Depth and point cloud from disparity.
+//!
+//! Depth is Z in the rectified left camera frame (Z = f B / d); it is range-limited (default 0.2-1.6 m, the eyes'
+//! working range) and every pixel without a valid depth is NaN, never 0. Points are expressed in the **left
+//! home camera frame** (metres, OpenCV axes), the frame that does not move with the eyes:
+//! p_home = T_rel,l . R_rect_l^T . p_rect. Buffers are allocated once; `compute` does not allocate.
+use abvs_eye::Pose;
+use glam::{Mat3, Vec3};
+
+use crate::tasks::rectify::{Rectification, RectifiedCamera};
+
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct DepthConfig {
+    pub min_m: f32,
+    pub max_m: f32,
+}
+
+impl Default for DepthConfig {
+    fn default() -> Self {
+        DepthConfig { min_m: 0.2, max_m: 1.6 }
+    }
+}
+
+/// The depth map and the valid points of one frame.
+pub struct DepthFrame {
+    pub width: u32,
+    pub height: u32,
+    /// Z (m) per rectified left pixel, NaN = invalid.
+    pub depth: Vec<f32>,
+    /// Valid points in the left home camera frame (first `n_points` entries are meaningful).
+    pub points: Vec<Vec3>,
+    /// Gray level of each point (rectified left image).
+    pub intensity: Vec<u8>,
+    /// Pixel index of each point (row-major), to look truth up.
+    pub pixel: Vec<u32>,
+    pub n_points: usize,
+}
+
+impl DepthFrame {
+    pub fn new(width: u32, height: u32) -> Self {
+        let n = (width * height) as usize;
+        DepthFrame {
+            width,
+            height,
+            depth: vec![f32::NAN; n],
+            points: vec![Vec3::ZERO; n],
+            intensity: vec![0; n],
+            pixel: vec![0; n],
+            n_points: 0,
+        }
+    }
+
+    /// Fills depth and points from a disparity map; `valid` says which rectified pixels see the raw image.
+    #[allow(clippy::too_many_arguments)]
+    pub fn compute(
+        &mut self,
+        disparity: &[f32],
+        valid: impl Fn(usize) -> bool,
+        left_rect: &[u8],
+        cam: &RectifiedCamera,
+        rect: &Rectification,
+        rel_left: &Pose,
+        cfg: &DepthConfig,
+    ) {
+        let fb = (cam.f * rect.baseline_m) as f32;
+        // rectified -> current left camera -> left home camera
+        let m = rel_left.r * rect.rect_from_left.transpose();
+        let rot = Mat3::from_cols_array(&[
+            m[(0, 0)] as f32,
+            m[(1, 0)] as f32,
+            m[(2, 0)] as f32,
+            m[(0, 1)] as f32,
+            m[(1, 1)] as f32,
+            m[(2, 1)] as f32,
+            m[(0, 2)] as f32,
+            m[(1, 2)] as f32,
+            m[(2, 2)] as f32,
+        ]);
+        let t = Vec3::new(rel_left.t.x as f32, rel_left.t.y as f32, rel_left.t.z as f32);
+        let (w, h) = (self.width as usize, self.height as usize);
+        let (inv_f, cx, cy) = (1.0 / cam.f as f32, cam.cx as f32, cam.cy as f32);
+        let mut n = 0;
+        for v in 0..h {
+            for u in 0..w {
+                let i = v * w + u;
+                let d = disparity[i];
+                let z = fb / d;
+                if !(d > 0.0) || !(z >= cfg.min_m && z <= cfg.max_m) || !valid(i) {
+                    self.depth[i] = f32::NAN;
+                    continue;
+                }
+                self.depth[i] = z;
+                let p = Vec3::new((u as f32 - cx) * inv_f * z, (v as f32 - cy) * inv_f * z, z);
+                self.points[n] = rot * p + t;
+                self.intensity[n] = left_rect[i];
+                self.pixel[n] = i as u32;
+                n += 1;
+            }
+        }
+        self.n_points = n;
+    }
+
+    pub fn valid_fraction(&self) -> f64 {
+        self.n_points as f64 / self.depth.len() as f64
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::tasks::rectify::rectify;
+    use nalgebra::Vector3;
+
+    #[test]
+    fn a_fronto_parallel_plane_comes_back_at_its_depth_in_the_home_frame() {
+        let cam = RectifiedCamera::with_hfov(64, 48, 90.0);
+        let e = Pose::new(nalgebra::Matrix3::identity(), Vector3::new(-0.065, 0.0, 0.0));
+        let rect = rectify(&e).unwrap();
+        let z = 0.8f32;
+        let d = (cam.f * rect.baseline_m) as f32 / z;
+        let disp = vec![d; 64 * 48];
+        let mut f = DepthFrame::new(64, 48);
+        let rel = Pose::new(nalgebra::Matrix3::identity(), Vector3::new(0.001, 0.0, 0.0));
+        f.compute(&disp, |i| i != 5, &[7u8; 64 * 48], &cam, &rect, &rel, &DepthConfig::default());
+        assert_eq!(f.n_points, 64 * 48 - 1);
+        assert!(f.depth[5].is_nan());
+        for p in &f.points[..f.n_points] {
+            assert!((p.z - z).abs() < 1e-5);
+        }
+        assert!((f.points[0].x - ((0.0 - cam.cx as f32) / cam.f as f32 * z + 0.001)).abs() < 1e-5);
+        // out of range and invalid disparities are NaN, not zero
+        let far = vec![0.5f32; 64 * 48];
+        f.compute(&far, |_| true, &[0u8; 64 * 48], &cam, &rect, &rel, &DepthConfig::default());
+        assert_eq!(f.n_points, 0);
+        assert!(f.depth.iter().all(|d| d.is_nan()));
+    }
+}

@@ -1,0 +1,150 @@
+//! Per-eye forward kinematics and the moving stereo extrinsic.
+//!
+//! Each eye's FK comes from its model files: a calibrated `abvs-fk-model/1` directory (any method of
+//! abvs-calib) or a unit-model TOML (e.g. the nominal geometry with a measured camera_mount). The pose of each
+//! camera relative to its home, T_rel, and the stereo calibration at home give the extrinsic of this instant
+//! (conventions.md): T_l^r = T_rel,r^-1 . T_lH^rH . T_rel,l. Runtime poses are in metres.
+use std::path::Path;
+
+use abvs_calib::model::{FkModel, FkState};
+use abvs_eye::unit::{UnitFk, UnitStream};
+use abvs_eye::{Pose, UnitModel};
+use nalgebra::{Matrix3, Vector3};
+
+use crate::error::{Result, RuntimeError};
+
+/// One eye's FK evaluator with its stream state (motion history for backlash, warm start).
+pub enum EyeFk {
+    Calibrated { model: Box<FkModel>, state: FkState },
+    Unit { fk: Box<UnitFk>, state: UnitStream },
+}
+
+impl EyeFk {
+    /// Loads a model directory (abvs-fk-model) or a unit-model TOML file.
+    pub fn load(path: &Path) -> Result<EyeFk> {
+        let err = |msg: String| RuntimeError::Model { path: path.to_path_buf(), msg };
+        if path.is_dir() {
+            let model = FkModel::load(path).map_err(|e| err(e.to_string()))?;
+            let state = model.state();
+            Ok(EyeFk::Calibrated { model: Box::new(model), state })
+        } else if path.is_file() {
+            let unit = UnitModel::load(path).map_err(|e| err(e.to_string()))?;
+            EyeFk::from_unit(&unit).map_err(|e| err(e.to_string()))
+        } else {
+            Err(err("no such FK model (expected an abvs-fk-model directory or a unit-model .toml)".into()))
+        }
+    }
+
+    /// The ideal mechanism (what an uncalibrated eye would use).
+    pub fn nominal() -> EyeFk {
+        EyeFk::from_unit(&UnitModel::nominal()).expect("the nominal unit model compiles")
+    }
+
+    pub fn from_unit(unit: &UnitModel) -> Result<EyeFk> {
+        let fk = unit.compile().map_err(|e| RuntimeError::Invalid(e.to_string()))?;
+        let state = fk.stream();
+        Ok(EyeFk::Unit { fk: Box::new(fk), state })
+    }
+
+    /// The unit model behind a physics-based FK (its encoder latency is applied by time alignment).
+    pub fn unit(&self) -> Option<&UnitModel> {
+        match self {
+            EyeFk::Calibrated { model, .. } => model.unit(),
+            EyeFk::Unit { fk, .. } => Some(&fk.model),
+        }
+    }
+
+    /// Camera pose relative to home (metres) for the next reading of this eye's stream (deg, homed).
+    pub fn pose(&mut self, theta_deg: &[f64; 3], gravity: [f64; 3]) -> Result<Pose> {
+        let p = match self {
+            EyeFk::Calibrated { model, state } => {
+                let p6 = model.eval(state, theta_deg, gravity).map_err(|e| RuntimeError::Invalid(e.to_string()))?;
+                Pose::from_p6(&p6)
+            }
+            EyeFk::Unit { fk, state } => {
+                fk.next(state, theta_deg, gravity).map_err(|e| RuntimeError::Invalid(e.to_string()))?
+            }
+        };
+        Ok(Pose::new(p.r, p.t * 1e-3))
+    }
+}
+
+/// Both eyes' poses at one instant and the extrinsic between the current cameras (metres).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct StereoPose {
+    /// T_rel,l: current left camera -> left home camera.
+    pub rel_left: Pose,
+    /// T_rel,r: current right camera -> right home camera.
+    pub rel_right: Pose,
+    /// T_l^r: current left camera -> current right camera.
+    pub left_to_right: Pose,
+}
+
+/// The moving extrinsic T_l^r = T_rel,r^-1 . T_lH^rH . T_rel,l.
+pub fn moving_extrinsic(rel_left: &Pose, rel_right: &Pose, home_left_to_right: &Pose) -> Pose {
+    rel_right.inverse().compose(home_left_to_right).compose(rel_left)
+}
+
+/// The two eyes' FK and the stereo calibration at home.
+pub struct StereoKinematics {
+    pub left: EyeFk,
+    pub right: EyeFk,
+    /// T_lH^rH in metres.
+    pub home_left_to_right: Pose,
+    pub gravity: [f64; 3],
+}
+
+impl StereoKinematics {
+    pub fn new(left: EyeFk, right: EyeFk, rotation: Matrix3<f64>, translation_m: Vector3<f64>) -> Self {
+        StereoKinematics {
+            left,
+            right,
+            home_left_to_right: Pose::new(rotation, translation_m),
+            gravity: [0.0, 1.0, 0.0],
+        }
+    }
+
+    /// Poses for one frame from both eyes' link angles at its mid-exposure time.
+    pub fn solve(&mut self, theta_left: &[f64; 3], theta_right: &[f64; 3]) -> Result<StereoPose> {
+        let rel_left = self.left.pose(theta_left, self.gravity)?;
+        let rel_right = self.right.pose(theta_right, self.gravity)?;
+        Ok(StereoPose {
+            rel_left,
+            rel_right,
+            left_to_right: moving_extrinsic(&rel_left, &rel_right, &self.home_left_to_right),
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use abvs_eye::Fick;
+
+    #[test]
+    fn extrinsic_at_home_is_the_home_calibration_and_moves_with_the_eyes() {
+        let home = Pose::new(Fick::from_deg([0.2, -0.1, 0.3]).to_matrix(), Vector3::new(-0.065, 0.001, 0.0));
+        let id = Pose::identity();
+        let e = moving_extrinsic(&id, &id, &home);
+        assert!((e.r - home.r).abs().max() < 1e-15 && (e.t - home.t).norm() < 1e-15);
+        // Both eyes yawed together by 10 deg about their own centres: a point fixed in the world keeps its
+        // mapping if we express it through the homes.
+        let yaw = Pose::new(Fick::from_deg([0.0, 0.0, 10.0]).to_matrix(), Vector3::new(0.001, 0.0, 0.0));
+        let yaw_r = Pose::new(Fick::from_deg([1.0, 0.0, 8.0]).to_matrix(), Vector3::zeros());
+        let e = moving_extrinsic(&yaw, &yaw_r, &home);
+        let p_left_cam = Vector3::new(0.1, -0.2, 0.9);
+        let via_home =
+            yaw_r.inverse().r * (home.r * (yaw.r * p_left_cam + yaw.t) + home.t - yaw_r.t) + Vector3::zeros();
+        let direct = e.r * p_left_cam + e.t;
+        assert!((via_home - direct).norm() < 1e-12);
+    }
+
+    #[test]
+    fn nominal_fk_at_home_is_identity_and_missing_model_is_named() {
+        let mut fk = EyeFk::nominal();
+        let p = fk.pose(&[0.0; 3], [0.0, 1.0, 0.0]).unwrap();
+        assert!((p.r - Matrix3::identity()).abs().max() < 1e-12 && p.t.norm() < 1e-12);
+        let e = EyeFk::load(Path::new("/nonexistent/eye0")).err().unwrap().to_string();
+        assert!(e.contains("/nonexistent/eye0") && e.contains("no such FK model"), "{e}");
+    }
+}

@@ -1,0 +1,329 @@
+//! Rectification every frame: the eyes move, so the extrinsic and with it the rectifying rotations change at
+//! every frame. One remap per eye goes from the raw wide-angle image straight to the network's resolution
+//! (undistort + rectify + resize in one map).
+//!
+//! The maps are built exactly (lens model of abvs-camera) on a coarse grid of nodes every `grid_step` output
+//! pixels and interpolated in between (separable Catmull-Rom): the lens mapping is smooth, so this costs a few percent of
+//! the exact build at a sub-0.01 px error (measured by `map_error_vs_exact` in the tests and benches).
+//! Remapping is OpenCV's `remap` (bilinear); output pixels whose source lies outside the raw image are black
+//! and marked invalid.
+use abvs_camera::Camera;
+use abvs_eye::Pose;
+use nalgebra::{Matrix3, Vector2, Vector3};
+use opencv::core::{Mat, Scalar, BORDER_CONSTANT};
+use opencv::imgproc;
+use opencv::prelude::*;
+
+use crate::error::{Result, RuntimeError};
+
+/// The rectified output: a pinhole camera shared by both eyes.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct RectifiedCamera {
+    pub width: u32,
+    pub height: u32,
+    pub f: f64,
+    pub cx: f64,
+    pub cy: f64,
+}
+
+impl RectifiedCamera {
+    /// A rectified camera at `width` x `height` whose horizontal field of view is `hfov_deg`.
+    pub fn with_hfov(width: u32, height: u32, hfov_deg: f64) -> Self {
+        let f = (width as f64 / 2.0) / (hfov_deg.to_radians() / 2.0).tan();
+        RectifiedCamera { width, height, f, cx: (width as f64 - 1.0) / 2.0, cy: (height as f64 - 1.0) / 2.0 }
+    }
+}
+
+/// Rectifying rotations for one extrinsic.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Rectification {
+    /// Current left camera -> rectified frame.
+    pub rect_from_left: Matrix3<f64>,
+    /// Current right camera -> rectified frame (same orientation, origin at the right camera).
+    pub rect_from_right: Matrix3<f64>,
+    /// Distance between the optical centres (m).
+    pub baseline_m: f64,
+}
+
+/// Rectifying rotations for the extrinsic `left_to_right` (x_r = R x_l + t): the rectified x axis runs along
+/// the baseline from the left to the right centre (so disparity x_l - x_r is positive), z is the mean of the
+/// two optical axes made orthogonal to it, y = z x x (down, as in OpenCV).
+pub fn rectify(left_to_right: &Pose) -> Result<Rectification> {
+    let r = left_to_right.r;
+    let c = -(r.transpose() * left_to_right.t); // right centre in the left frame
+    let baseline_m = c.norm();
+    if !(baseline_m > 1e-6) {
+        return Err(RuntimeError::Invalid(format!("stereo baseline {baseline_m} m is degenerate")));
+    }
+    let e1 = c / baseline_m;
+    let z_mean = Vector3::z() + r.transpose() * Vector3::z();
+    let e2 = z_mean.cross(&e1);
+    if e2.norm() < 1e-6 {
+        return Err(RuntimeError::Invalid("optical axes parallel to the baseline".into()));
+    }
+    let e2 = e2.normalize();
+    let e3 = e1.cross(&e2);
+    let rect_from_left = Matrix3::from_rows(&[e1.transpose(), e2.transpose(), e3.transpose()]);
+    Ok(Rectification { rect_from_left, rect_from_right: rect_from_left * r.transpose(), baseline_m })
+}
+
+/// Per-eye remap tables, allocated once and rebuilt in place every frame.
+pub struct RectifyMaps {
+    pub out: RectifiedCamera,
+    pub grid_step: u32,
+    map_x: Mat,
+    map_y: Mat,
+    /// Exact source pixels at the grid nodes (x, y); NaN where the ray leaves the lens model.
+    nodes: Vec<[f32; 2]>,
+    /// Nodes interpolated along x: one row per node row, one entry per output column.
+    rows: Vec<[f32; 2]>,
+    nodes_w: usize,
+    nodes_h: usize,
+}
+
+impl RectifyMaps {
+    pub fn new(out: RectifiedCamera, grid_step: u32) -> Result<Self> {
+        let cv = |e: opencv::Error| RuntimeError::Invalid(format!("rectify: {}", e.message));
+        let (w, h) = (out.width as i32, out.height as i32);
+        let step = grid_step.max(1);
+        let nodes_w = (out.width as usize - 1).div_ceil(step as usize) + 4;
+        let nodes_h = (out.height as usize - 1).div_ceil(step as usize) + 4;
+        Ok(RectifyMaps {
+            out,
+            grid_step: step,
+            map_x: Mat::new_rows_cols_with_default(h, w, opencv::core::CV_32FC1, Scalar::all(-1.0)).map_err(cv)?,
+            map_y: Mat::new_rows_cols_with_default(h, w, opencv::core::CV_32FC1, Scalar::all(-1.0)).map_err(cv)?,
+            nodes: vec![[f32::NAN; 2]; nodes_w * nodes_h],
+            rows: vec![[f32::NAN; 2]; nodes_h * out.width as usize],
+            nodes_w,
+            nodes_h,
+        })
+    }
+
+    /// Source pixel in the raw image of output pixel (u, v) through `rect_from_cam`, exactly.
+    fn exact(
+        cam: &Camera,
+        out: &RectifiedCamera,
+        cam_from_rect: &Matrix3<f64>,
+        u: f64,
+        v: f64,
+    ) -> Option<Vector2<f64>> {
+        let ray = cam_from_rect * Vector3::new((u - out.cx) / out.f, (v - out.cy) / out.f, 1.0);
+        cam.project(&ray)
+    }
+
+    /// Rebuilds the map of one eye for the rotation `rect_from_cam`: exact lens projection at the grid nodes,
+    /// separable Catmull-Rom interpolation in between (bilinear would err by ~0.2 px at 8 px spacing on a
+    /// 118 deg fisheye; the cubic stays under 0.01 px).
+    pub fn build(&mut self, cam: &Camera, rect_from_cam: &Matrix3<f64>) {
+        let cam_from_rect = rect_from_cam.transpose();
+        let out = self.out;
+        let step = self.grid_step as usize;
+        // node (i, j) sits at output pixel ((i - 1) * step, (j - 1) * step): one node before the image and two
+        // past its end give every pixel the four-node support of the cubic.
+        for j in 0..self.nodes_h {
+            let v = (j as f64 - 1.0) * step as f64;
+            for i in 0..self.nodes_w {
+                let u = (i as f64 - 1.0) * step as f64;
+                self.nodes[j * self.nodes_w + i] = match Self::exact(cam, &out, &cam_from_rect, u, v) {
+                    Some(p) => [p.x as f32, p.y as f32],
+                    None => [f32::NAN; 2],
+                };
+            }
+        }
+        let (w, h) = (out.width as usize, out.height as usize);
+        let inv = 1.0 / step as f32;
+        // pass 1: along x for every node row
+        for j in 0..self.nodes_h {
+            let row = &self.nodes[j * self.nodes_w..(j + 1) * self.nodes_w];
+            for x in 0..w {
+                let g = x as f32 * inv;
+                let i0 = g as usize;
+                let wts = catmull_rom(g - i0 as f32);
+                let mut acc = [0f32; 2];
+                for (k, wt) in wts.iter().enumerate() {
+                    let n = row[i0 + k];
+                    acc[0] += wt * n[0];
+                    acc[1] += wt * n[1];
+                }
+                self.rows[j * w + x] = acc;
+            }
+        }
+        // pass 2: along y
+        // Bilinear sampling reads (x+1, y+1): a source is valid when both neighbours are inside the raw image.
+        let (maxx, maxy) = (cam.width as f32 - 2.0, cam.height as f32 - 2.0);
+        let mx = self.map_x.data_typed_mut::<f32>().expect("CV_32FC1 map");
+        let my = self.map_y.data_typed_mut::<f32>().expect("CV_32FC1 map");
+        for y in 0..h {
+            let g = y as f32 * inv;
+            let j0 = g as usize;
+            let wts = catmull_rom(g - j0 as f32);
+            for x in 0..w {
+                let mut acc = [0f32; 2];
+                for (k, wt) in wts.iter().enumerate() {
+                    let n = self.rows[(j0 + k) * w + x];
+                    acc[0] += wt * n[0];
+                    acc[1] += wt * n[1];
+                }
+                let (sx, sy) = (acc[0], acc[1]);
+                // NaN (outside the lens model) and sources off the raw image both become "invalid" (-1).
+                let inside = sx >= 0.0 && sy >= 0.0 && sx <= maxx && sy <= maxy;
+                mx[y * w + x] = if inside { sx } else { -1.0 };
+                my[y * w + x] = if inside { sy } else { -1.0 };
+            }
+        }
+    }
+
+    /// Largest distance (px, in the raw image) between the interpolated map and the exact one, over all
+    /// output pixels whose exact source is inside the raw image.
+    pub fn map_error_vs_exact(&self, cam: &Camera, rect_from_cam: &Matrix3<f64>) -> f64 {
+        let cam_from_rect = rect_from_cam.transpose();
+        let mx = self.map_x.data_typed::<f32>().expect("map");
+        let my = self.map_y.data_typed::<f32>().expect("map");
+        let w = self.out.width as usize;
+        let mut worst: f64 = 0.0;
+        for y in 0..self.out.height as usize {
+            for x in 0..w {
+                if mx[y * w + x] < 0.0 {
+                    continue;
+                }
+                if let Some(p) = Self::exact(cam, &self.out, &cam_from_rect, x as f64, y as f64) {
+                    worst = worst.max((p - Vector2::new(mx[y * w + x] as f64, my[y * w + x] as f64)).norm());
+                }
+            }
+        }
+        worst
+    }
+
+    /// Whether output pixel `i` (row-major) has a source inside the raw image.
+    #[inline]
+    pub fn valid(&self, i: usize) -> bool {
+        self.map_x.data_typed::<f32>().map(|m| m[i] >= 0.0).unwrap_or(false)
+    }
+
+    pub fn map_x(&self) -> &[f32] {
+        self.map_x.data_typed::<f32>().expect("map")
+    }
+
+    /// Remaps a raw 8-bit gray image (`raw_w` x `raw_h`) into `out` (the output size), bilinear.
+    pub fn remap(&self, raw: &[u8], raw_w: u32, raw_h: u32, out: &mut [u8]) -> Result<()> {
+        let cv = |e: opencv::Error| RuntimeError::Invalid(format!("remap: {}", e.message));
+        if raw.len() != (raw_w * raw_h) as usize || out.len() != (self.out.width * self.out.height) as usize {
+            return Err(RuntimeError::Invalid(format!(
+                "remap: image of {} bytes for {raw_w}x{raw_h}, output of {} bytes for {}x{}",
+                raw.len(),
+                out.len(),
+                self.out.width,
+                self.out.height
+            )));
+        }
+        let src = Mat::new_rows_cols_with_data(raw_h as i32, raw_w as i32, raw).map_err(cv)?;
+        let mut dst =
+            Mat::new_rows_cols_with_data_mut(self.out.height as i32, self.out.width as i32, out).map_err(cv)?;
+        imgproc::remap(
+            &src,
+            &mut dst,
+            &self.map_x,
+            &self.map_y,
+            imgproc::INTER_LINEAR,
+            BORDER_CONSTANT,
+            Scalar::all(0.0),
+        )
+        .map_err(cv)
+    }
+}
+
+/// Catmull-Rom weights of the four nodes around a point at fraction `t` between the middle two.
+#[inline]
+fn catmull_rom(t: f32) -> [f32; 4] {
+    let (t2, t3) = (t * t, t * t * t);
+    [0.5 * (-t3 + 2.0 * t2 - t), 0.5 * (3.0 * t3 - 5.0 * t2 + 2.0), 0.5 * (-3.0 * t3 + 4.0 * t2 + t), 0.5 * (t3 - t2)]
+}
+
+/// Both eyes' maps and the current rectification.
+pub struct StereoRectifier {
+    pub left: RectifyMaps,
+    pub right: RectifyMaps,
+    pub cam_left: Camera,
+    pub cam_right: Camera,
+}
+
+impl StereoRectifier {
+    pub fn new(cam_left: Camera, cam_right: Camera, out: RectifiedCamera, grid_step: u32) -> Result<Self> {
+        Ok(StereoRectifier {
+            left: RectifyMaps::new(out, grid_step)?,
+            right: RectifyMaps::new(out, grid_step)?,
+            cam_left,
+            cam_right,
+        })
+    }
+
+    /// Rectifying rotations for the extrinsic of this frame, and both maps rebuilt for them.
+    pub fn update(&mut self, left_to_right: &Pose) -> Result<Rectification> {
+        let rect = rectify(left_to_right)?;
+        self.left.build(&self.cam_left, &rect.rect_from_left);
+        self.right.build(&self.cam_right, &rect.rect_from_right);
+        Ok(rect)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use abvs_eye::Fick;
+
+    #[test]
+    fn rectified_rays_of_a_point_share_a_row_and_disparity_is_positive() {
+        let e = Pose::new(Fick::from_deg([1.5, -2.0, 4.0]).to_matrix(), Vector3::new(-0.064, 0.002, 0.003));
+        let rect = rectify(&e).unwrap();
+        for p_l in [Vector3::new(0.1, 0.05, 0.5), Vector3::new(-0.3, 0.2, 1.4), Vector3::new(0.0, 0.0, 0.25)] {
+            let p_r = e.r * p_l + e.t;
+            let a = rect.rect_from_left * p_l;
+            let b = rect.rect_from_right * p_r;
+            // same y/z ratio (same row), x_l > x_r (positive disparity), depth from disparity is exact
+            assert!((a.y / a.z - b.y / b.z).abs() < 1e-12);
+            assert!((a.z - b.z).abs() < 1e-12);
+            let d = a.x / a.z - b.x / b.z;
+            assert!(d > 0.0);
+            assert!((rect.baseline_m / d - a.z).abs() < 1e-9);
+        }
+    }
+
+    #[test]
+    fn coarse_grid_map_is_within_a_hundredth_of_a_pixel() {
+        let cam = Camera::ov8856().scaled(800, 600);
+        let out = RectifiedCamera::with_hfov(320, 240, 100.0);
+        let e = Pose::new(Fick::from_deg([10.0, 5.0, -20.0]).to_matrix(), Vector3::new(-0.065, 0.0, 0.0));
+        let rect = rectify(&e).unwrap();
+        let mut maps = RectifyMaps::new(out, 8).unwrap();
+        maps.build(&cam, &rect.rect_from_left);
+        let err = maps.map_error_vs_exact(&cam, &rect.rect_from_left);
+        assert!(err < 0.01, "grid map error {err} px");
+        let mut exact = RectifyMaps::new(out, 1).unwrap();
+        exact.build(&cam, &rect.rect_from_left);
+        assert!(exact.map_error_vs_exact(&cam, &rect.rect_from_left) < 1e-3);
+    }
+
+    #[test]
+    fn remap_of_a_constant_image_is_constant_inside_and_black_outside() {
+        let cam = Camera::ov8856().scaled(400, 300);
+        let out = RectifiedCamera::with_hfov(160, 120, 140.0);
+        let mut maps = RectifyMaps::new(out, 8).unwrap();
+        maps.build(&cam, &Matrix3::identity());
+        let raw = vec![200u8; 400 * 300];
+        let mut o = vec![0u8; 160 * 120];
+        maps.remap(&raw, 400, 300, &mut o).unwrap();
+        let (mut inside, mut outside) = (0, 0);
+        for (i, v) in o.iter().enumerate() {
+            if maps.valid(i) {
+                inside += 1;
+                assert!(*v >= 199, "pixel {i}: {v}");
+            } else {
+                outside += 1;
+                assert_eq!(*v, 0);
+            }
+        }
+        assert!(inside > 0 && outside > 0, "140 deg output reaches beyond the raw image's corners");
+        assert!(maps.remap(&raw[1..], 400, 300, &mut o).is_err());
+    }
+}
