@@ -40,4 +40,5 @@ if [ ! -f "$ort_lib" ]; then
   rm -rf "$tmp"
 fi
 echo "[setup] ONNX Runtime: $ort_lib"
+"$root/scripts/fetch-apriltag-photos.sh"
 echo "[setup] done"

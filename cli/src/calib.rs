@@ -24,6 +24,12 @@ pub enum CalibCmd {
     Paper(crate::paper::PaperArgs),
     /// Find where the model and the measurements disagree, name the missing effect, add it.
     Explain(crate::explain::ExplainArgs),
+    /// Camera intrinsics from images of an AprilGrid or chessboard (OpenCV YAML).
+    Intrinsics(crate::camcal::IntrinsicsArgs),
+    /// Camera poses relative to home from an image session -> dataset file (bundle adjustment).
+    Measure(crate::camcal::MeasureArgs),
+    /// Stereo calibration at home: both intrinsics and T_lH^rH (OpenCV YAML).
+    Stereo(crate::camcal::StereoArgs),
 }
 
 #[derive(Args)]
@@ -173,6 +179,9 @@ pub fn run(cmd: CalibCmd) -> anyhow::Result<ExitCode> {
             Ok(ExitCode::SUCCESS)
         }
         CalibCmd::Explain(a) => crate::explain::run(a),
+        CalibCmd::Intrinsics(a) => crate::camcal::intrinsics(a),
+        CalibCmd::Measure(a) => crate::camcal::measure(a),
+        CalibCmd::Stereo(a) => crate::camcal::stereo(a),
         CalibCmd::Predict(a) => {
             let model = FkModel::load(&a.model)?;
             let mut st = model.state();

@@ -1,6 +1,7 @@
 //! `abvs`: the one command-line program of the project. Each subcommand is a thin shell over a
 //! library crate (abvs-eye for the physics, abvs-onnx for ONNX Runtime).
 mod calib;
+mod camcal;
 mod demo;
 mod disparity;
 mod echo;

@@ -13,6 +13,8 @@ pub enum SimCmd {
     Unit(UnitArgs),
     /// Reproduce the paper's data collection on a unit and write a dataset CSV.
     Dataset(DatasetArgs),
+    /// Render an AprilGrid image session (four boards, OV8856 fisheye) with ground truth.
+    AprilgridSession(crate::camcal::SimSessionArgs),
     /// Act as a drive board: stream encoder frames to a serial port (e.g. a pseudo-terminal).
     Board(BoardArgs),
     /// Render a stereo session with ground truth (textured scene, two units, saccades and pursuit).
@@ -119,6 +121,7 @@ pub fn parse_effects(s: &str) -> anyhow::Result<Vec<Effect>> {
 
 pub fn run(cmd: SimCmd) -> anyhow::Result<ExitCode> {
     match cmd {
+        SimCmd::AprilgridSession(a) => crate::camcal::sim_session(a),
         SimCmd::Board(a) => {
             use std::io::Write;
             let sim = abvs_runtime::sources::encoder_link::BoardSim {
