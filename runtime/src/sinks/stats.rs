@@ -7,14 +7,8 @@ use std::time::Instant;
 use hdrhistogram::Histogram;
 use serde_json::{json, Value};
 
-/// CLOCK_MONOTONIC in nanoseconds: the clock of V4L2 buffer timestamps, the encoder clock map and the
-/// published headers, comparable across processes on one machine.
-pub fn monotonic_ns() -> i64 {
-    let mut ts = libc::timespec { tv_sec: 0, tv_nsec: 0 };
-    // SAFETY: clock_gettime writes into the timespec we own; CLOCK_MONOTONIC always exists on Linux.
-    unsafe { libc::clock_gettime(libc::CLOCK_MONOTONIC, &mut ts) };
-    ts.tv_sec * 1_000_000_000 + ts.tv_nsec
-}
+/// CLOCK_MONOTONIC in nanoseconds (the one clock of frames, encoders and published headers).
+pub use crate::bridges::iceoryx::monotonic_ns;
 
 /// Latency histogram in microseconds (1 us .. 60 s, 3 significant digits).
 pub struct Latency(Histogram<u64>);
