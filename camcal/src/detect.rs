@@ -109,19 +109,23 @@ fn aruco_to_apriltag_order(c: [[f64; 2]; 4]) -> [[f64; 2]; 4] {
 /// Raw tag detections of OpenCV's aruco module: (tag id, corners in Kalibr order k = 0..4:
 /// bottom-left, bottom-right, top-right, top-left of the upright tag), before refinement.
 pub fn opencv_tags(gray: &Mat) -> Result<Vec<(u32, [[f64; 2]; 4])>> {
-    let dict = apriltag_dictionary()?;
     let mut params = aruco::DetectorParameters::create()?;
     params.set_marker_border_bits(2);
-    params.set_corner_refinement_method(0);
     params.set_min_distance_to_border(0);
     // Each tag touches the grid's corner squares diagonally, which merges their contours in
     // aruco's contour finder; AprilTag 3's gradient-cluster quad finder (the APRILTAG corner
     // mode) separates some of them (see camcal/README.md for the recall this gives).
     params.set_corner_refinement_method(3);
+    detect_tags(gray, &params)
+}
+
+/// tag36h11 detections of aruco with `params`, corners mapped to the AprilTag/Kalibr order.
+fn detect_tags(gray: &Mat, params: &opencv::core::Ptr<aruco::DetectorParameters>) -> Result<Vec<(u32, [[f64; 2]; 4])>> {
+    let dict = apriltag_dictionary()?;
     let mut corners: Vector<Vector<Point2f>> = Vector::new();
     let mut ids: Vector<i32> = Vector::new();
     let mut rejected: Vector<Vector<Point2f>> = Vector::new();
-    aruco::detect_markers(gray, &dict, &mut corners, &mut ids, &params, &mut rejected)?;
+    aruco::detect_markers(gray, &dict, &mut corners, &mut ids, params, &mut rejected)?;
     let mut out = Vec::with_capacity(ids.len());
     for (id, c) in ids.iter().zip(corners.iter()) {
         if id < 0 || c.len() != 4 {
@@ -141,7 +145,6 @@ pub fn opencv_tags(gray: &Mat) -> Result<Vec<(u32, [[f64; 2]; 4])>> {
 /// order (counter-clockwise in the image starting bottom-left of the upright tag), so they
 /// compare directly with that library's output.
 pub fn apriltags(gray: &Mat) -> Result<Vec<(u32, [[f64; 2]; 4])>> {
-    let dict = apriltag_dictionary()?;
     let mut params = aruco::DetectorParameters::create()?;
     params.set_marker_border_bits(1);
     params.set_corner_refinement_method(3); // CORNER_REFINE_APRILTAG (AprilTag 3's quad finder)
@@ -152,22 +155,7 @@ pub fn apriltags(gray: &Mat) -> Result<Vec<(u32, [[f64; 2]; 4])>> {
     params.set_min_corner_distance_rate(0.01);
     params.set_perspective_remove_pixel_per_cell(8);
     params.set_min_otsu_std_dev(2.0);
-    let mut corners: Vector<Vector<Point2f>> = Vector::new();
-    let mut ids: Vector<i32> = Vector::new();
-    let mut rejected: Vector<Vector<Point2f>> = Vector::new();
-    aruco::detect_markers(gray, &dict, &mut corners, &mut ids, &params, &mut rejected)?;
-    let mut out = Vec::with_capacity(ids.len());
-    for (id, c) in ids.iter().zip(corners.iter()) {
-        if id < 0 || c.len() != 4 {
-            continue;
-        }
-        let p = |i: usize| -> [f64; 2] {
-            let q = c.get(i).unwrap_or_default();
-            [q.x as f64, q.y as f64]
-        };
-        out.push((id as u32, aruco_to_apriltag_order([p(0), p(1), p(2), p(3)])));
-    }
-    Ok(out)
+    detect_tags(gray, &params)
 }
 
 /// Sub-pixel refinement of saddle points with a window of half-size `half` px.

@@ -287,8 +287,8 @@ pub fn run_replay(
                         let (rw, rh) = (rectifier.cam_left.width, rectifier.cam_left.height);
                         rectifier.left.remap(&w.raw_left, rw, rh, &mut w.rect_left)?;
                         rectifier.right.remap(&w.raw_right, rw, rh, &mut w.rect_right)?;
-                        for (i, v) in w.valid.iter_mut().enumerate() {
-                            *v = rectifier.left.valid(i) as u8;
+                        for (v, x) in w.valid.iter_mut().zip(rectifier.left.map_x()) {
+                            *v = (*x >= 0.0) as u8;
                         }
                         w.pose = Some(pose);
                         w.rect = Some(rect);
