@@ -10,6 +10,7 @@ mod explain_plots;
 mod kin;
 mod paper;
 mod plot;
+mod record;
 mod run;
 mod sim;
 mod table;
@@ -39,6 +40,8 @@ enum Cmd {
     Demo(demo::DemoArgs),
     /// The runtime: replay a session (default: the embedded fixture) through the whole pipeline.
     Run(run::RunArgs),
+    /// Record a session from the eye cameras (V4L2) and the drive board's encoders (serial), homing first.
+    Record(record::RecordArgs),
     /// Subscribe to the runtime's depth or cloud (iceoryx2) and print rate and latency.
     Echo(echo::EchoArgs),
     /// Left-view disparity of a rectified pair with the shipped network or SGBM, written as PFM.
@@ -57,6 +60,7 @@ fn main() -> ExitCode {
         Cmd::Calib(c) => calib::run(c),
         Cmd::Demo(a) => demo::run(a),
         Cmd::Run(a) => run::run(a),
+        Cmd::Record(a) => record::run(a),
         Cmd::Echo(a) => echo::run(a),
         Cmd::Disparity(a) => disparity::run_disparity(a),
         Cmd::DisparityEval(a) => disparity::run_eval(a),

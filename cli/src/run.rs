@@ -57,6 +57,10 @@ pub struct RunArgs {
     /// Write each frame's rectified pair and depth as PNG into this directory (slow; for looking).
     #[arg(long)]
     pub dump: Option<PathBuf>,
+    /// Log rectified images, depth, the cloud and both moving camera frustums to this rerun file (.rrd;
+    /// needs the cargo feature `rerun`).
+    #[arg(long)]
+    pub rerun: Option<PathBuf>,
     /// Do not publish over iceoryx2.
     #[arg(long)]
     pub no_publish: bool,
@@ -84,6 +88,19 @@ pub fn shipped(rel: &str) -> PathBuf {
 fn parse_resolution(s: &str) -> anyhow::Result<(u32, u32)> {
     let (w, h) = s.split_once('x').with_context(|| format!("--resolution `{s}`: expected WxH, e.g. 320x240"))?;
     Ok((w.parse().context("--resolution width")?, h.parse().context("--resolution height")?))
+}
+
+#[cfg(feature = "rerun")]
+fn rerun_sink(p: &Path) -> anyhow::Result<Box<dyn Sink>> {
+    Ok(Box::new(abvs_runtime::sinks::rerun_log::RerunSink::create(p)?))
+}
+
+#[cfg(not(feature = "rerun"))]
+fn rerun_sink(p: &Path) -> anyhow::Result<Box<dyn Sink>> {
+    bail!(
+        "--rerun {}: this abvs was built without rerun logging; build it with `cargo build --release -p abvs --features rerun`",
+        p.display()
+    )
 }
 
 pub fn run(a: RunArgs) -> anyhow::Result<ExitCode> {
@@ -127,6 +144,9 @@ pub fn run(a: RunArgs) -> anyhow::Result<ExitCode> {
         let cfg =
             abvs_runtime::bridges::iceoryx::BridgeConfig::for_resolution(w, h).with_prefix(a.service_prefix.clone());
         sinks.push(Box::new(abvs_runtime::bridges::publish::PublishSink::new(cfg)?));
+    }
+    if let Some(p) = &a.rerun {
+        sinks.push(rerun_sink(p)?);
     }
     if let Some(d) = &a.dump {
         sinks.push(Box::new(abvs_runtime::sinks::dump::DumpSink { dir: d.clone(), every: 1 }));

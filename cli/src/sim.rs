@@ -65,6 +65,18 @@ pub struct BoardArgs {
     /// Restart the board (sequence and clock from zero) after this many frames.
     #[arg(long)]
     reset_after: Option<usize>,
+    /// Replay this session's encoder stream instead of a plain roll: each eye first rolls through its
+    /// index markers (start-up homing), then sends the session's samples as raw counts, in real time.
+    #[arg(long)]
+    session: Option<PathBuf>,
+    /// With --session: CLOCK_MONOTONIC time (ns) at which the session's first encoder sample is sent
+    /// (default: right after the roll, which starts now). Other processes replaying the same session's
+    /// frames use the same anchor.
+    #[arg(long)]
+    start_ns: Option<i64>,
+    /// With --session: draws the links' raw-count origins and roll starts.
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
 }
 
 #[derive(Args)]
@@ -119,9 +131,47 @@ pub fn parse_effects(s: &str) -> anyhow::Result<Vec<Effect>> {
     s.split(',').map(|n| Effect::from_name(n.trim()).map_err(Into::into)).collect()
 }
 
+/// `abvs sim board --session`: the session's encoder stream sent in real time, each frame when
+/// CLOCK_MONOTONIC reaches its time (board time is the process's own clock, from its start).
+fn session_board(a: BoardArgs) -> anyhow::Result<ExitCode> {
+    use abvs_runtime::sinks::stats::monotonic_ns;
+    use std::io::Write;
+    let dir = a.session.as_ref().expect("checked by the caller");
+    let session = abvs_runtime::session::Session::open(dir).with_context(|| format!("opening {}", dir.display()))?;
+    let board = abvs_runtime::sources::encoder_link::SessionBoard {
+        rate_hz: a.rate_hz,
+        corrupt_every: a.corrupt_every,
+        drop_every: a.drop_every,
+        ..abvs_runtime::sources::encoder_link::SessionBoard::from_seed(a.seed)
+    };
+    let script = board.script(&session.encoders).map_err(anyhow::Error::msg)?;
+    let t_first = session.encoders.iter().map(|r| r.t_ns).min().expect("a session has encoder samples");
+    let now = monotonic_ns();
+    let t_roll = script.first().map(|x| x.0).unwrap_or(t_first);
+    // session time + shift = CLOCK_MONOTONIC send time
+    let shift = match a.start_ns {
+        Some(s) => s - t_first,
+        None => now + 1_000_000 - t_roll,
+    };
+    let mut port = abvs_runtime::sources::encoder_link::open_port(&a.port, 1_000_000).map_err(anyhow::Error::msg)?;
+    let mut sent = 0usize;
+    for (t, bytes) in &script {
+        let wait = t + shift - monotonic_ns();
+        if wait > 0 {
+            std::thread::sleep(std::time::Duration::from_nanos(wait as u64));
+        }
+        port.write_all(bytes).with_context(|| format!("writing to {}", a.port))?;
+        sent += 1;
+    }
+    port.flush()?;
+    eprintln!("sent {sent} frames to {} (session {})", a.port, dir.display());
+    Ok(ExitCode::SUCCESS)
+}
+
 pub fn run(cmd: SimCmd) -> anyhow::Result<ExitCode> {
     match cmd {
         SimCmd::AprilgridSession(a) => crate::camcal::sim_session(a),
+        SimCmd::Board(a) if a.session.is_some() => session_board(a),
         SimCmd::Board(a) => {
             use std::io::Write;
             let sim = abvs_runtime::sources::encoder_link::BoardSim {

@@ -556,3 +556,99 @@ pub fn home_from_stream(samples: &[HomingSample]) -> Result<HomeCounts> {
     }
     Err(EyeError::Homing(h.pending_message()))
 }
+
+/// The drive board during the start-up roll (a simulator, for tests and `abvs sim board`).
+/// Link i starts at theta_i = `start[i]` counts and all links advance `step` counts per sample;
+/// `origin[i]` is the raw count at theta_i = 0, so the true home counts are `origin` modulo one
+/// turn. Reported counts carry +-`noise` read noise, except on the sample with an index rising
+/// edge, which carries the exact count latched at the edge. The index line stays high while the
+/// head is within `width` counts past a marker.
+#[derive(Clone, Debug)]
+pub struct StartupRoll {
+    pub start: [i64; 3],
+    pub origin: [i64; 3],
+    pub step: i64,
+    pub noise: i64,
+    pub width: i64,
+}
+
+/// The sample stream of a [`StartupRoll`] (stateful, so that a sample costs little even unoptimised).
+pub struct RollStream<'a> {
+    roll: &'a StartupRoll,
+    n: i64,
+    /// theta (counts) at which each head next reaches a marker, and where it last did
+    next_edge: [i64; 3],
+    last_edge: [i64; 3],
+    noise: u64,
+}
+
+/// Theta (counts) > p at which head i next reaches a marker: s_i + q = m (mod N).
+fn next_marker(i: usize, p: i64) -> i64 {
+    let n = COUNTS_PER_REV;
+    let mut best = i64::MAX;
+    for m in MARKER_COUNTS {
+        best = best.min(p + 1 + (m - MARKER_COUNTS[i] - p - 1).rem_euclid(n));
+    }
+    best
+}
+
+impl StartupRoll {
+    /// The samples, endless; `seed` drives the read noise.
+    pub fn stream(&self, seed: u64) -> RollStream<'_> {
+        RollStream { roll: self, n: 0, next_edge: [0; 3], last_edge: [0; 3], noise: seed | 1 }
+    }
+
+    /// Theta (counts) of link i at sample n, without noise.
+    pub fn theta_counts(&self, i: usize, n: i64) -> i64 {
+        self.start[i] + n * self.step
+    }
+
+    /// The home counts homing must report, given the counts of the deciding sample: the
+    /// origin, shifted by whole turns so that theta lies in (-180, 180] deg.
+    pub fn expected(&self, last: [i64; 3]) -> HomeCounts {
+        let n = COUNTS_PER_REV;
+        HomeCounts([0, 1, 2].map(|i| {
+            let mut th = (last[i] - self.origin[i]).rem_euclid(n);
+            if th > n / 2 {
+                th -= n;
+            }
+            last[i] - th
+        }))
+    }
+}
+
+impl Iterator for RollStream<'_> {
+    type Item = HomingSample;
+    fn next(&mut self) -> Option<HomingSample> {
+        let b = self.roll;
+        let mut counts = [0; 3];
+        let mut index = [false; 3];
+        for i in 0..3 {
+            let p = b.theta_counts(i, self.n);
+            if self.n == 0 {
+                // Already on a marker at start-up: the index line is high, no edge seen.
+                let back = next_marker(i, p - b.width);
+                self.last_edge[i] = if back <= p { back } else { i64::MIN / 2 };
+                self.next_edge[i] = next_marker(i, p);
+            }
+            if self.n > 0 && self.next_edge[i] <= p {
+                // The board latches the exact count at the rising edge.
+                let q = self.next_edge[i];
+                counts[i] = b.origin[i] + q;
+                index[i] = true;
+                self.last_edge[i] = q;
+                self.next_edge[i] = next_marker(i, q);
+            } else {
+                // xorshift: cheap read noise in [-noise, noise].
+                self.noise ^= self.noise << 13;
+                self.noise ^= self.noise >> 7;
+                self.noise ^= self.noise << 17;
+                let jitter = (self.noise % (2 * b.noise as u64 + 1)) as i64 - b.noise;
+                counts[i] = b.origin[i] + p + jitter;
+                index[i] |= p - self.last_edge[i] < b.width;
+            }
+        }
+        self.n += 1;
+        Some(HomingSample { counts, index })
+    }
+}

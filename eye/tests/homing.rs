@@ -9,12 +9,7 @@ use rand_chacha::ChaCha8Rng;
 const N: i64 = COUNTS_PER_REV;
 const TOL: i64 = DEFAULT_TOLERANCE_COUNTS;
 
-/// The drive board during the start-up roll. Link i starts at theta_i = `start[i]` counts
-/// (any integer) and all links advance `step` counts per sample; `origin[i]` is the raw count
-/// at theta_i = 0, so the true home counts are `origin` modulo one turn. Reported counts carry
-/// +-`noise` read noise, except on the sample with an index rising edge, which carries the
-/// exact count latched at the edge. The index line stays high while the head is within
-/// `width` counts past a marker.
+/// The simulated drive board plus the decoder tolerance the check runs with.
 #[derive(Clone, Debug)]
 struct Board {
     start: [i64; 3],
@@ -26,82 +21,19 @@ struct Board {
     tol: i64,
 }
 
-/// The board's sample stream (stateful, so that a sample costs little even unoptimised).
-struct Stream<'a> {
-    board: &'a Board,
-    n: i64,
-    /// theta (counts) at which each head next reaches a marker, and where it last did
-    next_edge: [i64; 3],
-    last_edge: [i64; 3],
-    noise: u64,
-}
-
-/// Theta (counts) > p at which head i next reaches a marker: s_i + q = m (mod N).
-fn next_marker(i: usize, p: i64) -> i64 {
-    let mut best = i64::MAX;
-    for m in MARKER_COUNTS {
-        best = best.min(p + 1 + (m - MARKER_COUNTS[i] - p - 1).rem_euclid(N));
-    }
-    best
-}
-
-impl Iterator for Stream<'_> {
-    type Item = HomingSample;
-    fn next(&mut self) -> Option<HomingSample> {
-        let b = self.board;
-        let mut counts = [0; 3];
-        let mut index = [false; 3];
-        for i in 0..3 {
-            let p = b.start[i] + self.n * b.step;
-            if self.n == 0 {
-                // Already on a marker at start-up: the index line is high, no edge seen.
-                let back = next_marker(i, p - b.width);
-                self.last_edge[i] = if back <= p { back } else { i64::MIN / 2 };
-                self.next_edge[i] = next_marker(i, p);
-            }
-            if self.n > 0 && self.next_edge[i] <= p {
-                // The board latches the exact count at the rising edge.
-                let q = self.next_edge[i];
-                counts[i] = b.origin[i] + q;
-                index[i] = true;
-                self.last_edge[i] = q;
-                self.next_edge[i] = next_marker(i, q);
-            } else {
-                // xorshift: cheap read noise in [-noise, noise].
-                self.noise ^= self.noise << 13;
-                self.noise ^= self.noise >> 7;
-                self.noise ^= self.noise << 17;
-                let jitter = (self.noise % (2 * b.noise as u64 + 1)) as i64 - b.noise;
-                counts[i] = b.origin[i] + p + jitter;
-                index[i] |= p - self.last_edge[i] < b.width;
-            }
-        }
-        self.n += 1;
-        Some(HomingSample { counts, index })
-    }
-}
-
 impl Board {
-    fn stream(&self, seed: u64) -> Stream<'_> {
-        Stream { board: self, n: 0, next_edge: [0; 3], last_edge: [0; 3], noise: seed | 1 }
+    fn roll(&self) -> StartupRoll {
+        StartupRoll { start: self.start, origin: self.origin, step: self.step, noise: self.noise, width: self.width }
     }
 
-    /// The home counts the decoder must report, given the counts of the deciding sample:
-    /// the origin, shifted by whole turns so that theta lies in (-180, 180] deg.
     fn expected(&self, last: [i64; 3]) -> HomeCounts {
-        HomeCounts([0, 1, 2].map(|i| {
-            let mut th = (last[i] - self.origin[i]).rem_euclid(N);
-            if th > N / 2 {
-                th -= N;
-            }
-            last[i] - th
-        }))
+        self.roll().expected(last)
     }
 
     /// Runs homing to the end: (home, travel deg, counts of the deciding sample) or the error.
     fn run(&self, seed: u64) -> Result<(HomeCounts, f64, [i64; 3]), EyeError> {
         let mut h = Homing::with_tolerance_counts(self.tol);
-        for s in self.stream(seed).take((N / self.step) as usize) {
+        for s in self.roll().stream(seed).take((N / self.step) as usize) {
             if let HomingStatus::Done(home) = h.push(s)? {
                 return Ok((home, h.travel_deg(), s.counts));
             }
@@ -190,7 +122,7 @@ proptest! {
 }
 
 fn stream(board: &Board, n: i64) -> Vec<HomingSample> {
-    board.stream(3).take(n as usize).collect()
+    board.roll().stream(3).take(n as usize).collect()
 }
 
 fn plain(start_deg: f64) -> Board {

@@ -3,10 +3,11 @@
 //! Grouped by role, data flowing one way: **sources** (frames, encoders) -> **tasks** (time alignment,
 //! per-eye FK and the moving extrinsic, rectification, disparity, depth and cloud) -> **sinks** (stats,
 //! truth scoring, dumps) and **bridges** (iceoryx2 publishing to other processes). [`pipeline`] wires the stages
-//! on threads joined by bounded channels; [`session`] is the on-disk format of recorded sessions.
+//! on threads joined by bounded channels; [`session`] is the on-disk format of recorded sessions, which [`record`] writes from live sources.
 pub mod bridges;
 pub mod error;
 pub mod pipeline;
+pub mod record;
 pub mod session;
 pub mod sinks;
 pub mod sources;

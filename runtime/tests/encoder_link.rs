@@ -67,3 +67,61 @@ fn clock_map_recovers_board_time_under_latency_jitter() {
     }
     assert!(worst < 5e-5, "worst mapping error {:.1} us", worst * 1e6);
 }
+
+/// The live tracker on a simulated board replaying the fixture's encoders: homing finds the
+/// board's origins exactly, the homed counts are the fixture's, and after a board reset (the
+/// board replays from power-on, sequence and clock from zero) both eyes home again.
+#[test]
+fn tracker_homes_maps_and_rehomes_after_a_board_reset() {
+    use abvs_runtime::session::Session;
+    use abvs_runtime::sources::encoder_link::SessionBoard;
+    use abvs_runtime::sources::encoder_stream::EncoderTracker;
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../fixtures/session");
+    let session = Session::open(&dir).unwrap();
+    let board = SessionBoard { corrupt_every: 301, ..SessionBoard::from_seed(3) };
+    let script = board.script(&session.encoders).unwrap();
+    let mut tracker = EncoderTracker::new();
+    let mut out = vec![];
+    // Host clock = session clock + 5 s, 80 us of transport latency.
+    let shift = 5_000_000_000i64;
+    for (t, bytes) in &script {
+        tracker.feed(bytes, t + shift + 80_000, &mut out);
+    }
+    let s = tracker.stats();
+    assert_eq!(s.home_counts, [Some(board.origin[0]), Some(board.origin[1])]);
+    assert!(s.link.crc_errors > 0 && s.link.lost_frames > 0 && s.homing_failures == [0, 0], "{s:?}");
+    let first = session.encoders[0].t_ns + shift;
+    let in_session: Vec<_> = out.iter().filter(|r| r.t_ns >= first - 500_000).copied().collect();
+    let expected = session.encoders.len() as u64;
+    assert!(in_session.len() as u64 + s.link.lost_frames >= expected && in_session.len() as u64 <= expected);
+    // Every emitted sample is the fixture's, at its time + the constant latency (which the clock
+    // map cannot tell from the offset: it belongs to the eye's encoder_time_offset).
+    // Board time is sent in whole microseconds: within 2 us.
+    for r in &in_session {
+        let t = r.t_ns - shift - 80_000;
+        let f = session.encoders.iter().filter(|f| f.eye == r.eye).min_by_key(|f| (f.t_ns - t).abs()).unwrap();
+        assert!((f.t_ns - t).abs() < 2_000, "eye {} at {t}: nearest fixture sample {}", r.eye, f.t_ns);
+        assert_eq!((f.count1, f.count2, f.count3), (r.count1, r.count2, r.count3));
+    }
+
+    // A frame from an eye that does not exist is counted, not used.
+    let bogus = abvs_runtime::sources::encoder_link::BoardFrame {
+        seq: 0,
+        board_time_us: u64::MAX / 2,
+        eye: 5,
+        counts: [0; 3],
+        index: 0,
+    };
+    tracker.feed(&bogus.encode(), 0, &mut out);
+    assert_eq!(tracker.stats().bad_eye, 1);
+
+    // The board resets and replays from power-on: both eyes home again from their new roll.
+    let n_before = out.len();
+    for (t, bytes) in &script {
+        tracker.feed(bytes, t + 2 * shift + 80_000, &mut out);
+    }
+    let s = tracker.stats();
+    assert_eq!(s.link.resets, 1, "{s:?}");
+    assert_eq!(s.home_counts, [Some(board.origin[0]), Some(board.origin[1])]);
+    assert!(out.len() - n_before >= in_session.len() - 5, "{} after the reset", out.len() - n_before);
+}

@@ -1,5 +1,6 @@
 //! Sources: where data enters the runtime (cameras, the encoder board, recorded sessions).
 pub mod encoder_link;
+pub mod encoder_stream;
 pub mod pairing;
 pub mod pixel;
 pub mod replay;

@@ -49,7 +49,7 @@ impl Default for PairerConfig {
 }
 
 /// Counts of what happened to the frames offered (left, right).
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
 pub struct PairStats {
     /// Frames offered to [`Pairer::push`].
     pub input: [u64; 2],

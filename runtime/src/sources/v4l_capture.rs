@@ -429,7 +429,7 @@ impl FrameSource for V4lCamera {
 }
 
 /// Counts of a stereo capture.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
 pub struct StereoStats {
     /// Pairing counts (frames in, pairs, unpaired, out of order, driver drops from sequence gaps).
     pub pairing: PairStats,

@@ -1,0 +1,153 @@
+//! `abvs record`: records a session from the two eye cameras (V4L2) and the drive board's encoder
+//! stream (serial), homing both eyes first, in the format `abvs run --session` replays.
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::sync::atomic::AtomicBool;
+use std::sync::Arc;
+use std::time::Duration;
+
+use abvs_runtime::record::{record, RecordConfig, RecordStats};
+use abvs_runtime::sinks::session_writer::{CalibFiles, SessionWriter};
+use abvs_runtime::sources::encoder_link::open_port;
+use abvs_runtime::sources::encoder_stream::EncoderStream;
+use abvs_runtime::sources::pairing::PairerConfig;
+use abvs_runtime::sources::v4l_capture::{CaptureConfig, RowReference, StereoCapture};
+use anyhow::Context;
+use clap::Args;
+
+#[derive(Args)]
+pub struct RecordArgs {
+    /// Left eye camera.
+    #[arg(long, default_value = "/dev/video0")]
+    pub left: PathBuf,
+    /// Right eye camera.
+    #[arg(long, default_value = "/dev/video2")]
+    pub right: PathBuf,
+    /// Serial port of the drive board's encoder stream.
+    #[arg(long, default_value = "/dev/ttyACM0")]
+    pub encoders: String,
+    #[arg(long, default_value_t = 1_000_000)]
+    pub baud: u32,
+    /// Calibration directory: stereo.yaml (both intrinsics and T_lH^rH) and eye0, eye1 (FK models).
+    #[arg(long)]
+    pub calib: PathBuf,
+    /// Session directory to create (must not exist or be empty).
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Stop after this many pairs (default: run until --seconds or Ctrl-C).
+    #[arg(long)]
+    pub frames: Option<u64>,
+    /// Stop after this many seconds.
+    #[arg(long)]
+    pub seconds: Option<f64>,
+    #[arg(long, default_value_t = 1600)]
+    pub width: u32,
+    #[arg(long, default_value_t = 1200)]
+    pub height: u32,
+    #[arg(long, default_value_t = 25)]
+    pub fps: u32,
+    /// V4L2 FourCC to ask for: pgAA (RAW10 MIPI-packed GRBG, the OV8856 default), BA10, YUYV, NV12, ...
+    #[arg(long, default_value = "pgAA")]
+    pub fourcc: String,
+    /// Exposure (ms); default: read once from the camera (exposure must be manual).
+    #[arg(long)]
+    pub exposure_ms: Option<f64>,
+    /// Rolling-shutter readout time (ms), to move end-of-frame timestamps to the start of exposure.
+    #[arg(long, default_value_t = 30.0)]
+    pub readout_ms: f64,
+    /// Largest left/right start-of-exposure difference of a pair (ms).
+    #[arg(long, default_value_t = 2.0)]
+    pub pair_tolerance_ms: f64,
+    /// Seconds both eyes have to home (their links roll through the index markers at start-up).
+    #[arg(long, default_value_t = 30.0)]
+    pub homing_timeout: f64,
+    /// Write the recording's counts as JSON.
+    #[arg(long)]
+    pub stats_json: Option<PathBuf>,
+}
+
+pub fn capture_config(a: &RecordArgs) -> anyhow::Result<CaptureConfig> {
+    let fourcc: [u8; 4] =
+        a.fourcc.as_bytes().try_into().map_err(|_| anyhow::anyhow!("--fourcc `{}`: four characters", a.fourcc))?;
+    Ok(CaptureConfig {
+        width: a.width,
+        height: a.height,
+        fourcc,
+        fps: a.fps,
+        exposure_ns: a.exposure_ms.map(|ms| (ms * 1e6).round() as i64),
+        readout_ns: (a.readout_ms * 1e6).round() as i64,
+        reference: RowReference::FirstRow,
+        ..CaptureConfig::default()
+    })
+}
+
+/// Prints the counts a user needs to judge a recording.
+pub fn summary(s: &RecordStats) -> String {
+    let e = &s.encoders;
+    let c = &s.capture.pairing;
+    format!(
+        "pairs: {} in, {} written, {} before homing, {} dropped (writer behind), {} write errors\n\
+         capture: {} unpaired, {} out of order, {} dropped by the driver, {} bad frames (left, right as [l, r])\n\
+         encoders: {} rows; homed after {}; link {} frames, {} CRC errors, {} lost, {} resets; {} homing refusals\n",
+        s.pairs_in,
+        s.pairs_written,
+        s.pairs_before_homing,
+        s.pairs_dropped_writer,
+        s.write_errors,
+        format!("{:?}", c.unpaired),
+        format!("{:?}", c.out_of_order),
+        format!("{:?}", c.dropped),
+        format!("{:?}", s.capture.errors),
+        s.encoder_rows,
+        s.homed_after_s.map(|t| format!("{t:.2} s")).unwrap_or_else(|| "never".into()),
+        e.link.frames,
+        e.link.crc_errors,
+        e.link.lost_frames,
+        e.link.resets,
+        e.homing_failures[0] + e.homing_failures[1],
+    )
+}
+
+pub fn run(a: RecordArgs) -> anyhow::Result<ExitCode> {
+    let calib = CalibFiles::from_dir(&a.calib);
+    let description = format!(
+        "recorded by abvs record {}: cameras {} / {}, encoders {}",
+        env!("CARGO_PKG_VERSION"),
+        a.left.display(),
+        a.right.display(),
+        a.encoders
+    );
+    // Checked before any device is opened (the cheapest mistakes to report), and the session
+    // directory is created only once every device is open.
+    SessionWriter::check_target(&a.out)?;
+    calib.check()?;
+    let cfg = capture_config(&a)?;
+    let pairing = PairerConfig { tolerance_ns: (a.pair_tolerance_ms * 1e6).round() as i64, ..Default::default() };
+    let port = open_port(&a.encoders, a.baud).map_err(anyhow::Error::msg)?;
+    let mut capture = StereoCapture::open(&a.left, &a.right, cfg, pairing)?;
+    let encoders = EncoderStream::spawn(port, a.encoders.clone(), 16_384);
+    let writer = SessionWriter::create(&a.out, &calib, f64::from(a.fps), description)?;
+    let stop = Arc::new(AtomicBool::new(false));
+    signal_hook::flag::register(signal_hook::consts::SIGINT, stop.clone()).context("installing the Ctrl-C handler")?;
+    signal_hook::flag::register(signal_hook::consts::SIGTERM, stop.clone())
+        .context("installing the SIGTERM handler")?;
+    let rc = RecordConfig {
+        frames: a.frames,
+        duration: a.seconds.map(Duration::from_secs_f64),
+        homing_timeout: Duration::from_secs_f64(a.homing_timeout),
+        ..RecordConfig::default()
+    };
+    let pb = crate::progress_bar(a.frames.unwrap_or(0), "recording");
+    let (session, stats) = record(&mut capture, encoders, writer, &rc, &stop, &mut |s| {
+        pb.set_position(s.pairs_written);
+    });
+    pb.finish_and_clear();
+    eprint!("{}", summary(&stats));
+    if let Some(p) = &a.stats_json {
+        std::fs::write(p, serde_json::to_string_pretty(&stats)? + "\n")
+            .with_context(|| format!("writing {}", p.display()))?;
+    }
+    let session = session.with_context(|| format!("recording into {}", a.out.display()))?;
+    eprintln!("wrote session {} ({} pairs)", a.out.display(), session.frames.len());
+    Ok(ExitCode::SUCCESS)
+}

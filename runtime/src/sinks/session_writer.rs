@@ -1,0 +1,208 @@
+//! Writes a recorded session (the format of [`crate::session`]) as it is captured: frame PNGs and
+//! rows of frames.csv and encoders.csv appended and flushed as they come, so that a recording cut
+//! short (power, Ctrl-C) keeps everything up to its last second and still opens as a session.
+use std::fs::File;
+use std::path::{Path, PathBuf};
+
+use abvs_camera::StereoCalibration;
+
+use crate::error::{Result, RuntimeError};
+use crate::session::{EncoderRecord, FrameRecord, Session, SessionMeta, SESSION_FILE, SESSION_FORMAT};
+use crate::sources::FramePair;
+use crate::tasks::kinematics::EyeFk;
+
+/// The calibration a recording is made with: copied into the session's calib/.
+#[derive(Debug, Clone)]
+pub struct CalibFiles {
+    /// OpenCV-style stereo calibration at home (abvs-camera YAML).
+    pub stereo: PathBuf,
+    /// Per-eye FK: an abvs-fk-model directory or a unit-model TOML, left then right.
+    pub fk: [PathBuf; 2],
+}
+
+impl CalibFiles {
+    /// The layout `abvs calib` and `abvs sim session` produce: DIR/stereo.yaml, DIR/eye0, DIR/eye1.
+    pub fn from_dir(dir: &Path) -> CalibFiles {
+        CalibFiles { stereo: dir.join("stereo.yaml"), fk: [dir.join("eye0"), dir.join("eye1")] }
+    }
+
+    /// Loads every file, so a recording never starts with a calibration the runtime cannot use.
+    pub fn check(&self) -> Result<()> {
+        StereoCalibration::read_yaml(&self.stereo)
+            .map_err(|e| RuntimeError::Model { path: self.stereo.clone(), msg: e.to_string() })?;
+        for p in &self.fk {
+            EyeFk::load(p)?;
+        }
+        Ok(())
+    }
+}
+
+fn io_err(path: &Path, e: impl std::fmt::Display) -> RuntimeError {
+    RuntimeError::File { path: path.to_path_buf(), line: None, msg: e.to_string() }
+}
+
+fn copy_tree(from: &Path, to: &Path) -> std::io::Result<()> {
+    if from.is_dir() {
+        std::fs::create_dir_all(to)?;
+        for e in std::fs::read_dir(from)? {
+            let e = e?;
+            copy_tree(&e.path(), &to.join(e.file_name()))?;
+        }
+        Ok(())
+    } else {
+        std::fs::copy(from, to).map(|_| ())
+    }
+}
+
+/// 8-bit gray PNG straight from the frame buffer, fast compression (25 fps of two eyes on a robot CPU).
+fn write_png(p: &Path, f: &crate::sources::Frame) -> Result<()> {
+    use image::codecs::png::{CompressionType, FilterType, PngEncoder};
+    use image::ImageEncoder;
+    if f.gray.len() != f.width as usize * f.height as usize {
+        return Err(io_err(p, format!("frame buffer of {} bytes for {}x{}", f.gray.len(), f.width, f.height)));
+    }
+    let w = std::io::BufWriter::new(File::create(p).map_err(|e| io_err(p, e))?);
+    PngEncoder::new_with_quality(w, CompressionType::Fast, FilterType::Adaptive)
+        .write_image(&f.gray, f.width, f.height, image::ExtendedColorType::L8)
+        .map_err(|e| io_err(p, e))
+}
+
+/// An open recording.
+pub struct SessionWriter {
+    dir: PathBuf,
+    meta: SessionMeta,
+    meta_written: bool,
+    frames_csv: csv::Writer<File>,
+    encoders_csv: csv::Writer<File>,
+    last_frame_t: Option<i64>,
+    pub frames_written: u64,
+    pub encoder_rows: u64,
+}
+
+impl SessionWriter {
+    /// Creates `dir` (which must not exist, or be empty: a recording never overwrites another)
+    /// and copies the calibration in, after checking that it loads.
+    pub fn create(dir: &Path, calib: &CalibFiles, fps: f64, description: String) -> Result<SessionWriter> {
+        Self::check_target(dir)?;
+        if !(fps > 0.0) {
+            return Err(RuntimeError::Invalid(format!("frame rate {fps} must be positive")));
+        }
+        calib.check()?;
+        std::fs::create_dir_all(dir.join("frames")).map_err(|e| io_err(dir, e))?;
+        std::fs::create_dir_all(dir.join("calib")).map_err(|e| io_err(dir, e))?;
+        let sp = dir.join("calib/stereo.yaml");
+        std::fs::copy(&calib.stereo, &sp).map_err(|e| io_err(&calib.stereo, e))?;
+        let mut fk = [String::new(), String::new()];
+        for (eye, src) in calib.fk.iter().enumerate() {
+            let ext = if src.is_dir() { String::new() } else { ".toml".into() };
+            let rel = format!("calib/eye{eye}{ext}");
+            copy_tree(src, &dir.join(&rel)).map_err(|e| io_err(src, e))?;
+            fk[eye] = rel;
+        }
+        let csv_at = |name: &str| {
+            let p = dir.join(name);
+            csv::Writer::from_path(&p).map_err(|e| io_err(&p, e))
+        };
+        let meta = SessionMeta {
+            format: SESSION_FORMAT.into(),
+            description,
+            width: 0,
+            height: 0,
+            fps,
+            loop_period_ns: None,
+            stereo: "calib/stereo.yaml".into(),
+            fk,
+            gravity: [0.0, 1.0, 0.0],
+            truth: None,
+        };
+        Ok(SessionWriter {
+            dir: dir.to_path_buf(),
+            meta,
+            meta_written: false,
+            frames_csv: csv_at("frames.csv")?,
+            encoders_csv: csv_at("encoders.csv")?,
+            last_frame_t: None,
+            frames_written: 0,
+            encoder_rows: 0,
+        })
+    }
+
+    /// Refuses a directory that exists and is not empty.
+    pub fn check_target(dir: &Path) -> Result<()> {
+        if dir.exists() && std::fs::read_dir(dir).map_err(|e| io_err(dir, e))?.next().is_some() {
+            return Err(io_err(dir, "exists and is not empty (a recording never overwrites another)"));
+        }
+        Ok(())
+    }
+
+    pub fn dir(&self) -> &Path {
+        &self.dir
+    }
+
+    /// Writes both images and the pair's frames.csv row. The first pair fixes the frame size and
+    /// writes session.toml. Pairs must come in time order (as a capture delivers them).
+    pub fn write_pair(&mut self, pair: &FramePair) -> Result<()> {
+        let (l, r) = (&pair.left, &pair.right);
+        if (l.width, l.height) != (r.width, r.height) {
+            return Err(RuntimeError::Invalid(format!(
+                "pair {}: left {}x{} and right {}x{} differ",
+                pair.seq, l.width, l.height, r.width, r.height
+            )));
+        }
+        if self.last_frame_t.is_some_and(|t| l.t_start_ns <= t) {
+            return Err(RuntimeError::Invalid(format!(
+                "pair {}: start of exposure not after the previous pair's",
+                pair.seq
+            )));
+        }
+        if !self.meta_written {
+            self.meta.width = l.width;
+            self.meta.height = l.height;
+            let mp = self.dir.join(SESSION_FILE);
+            let text = toml::to_string_pretty(&self.meta).map_err(|e| io_err(&mp, e))?;
+            std::fs::write(&mp, text).map_err(|e| io_err(&mp, e))?;
+            self.meta_written = true;
+        } else if (l.width, l.height) != (self.meta.width, self.meta.height) {
+            return Err(RuntimeError::Invalid(format!(
+                "pair {}: frame size {}x{} differs from the session's {}x{}",
+                pair.seq, l.width, l.height, self.meta.width, self.meta.height
+            )));
+        }
+        let mut names = [String::new(), String::new()];
+        for (k, (f, side)) in [(l, "left"), (r, "right")].into_iter().enumerate() {
+            let name = format!("frames/{side}_{:06}.png", self.frames_written);
+            let p = self.dir.join(&name);
+            write_png(&p, f)?;
+            names[k] = name;
+        }
+        let [left, right] = names;
+        let row =
+            FrameRecord { seq: self.frames_written, t_start_ns: l.t_start_ns, exposure_ns: l.exposure_ns, left, right };
+        let fp = self.dir.join("frames.csv");
+        self.frames_csv.serialize(&row).map_err(|e| io_err(&fp, e))?;
+        self.frames_csv.flush().map_err(|e| io_err(&fp, e))?;
+        self.last_frame_t = Some(l.t_start_ns);
+        self.frames_written += 1;
+        Ok(())
+    }
+
+    pub fn write_encoders(&mut self, rows: &[EncoderRecord]) -> Result<()> {
+        let ep = self.dir.join("encoders.csv");
+        for r in rows {
+            self.encoders_csv.serialize(r).map_err(|e| io_err(&ep, e))?;
+        }
+        self.encoders_csv.flush().map_err(|e| io_err(&ep, e))?;
+        self.encoder_rows += rows.len() as u64;
+        Ok(())
+    }
+
+    /// Flushes and checks that the result opens as a session.
+    pub fn finish(mut self) -> Result<Session> {
+        let ep = self.dir.join("encoders.csv");
+        self.encoders_csv.flush().map_err(|e| io_err(&ep, e))?;
+        if !self.meta_written {
+            return Err(io_err(&self.dir, "no frame pair was recorded"));
+        }
+        Session::open(&self.dir)
+    }
+}
