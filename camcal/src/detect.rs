@@ -135,7 +135,13 @@ fn detect_tags(gray: &Mat, params: &opencv::core::Ptr<aruco::DetectorParameters>
             let q = c.get(i).unwrap_or_default();
             [q.x as f64, q.y as f64]
         };
-        out.push((id as u32, aruco_to_apriltag_order([p(0), p(1), p(2), p(3)])));
+        let mut c = aruco_to_apriltag_order([p(0), p(1), p(2), p(3)]);
+        if params.corner_refinement_method() == 3 {
+            // aruco's AprilTag refinement is a port of AprilTag 3 and keeps its pixel convention
+            // (found on the real photos: exactly (+0.5, +0.5) px from OpenCV's).
+            c = c.map(|q| [q[0] - APRILTAG_PIXEL_OFFSET, q[1] - APRILTAG_PIXEL_OFFSET]);
+        }
+        out.push((id as u32, c));
     }
     Ok(out)
 }
@@ -144,7 +150,7 @@ fn detect_tags(gray: &Mat, params: &opencv::core::Ptr<aruco::DetectorParameters>
 /// its AprilTag corner refinement (CORNER_REFINE_APRILTAG). Corners in the AprilTag library's
 /// order (counter-clockwise in the image starting bottom-left of the upright tag), so they
 /// compare directly with that library's output.
-pub fn apriltags(gray: &Mat) -> Result<Vec<(u32, [[f64; 2]; 4])>> {
+pub fn apriltags_opencv(gray: &Mat) -> Result<Vec<(u32, [[f64; 2]; 4])>> {
     let mut params = aruco::DetectorParameters::create()?;
     params.set_marker_border_bits(1);
     params.set_corner_refinement_method(3); // CORNER_REFINE_APRILTAG (AprilTag 3's quad finder)
@@ -157,6 +163,29 @@ pub fn apriltags(gray: &Mat) -> Result<Vec<(u32, [[f64; 2]; 4])>> {
     params.set_min_otsu_std_dev(2.0);
     detect_tags(gray, &params)
 }
+
+/// Stand-alone tag36h11 tags with the AprilTag 3 library (finds tags down to ~12 px that aruco
+/// misses; see camcal/README.md), corners in AprilTag order and OpenCV's pixel convention.
+pub fn apriltags(gray: &Mat) -> Result<Vec<(u32, [[f64; 2]; 4])>> {
+    apriltag3_tags(gray)
+}
+
+/// AprilTag 3 detections (up to 2 corrected bits), corners moved from the library's pixel
+/// convention (top-left pixel centre at (0.5, 0.5)) to OpenCV's (at (0, 0)).
+fn apriltag3_tags(gray: &Mat) -> Result<Vec<(u32, [[f64; 2]; 4])>> {
+    let (w, h) = size_of(gray);
+    let pixels =
+        if gray.is_continuous() { gray.data_bytes()?.to_vec() } else { gray.try_clone()?.data_bytes()?.to_vec() };
+    let tags = crate::apriltag3::detect_tag36h11(&pixels, w as usize, h as usize, &Default::default())?;
+    Ok(tags
+        .into_iter()
+        .map(|t| (t.id, t.corners.map(|p| [p[0] - APRILTAG_PIXEL_OFFSET, p[1] - APRILTAG_PIXEL_OFFSET])))
+        .collect())
+}
+
+/// AprilTag 3 puts the top-left pixel's centre at (0.5, 0.5) (its bilinear sampler reads pixel
+/// `floor(x - 0.5)`); OpenCV and this project at (0, 0).
+pub const APRILTAG_PIXEL_OFFSET: f64 = 0.5;
 
 /// Sub-pixel refinement of saddle points with a window of half-size `half` px.
 fn refine(gray: &Mat, pts: &mut [[f64; 2]], half: i32) -> Result<()> {
@@ -179,9 +208,15 @@ fn refine(gray: &Mat, pts: &mut [[f64; 2]], half: i32) -> Result<()> {
 /// gap between tags. Corners that are refined far from the aruco estimate, or touch the border,
 /// are dropped.
 pub fn detect_aprilgrid_opencv(gray: &Mat, spec: &AprilGridSpec) -> Result<Detection> {
+    detect_aprilgrid_tags(gray, spec, opencv_tags(gray)?)
+}
+
+/// Grid corners from tag detections (any detector): each tag's outer corners refined with
+/// cornerSubPix (window scaled to the gap between tags) as corners 4 id + k.
+fn detect_aprilgrid_tags(gray: &Mat, spec: &AprilGridSpec, tags: Vec<(u32, [[f64; 2]; 4])>) -> Result<Detection> {
     let (width, height) = size_of(gray);
     let mut corners = Vec::new();
-    for (id, mut c) in opencv_tags(gray)? {
+    for (id, mut c) in tags {
         let side = (0..4)
             .map(|k| {
                 let (a, b) = (c[k], c[(k + 1) % 4]);

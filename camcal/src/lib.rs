@@ -3,6 +3,7 @@
 //! stereo calibration at home ([`stereo`]), camera poses relative to home by bundle adjustment
 //! over every corner of every board, written as calibration datasets ([`measure`]), and a
 //! renderer of AprilGrid sessions with ground truth ([`render_grid`]).
+pub mod apriltag3;
 pub mod detect;
 pub mod error;
 pub mod intrinsics;

@@ -20,7 +20,7 @@ fn parse_detector(s: &str) -> anyhow::Result<AprilDetector> {
     match s {
         "opencv" => Ok(AprilDetector::OpenCv),
         "aprilgrid" => Ok(AprilDetector::AprilGridCrate),
-        _ => bail!("detector '{s}': expected opencv or aprilgrid"),
+        _ => bail!("detector '{s}': expected aprilgrid or opencv"),
     }
 }
 
