@@ -57,9 +57,12 @@ pub fn camera_matrix(cam: &Camera) -> Result<Mat> {
     Ok(cam.camera_matrix_mat()?)
 }
 
-/// OpenCV distortion coefficients of a camera (4 for fisheye, 5 or 8 otherwise).
+/// OpenCV distortion coefficients of a camera (4 for fisheye, 5 or 8 otherwise), as a column:
+/// cv::fisheye copies them into a fixed 4x1 `Vec4d`, which refuses a 1x4 row.
 pub fn dist_coeffs(cam: &Camera) -> Result<Mat> {
-    Ok(Mat::from_slice(&cam.distortion.coefficients())?.try_clone()?)
+    let c = cam.distortion.coefficients();
+    let row = Mat::from_slice(&c)?;
+    Ok(row.reshape(1, row.cols())?.try_clone()?)
 }
 
 fn camera_from_mats(model: Model, width: u32, height: u32, k: &Mat, d: &Mat) -> Result<Camera> {

@@ -6,7 +6,7 @@ use crate::error::{CamcalError, Result};
 use crate::intrinsics::{calibrate, camera_matrix, dist_coeffs, views, CalibOptions, Calibrated, Model};
 use crate::target::Target;
 use opencv::calib3d;
-use opencv::core::{Mat, Point2f, Point3f, Size, TermCriteria, TermCriteria_Type, Vector, CV_64F};
+use opencv::core::{Mat, Point2d, Point2f, Point3d, Point3f, Size, TermCriteria, TermCriteria_Type, Vector, CV_64F};
 use opencv::prelude::*;
 
 /// Result of a stereo calibration.
@@ -75,16 +75,24 @@ pub fn calibrate_stereo(
     if obj.is_empty() {
         return Err(CamcalError::Calibration("no image pair sees a board in both cameras".into()));
     }
+    if model == Model::Fisheye {
+        // cv::fisheye::stereoCalibrate needs the same number of points in every view: keep the
+        // views with the most common corners (whole boards), or cut all to the smallest view.
+        let (obj2, a2, b2) = equal_size_views(&obj, &p1, &p2, 3)?;
+        (obj, p1, p2) = (obj2, a2, b2);
+    }
     let (mut k1, mut d1) = (camera_matrix(&cl.camera)?, dist_coeffs(&cl.camera)?);
     let (mut k2, mut d2) = (camera_matrix(&cr.camera)?, dist_coeffs(&cr.camera)?);
     let crit = TermCriteria::new((TermCriteria_Type::COUNT as i32) | (TermCriteria_Type::EPS as i32), 100, 1e-10)?;
     let size = Size::new(wl as i32, hl as i32);
     let (mut r, mut t) = (Mat::default(), Mat::default());
     let rms = match model {
+        // cv::fisheye wants double-precision points (with floats an internal fixed-size copy
+        // asserts in OpenCV 4.6).
         Model::Fisheye => calib3d::fisheye_stereo_calibrate(
-            &obj,
-            &p1,
-            &p2,
+            &to_f64_3(&obj)?,
+            &to_f64_2(&p1)?,
+            &to_f64_2(&p2)?,
             &mut k1,
             &mut d1,
             &mut k2,
@@ -129,4 +137,51 @@ pub fn calibrate_stereo(
     }
     let translation_mm = [*t64.at_2d::<f64>(0, 0)?, *t64.at_2d::<f64>(1, 0)?, *t64.at_2d::<f64>(2, 0)?];
     Ok(StereoResult { left: cl, right: cr, rotation, translation_mm, rms_px: rms, pairs_used: pairs.len() })
+}
+
+fn to_f64_3(v: &Vector<Vector<Point3f>>) -> Result<Vector<Mat>> {
+    let mut out = Vector::new();
+    for o in v.iter() {
+        let p: Vec<Point3d> = o.iter().map(|p| Point3d::new(p.x as f64, p.y as f64, p.z as f64)).collect();
+        out.push(Mat::from_slice(&p)?.try_clone()?);
+    }
+    Ok(out)
+}
+
+fn to_f64_2(v: &Vector<Vector<Point2f>>) -> Result<Vector<Mat>> {
+    let mut out = Vector::new();
+    for o in v.iter() {
+        let p: Vec<Point2d> = o.iter().map(|p| Point2d::new(p.x as f64, p.y as f64)).collect();
+        out.push(Mat::from_slice(&p)?.try_clone()?);
+    }
+    Ok(out)
+}
+
+type Views = (Vector<Vector<Point3f>>, Vector<Vector<Point2f>>, Vector<Vector<Point2f>>);
+
+/// Views of equal size: those with the largest point count if there are at least `min_views`,
+/// else every view cut to the smallest count.
+fn equal_size_views(
+    obj: &Vector<Vector<Point3f>>,
+    p1: &Vector<Vector<Point2f>>,
+    p2: &Vector<Vector<Point2f>>,
+    min_views: usize,
+) -> Result<Views> {
+    let lens: Vec<usize> = obj.iter().map(|o| o.len()).collect();
+    let max = lens.iter().copied().max().unwrap_or(0);
+    let full: Vec<usize> = (0..lens.len()).filter(|&i| lens[i] == max).collect();
+    let (keep, n): (Vec<usize>, usize) = if full.len() >= min_views {
+        (full, max)
+    } else {
+        ((0..lens.len()).collect(), lens.iter().copied().min().unwrap_or(0))
+    };
+    let cut3 = |v: Vector<Point3f>| -> Vector<Point3f> { v.iter().take(n).collect() };
+    let cut2 = |v: Vector<Point2f>| -> Vector<Point2f> { v.iter().take(n).collect() };
+    let mut out: Views = (Vector::new(), Vector::new(), Vector::new());
+    for i in keep {
+        out.0.push(cut3(obj.get(i)?));
+        out.1.push(cut2(p1.get(i)?));
+        out.2.push(cut2(p2.get(i)?));
+    }
+    Ok(out)
 }
