@@ -15,8 +15,9 @@ use abvs_runtime::sources::v4l_capture::{CaptureConfig, RowReference, StereoCapt
 use anyhow::Context;
 use clap::Args;
 
-#[derive(Args)]
-pub struct RecordArgs {
+/// The eye cameras and the drive board (shared by `abvs record` and `abvs run --live`).
+#[derive(Args, Clone)]
+pub struct DeviceArgs {
     /// Left eye camera.
     #[arg(long, default_value = "/dev/video0")]
     pub left: PathBuf,
@@ -28,18 +29,6 @@ pub struct RecordArgs {
     pub encoders: String,
     #[arg(long, default_value_t = 1_000_000)]
     pub baud: u32,
-    /// Calibration directory: stereo.yaml (both intrinsics and T_lH^rH) and eye0, eye1 (FK models).
-    #[arg(long)]
-    pub calib: PathBuf,
-    /// Session directory to create (must not exist or be empty).
-    #[arg(long)]
-    pub out: PathBuf,
-    /// Stop after this many pairs (default: run until --seconds or Ctrl-C).
-    #[arg(long)]
-    pub frames: Option<u64>,
-    /// Stop after this many seconds.
-    #[arg(long)]
-    pub seconds: Option<f64>,
     #[arg(long, default_value_t = 1600)]
     pub width: u32,
     #[arg(long, default_value_t = 1200)]
@@ -61,12 +50,40 @@ pub struct RecordArgs {
     /// Seconds both eyes have to home (their links roll through the index markers at start-up).
     #[arg(long, default_value_t = 30.0)]
     pub homing_timeout: f64,
+}
+
+#[derive(Args)]
+pub struct RecordArgs {
+    #[command(flatten)]
+    pub devices: DeviceArgs,
+    /// Calibration directory: stereo.yaml (both intrinsics and T_lH^rH) and eye0, eye1 (FK models).
+    #[arg(long)]
+    pub calib: PathBuf,
+    /// Session directory to create (must not exist or be empty).
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Stop after this many pairs (default: run until --seconds or Ctrl-C).
+    #[arg(long)]
+    pub frames: Option<u64>,
+    /// Stop after this many seconds.
+    #[arg(long)]
+    pub seconds: Option<f64>,
     /// Write the recording's counts as JSON.
     #[arg(long)]
     pub stats_json: Option<PathBuf>,
 }
 
-pub fn capture_config(a: &RecordArgs) -> anyhow::Result<CaptureConfig> {
+/// Opens the encoder port, then both cameras (in that order: a missing port is the cheaper
+/// mistake), and starts the encoder thread.
+pub fn open_devices(d: &DeviceArgs) -> anyhow::Result<(StereoCapture, EncoderStream)> {
+    let cfg = capture_config(d)?;
+    let pairing = PairerConfig { tolerance_ns: (d.pair_tolerance_ms * 1e6).round() as i64, ..Default::default() };
+    let port = open_port(&d.encoders, d.baud).map_err(anyhow::Error::msg)?;
+    let capture = StereoCapture::open(&d.left, &d.right, cfg, pairing)?;
+    Ok((capture, EncoderStream::spawn(port, d.encoders.clone(), 16_384)))
+}
+
+pub fn capture_config(a: &DeviceArgs) -> anyhow::Result<CaptureConfig> {
     let fourcc: [u8; 4] =
         a.fourcc.as_bytes().try_into().map_err(|_| anyhow::anyhow!("--fourcc `{}`: four characters", a.fourcc))?;
     Ok(CaptureConfig {
@@ -110,23 +127,20 @@ pub fn summary(s: &RecordStats) -> String {
 
 pub fn run(a: RecordArgs) -> anyhow::Result<ExitCode> {
     let calib = CalibFiles::from_dir(&a.calib);
+    let d = &a.devices;
     let description = format!(
         "recorded by abvs record {}: cameras {} / {}, encoders {}",
         env!("CARGO_PKG_VERSION"),
-        a.left.display(),
-        a.right.display(),
-        a.encoders
+        d.left.display(),
+        d.right.display(),
+        d.encoders
     );
     // Checked before any device is opened (the cheapest mistakes to report), and the session
     // directory is created only once every device is open.
     SessionWriter::check_target(&a.out)?;
     calib.check()?;
-    let cfg = capture_config(&a)?;
-    let pairing = PairerConfig { tolerance_ns: (a.pair_tolerance_ms * 1e6).round() as i64, ..Default::default() };
-    let port = open_port(&a.encoders, a.baud).map_err(anyhow::Error::msg)?;
-    let mut capture = StereoCapture::open(&a.left, &a.right, cfg, pairing)?;
-    let encoders = EncoderStream::spawn(port, a.encoders.clone(), 16_384);
-    let writer = SessionWriter::create(&a.out, &calib, f64::from(a.fps), description)?;
+    let (mut capture, encoders) = open_devices(d)?;
+    let writer = SessionWriter::create(&a.out, &calib, f64::from(d.fps), description)?;
     let stop = Arc::new(AtomicBool::new(false));
     signal_hook::flag::register(signal_hook::consts::SIGINT, stop.clone()).context("installing the Ctrl-C handler")?;
     signal_hook::flag::register(signal_hook::consts::SIGTERM, stop.clone())
@@ -134,7 +148,7 @@ pub fn run(a: RecordArgs) -> anyhow::Result<ExitCode> {
     let rc = RecordConfig {
         frames: a.frames,
         duration: a.seconds.map(Duration::from_secs_f64),
-        homing_timeout: Duration::from_secs_f64(a.homing_timeout),
+        homing_timeout: Duration::from_secs_f64(d.homing_timeout),
         ..RecordConfig::default()
     };
     let pb = crate::progress_bar(a.frames.unwrap_or(0), "recording");

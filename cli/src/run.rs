@@ -5,7 +5,7 @@ use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
 use abvs_camera::StereoCalibration;
-use abvs_runtime::pipeline::{run_replay, PipelineConfig, Sink};
+use abvs_runtime::pipeline::{run as run_pipeline, run_replay, PipelineConfig, Sink};
 use abvs_runtime::session::Session;
 use abvs_runtime::sinks::truth::TruthSink;
 use abvs_runtime::sources::replay::ReplaySource;
@@ -18,8 +18,17 @@ use clap::Args;
 #[derive(Args)]
 pub struct RunArgs {
     /// Session directory to replay (default: the embedded fixture, fixtures/session).
-    #[arg(long)]
+    #[arg(long, conflicts_with = "live")]
     pub session: Option<PathBuf>,
+    /// Run on the live eyes (V4L2 cameras and the drive board, see the device options) instead of a
+    /// recorded session; needs --calib.
+    #[arg(long, requires = "calib")]
+    pub live: bool,
+    /// With --live: calibration directory (stereo.yaml, eye0, eye1), as `abvs record` uses.
+    #[arg(long)]
+    pub calib: Option<PathBuf>,
+    #[command(flatten)]
+    pub devices: crate::record::DeviceArgs,
     /// Number of frames (the session loops when shorter, timestamps kept increasing); default one pass.
     #[arg(long)]
     pub frames: Option<u64>,
@@ -103,25 +112,48 @@ fn rerun_sink(p: &Path) -> anyhow::Result<Box<dyn Sink>> {
     )
 }
 
+/// What the pipeline runs on: a recorded session or the live devices.
+enum Input {
+    Replay(Session, PathBuf),
+    Live,
+}
+
 pub fn run(a: RunArgs) -> anyhow::Result<ExitCode> {
-    let dir = a.session.clone().unwrap_or_else(|| shipped("fixtures/session"));
-    let session = Session::open(&dir).with_context(|| format!("opening session {}", dir.display()))?;
-    let (w, h) = parse_resolution(&a.resolution)?;
-    let stereo_path = session.path(&session.meta.stereo);
-    let stereo = StereoCalibration::read_yaml(&stereo_path)?;
-    let (left, right) = match a.fk.as_str() {
-        "calibrated" => {
-            (EyeFk::load(&session.path(&session.meta.fk[0]))?, EyeFk::load(&session.path(&session.meta.fk[1]))?)
+    let input = if a.live {
+        Input::Live
+    } else {
+        let dir = a.session.clone().unwrap_or_else(|| shipped("fixtures/session"));
+        let session = Session::open(&dir).with_context(|| format!("opening session {}", dir.display()))?;
+        Input::Replay(session, dir)
+    };
+    // calibration: the session's own, or --calib for a live run
+    let (stereo_path, fk_paths, gravity) = match &input {
+        Input::Replay(session, _) => (
+            session.path(&session.meta.stereo),
+            [session.path(&session.meta.fk[0]), session.path(&session.meta.fk[1])],
+            session.meta.gravity,
+        ),
+        Input::Live => {
+            let c =
+                abvs_runtime::sinks::session_writer::CalibFiles::from_dir(a.calib.as_ref().expect("clap: requires"));
+            c.check()?;
+            (c.stereo, c.fk, [0.0, 1.0, 0.0])
         }
-        "nominal" => (EyeFk::nominal(), EyeFk::nominal()),
-        "truth" => {
+    };
+    let (w, h) = parse_resolution(&a.resolution)?;
+    let stereo = StereoCalibration::read_yaml(&stereo_path)?;
+    let (left, right) = match (a.fk.as_str(), &input) {
+        ("calibrated", _) => (EyeFk::load(&fk_paths[0])?, EyeFk::load(&fk_paths[1])?),
+        ("nominal", _) => (EyeFk::nominal(), EyeFk::nominal()),
+        ("truth", Input::Replay(session, _)) => {
             let t = session.meta.truth.as_ref().context("--fk truth needs a synthetic session (with truth/)")?;
             (EyeFk::load(&session.path(&t.units[0]))?, EyeFk::load(&session.path(&t.units[1]))?)
         }
-        other => bail!("--fk `{other}`: expected calibrated or nominal"),
+        ("truth", Input::Live) => bail!("--fk truth needs a synthetic session, not --live"),
+        (other, _) => bail!("--fk `{other}`: expected calibrated, nominal or truth"),
     };
     let mut kin = StereoKinematics::new(left, right, stereo.rotation, stereo.translation_mm / 1000.0);
-    kin.gravity = session.meta.gravity;
+    kin.gravity = gravity;
     let out = RectifiedCamera::with_hfov(w, h, a.rect_hfov);
     // disparity range for the eyes' working range at this resolution: f B / z_min
     let max_disp = out.f * stereo.baseline_mm() / 1000.0 / 0.2;
@@ -135,8 +167,8 @@ pub fn run(a: RunArgs) -> anyhow::Result<ExitCode> {
     };
     let engine = disparity::engine(&a.engine, model.as_deref(), (w, h), max_disp, a.threads)?;
     let mut sinks: Vec<Box<dyn Sink>> = Vec::new();
-    if a.truth_stride > 0 {
-        if let Some(t) = TruthSink::for_session(&session, a.truth_stride)? {
+    if let (true, Input::Replay(session, _)) = (a.truth_stride > 0, &input) {
+        if let Some(t) = TruthSink::for_session(session, a.truth_stride)? {
             sinks.push(Box::new(t));
         }
     }
@@ -151,24 +183,41 @@ pub fn run(a: RunArgs) -> anyhow::Result<ExitCode> {
     if let Some(d) = &a.dump {
         sinks.push(Box::new(abvs_runtime::sinks::dump::DumpSink { dir: d.clone(), every: 1 }));
     }
-    let description = session.meta.description.clone();
-    let source = ReplaySource::open(session)?;
-    let cfg = PipelineConfig {
-        out,
-        lossless: a.lossless,
-        paced: !(a.no_pace || a.lossless),
-        frames: a.frames,
-        ..Default::default()
-    };
     let engine_name = engine.name().to_string();
-    let mut stats = run_replay(source, kin, (stereo.left, stereo.right), engine, sinks, cfg)?;
-    stats.extra.insert("session".into(), serde_json::json!(dir.display().to_string()));
+    let (mut stats, description, source_name) = match input {
+        Input::Replay(session, dir) => {
+            let description = session.meta.description.clone();
+            let source = ReplaySource::open(session)?;
+            let cfg = PipelineConfig {
+                out,
+                lossless: a.lossless,
+                paced: !(a.no_pace || a.lossless),
+                frames: a.frames,
+                ..Default::default()
+            };
+            let stats = run_replay(source, kin, (stereo.left, stereo.right), engine, sinks, cfg)?;
+            (stats, description, dir.display().to_string())
+        }
+        Input::Live => {
+            let d = &a.devices;
+            let (capture, encoders) = crate::record::open_devices(d)?;
+            wait_for_homing(&encoders, d.homing_timeout)?;
+            let source = abvs_runtime::sources::live::LiveSource::new(capture, encoders, d.width, d.height);
+            // live frames come when the cameras deliver them: never paced
+            let cfg =
+                PipelineConfig { out, lossless: a.lossless, paced: false, frames: a.frames, ..Default::default() };
+            let stats = run_pipeline(source, kin, (stereo.left, stereo.right), engine, sinks, cfg)?;
+            let what = format!("live: {} / {}, encoders {}", d.left.display(), d.right.display(), d.encoders);
+            (stats, what.clone(), what)
+        }
+    };
+    stats.extra.insert("session".into(), serde_json::json!(source_name));
     stats.extra.insert("engine".into(), serde_json::json!(engine_name));
     stats.extra.insert("fk".into(), serde_json::json!(a.fk));
     stats.extra.insert("resolution".into(), serde_json::json!([w, h]));
     let elapsed = stats.extra.get("elapsed_s").and_then(|v| v.as_f64()).unwrap_or(0.0);
     if !a.quiet {
-        println!("session {} ({description})", dir.display());
+        println!("session {source_name} ({description})");
         println!("engine {engine_name} at {w}x{h}, fk {}", a.fk);
         print!("{}", stats.table(elapsed));
     }
@@ -177,4 +226,29 @@ pub fn run(a: RunArgs) -> anyhow::Result<ExitCode> {
             .with_context(|| format!("writing {}", p.display()))?;
     }
     Ok(ExitCode::SUCCESS)
+}
+
+/// Waits until the drive board's stream has homed both eyes (their links roll through the index
+/// markers at start-up), or fails naming the eye and the last refusal.
+fn wait_for_homing(
+    encoders: &abvs_runtime::sources::encoder_stream::EncoderStream,
+    timeout_s: f64,
+) -> anyhow::Result<()> {
+    let t0 = std::time::Instant::now();
+    while encoders.homed() != [true, true] {
+        if encoders.is_finished() {
+            bail!("the encoder stream ended before homing");
+        }
+        if t0.elapsed().as_secs_f64() > timeout_s {
+            let s = encoders.stats();
+            bail!(
+                "eyes not homed within {timeout_s:.0} s (homed {:?}; samples {:?}; last refusals {:?})",
+                encoders.homed(),
+                s.homing_samples,
+                s.last_homing_error
+            );
+        }
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
+    Ok(())
 }

@@ -24,8 +24,9 @@ fn write_pair(c: &mut Criterion) {
     let tmp = tempfile::tempdir().unwrap();
     let mut g = c.benchmark_group("record_pair_1600x1200");
     g.sample_size(20);
-    let mut writer = SessionWriter::create(&tmp.path().join("s"), &CalibFiles::from_dir(&fixture), 25.0, "bench".into())
-        .expect("session writer");
+    let mut writer =
+        SessionWriter::create(&tmp.path().join("s"), &CalibFiles::from_dir(&fixture), 25.0, "bench".into())
+            .expect("session writer");
     let mut t = 0i64;
     g.bench_function("session_writer_fast_png", |b| {
         b.iter(|| {

@@ -18,7 +18,7 @@ use crossbeam_channel::{bounded, Receiver, Sender, TrySendError};
 
 use crate::error::{Result, RuntimeError};
 use crate::sinks::stats::{monotonic_ns, Latency, RunStats};
-use crate::sources::replay::ReplaySource;
+use crate::sources::replay::{ReplayFrame, ReplaySource};
 use crate::tasks::align::EncoderTrack;
 use crate::tasks::depth::{DepthConfig, DepthFrame};
 use crate::tasks::disparity::DisparityEngine;
@@ -172,9 +172,66 @@ pub fn camera_for_frames(cam: &Camera, w: u32, h: u32) -> Result<Camera> {
     Ok(cam.scaled(w, h))
 }
 
+/// Where the pipeline's stereo pairs come from: a recorded session ([`ReplaySource`]) or the live
+/// cameras ([`crate::sources::live::LiveSource`]).
+pub trait PairSource: Send {
+    /// Raw frame size (both eyes).
+    fn size(&self) -> (u32, u32);
+    /// Anchors the source's clock to `now_ns` (CLOCK_MONOTONIC) and hands out its encoder stream,
+    /// which the time-alignment stage reads on another thread.
+    fn start(&mut self, now_ns: i64) -> Box<dyn EncoderFeed>;
+    /// The next pair, or `None` when the source is done (`limit` pairs, end of a replay, capture stopped).
+    fn next_frame(&mut self, limit: Option<u64>) -> Option<ReplayFrame<'_>>;
+    /// Adds what the source counted (unreadable files, capture drops) to the run's statistics.
+    fn finish(&mut self, _stats: &mut RunStats) {}
+}
+
+/// The encoder samples of a [`PairSource`], on its clock.
+pub trait EncoderFeed: Send {
+    /// Pushes every sample stamped up to `t_ns` into the eyes' tracks (a live feed waits briefly
+    /// for samples still on the wire).
+    fn feed(&mut self, t_ns: i64, tracks: &mut [EncoderTrack; 2]);
+}
+
+impl PairSource for ReplaySource {
+    fn size(&self) -> (u32, u32) {
+        ReplaySource::size(self)
+    }
+    fn start(&mut self, now_ns: i64) -> Box<dyn EncoderFeed> {
+        Box::new(ReplaySource::start(self, now_ns))
+    }
+    fn next_frame(&mut self, limit: Option<u64>) -> Option<ReplayFrame<'_>> {
+        ReplaySource::next_frame(self, limit)
+    }
+    fn finish(&mut self, stats: &mut RunStats) {
+        stats.extra.insert("bad_frame_files".into(), serde_json::json!(self.bad_frames.len()));
+    }
+}
+
+impl EncoderFeed for crate::sources::replay::EncoderReplay {
+    fn feed(&mut self, t_ns: i64, tracks: &mut [EncoderTrack; 2]) {
+        crate::sources::replay::EncoderReplay::feed(self, t_ns, tracks)
+    }
+}
+
 /// Runs a replay through the whole pipeline and returns its statistics.
 pub fn run_replay(
-    mut source: ReplaySource,
+    source: ReplaySource,
+    kin: StereoKinematics,
+    cams: (Camera, Camera),
+    engine: Box<dyn DisparityEngine>,
+    sinks: Vec<Box<dyn Sink>>,
+    cfg: PipelineConfig,
+) -> Result<RunStats> {
+    for (p, e) in &source.bad_frames {
+        eprintln!("warning: skipped unreadable frame {}: {e}", p.display());
+    }
+    run(source, kin, cams, engine, sinks, cfg)
+}
+
+/// Runs any pair source through the whole pipeline and returns its statistics.
+pub fn run<S: PairSource>(
+    mut source: S,
     mut kin: StereoKinematics,
     cams: (Camera, Camera),
     mut engine: Box<dyn DisparityEngine>,
@@ -214,10 +271,6 @@ pub fn run_replay(
     let dropped = Arc::new(AtomicU64::new(0));
     let frames_in = Arc::new(AtomicU64::new(0));
     let mut stats = RunStats::new(&STAGES);
-    stats.extra.insert("bad_frame_files".into(), serde_json::json!(source.bad_frames.len()));
-    for (p, e) in &source.bad_frames {
-        eprintln!("warning: skipped unreadable frame {}: {e}", p.display());
-    }
     let started = monotonic_ns();
     let mut encoders = source.start(started + 5_000_000);
 
@@ -250,7 +303,7 @@ pub fn run_replay(
                     w.seq = f.seq;
                     w.index = f.index;
                     w.t_frame_ns = f.t_start_ns + f.exposure_ns / 2;
-                    w.t_right_ns = w.t_frame_ns;
+                    w.t_right_ns = f.right_t_start_ns + f.exposure_ns / 2;
                     w.raw_left.copy_from_slice(f.left);
                     w.raw_right.copy_from_slice(f.right);
                     w.t_stage_ns = [t0, 0, 0, 0];
@@ -399,6 +452,7 @@ pub fn run_replay(
     );
     let elapsed = (monotonic_ns() - started) as f64 * 1e-9;
     stats.extra.insert("elapsed_s".into(), serde_json::json!(elapsed));
+    source.finish(&mut stats);
     for sink in sinks.iter_mut() {
         sink.finish(&mut stats);
     }

@@ -1,6 +1,7 @@
 //! Sources: where data enters the runtime (cameras, the encoder board, recorded sessions).
 pub mod encoder_link;
 pub mod encoder_stream;
+pub mod live;
 pub mod pairing;
 pub mod pixel;
 pub mod replay;

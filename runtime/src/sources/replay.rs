@@ -26,6 +26,8 @@ pub struct ReplayFrame<'a> {
     pub index: usize,
     pub seq: u64,
     pub t_start_ns: i64,
+    /// The right frame's start of exposure (live pairs differ by up to the pairing tolerance).
+    pub right_t_start_ns: i64,
     pub exposure_ns: i64,
     pub left: &'a [u8],
     pub right: &'a [u8],
@@ -176,6 +178,7 @@ impl ReplaySource {
             index: i,
             seq: f.seq + self.loops as u64 * self.frames.len() as u64,
             t_start_ns: f.t_start_ns + shift,
+            right_t_start_ns: f.t_start_ns + shift,
             exposure_ns: f.exposure_ns,
             left: &f.left,
             right: &f.right,

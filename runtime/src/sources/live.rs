@@ -1,0 +1,143 @@
+//! The live source of the pipeline: the two eye cameras ([`StereoCapture`]) and the drive board's
+//! encoder stream ([`EncoderStream`], homed, on CLOCK_MONOTONIC). Frames come when the cameras
+//! deliver them (no pacing); the time-alignment stage waits briefly for encoder samples still on
+//! the wire.
+use std::time::{Duration, Instant};
+
+use crate::pipeline::{EncoderFeed, PairSource};
+use crate::sinks::stats::RunStats;
+use crate::sources::encoder_stream::EncoderStream;
+use crate::sources::replay::ReplayFrame;
+use crate::sources::v4l_capture::{CaptureError, StereoCapture};
+use crate::sources::FramePair;
+use crate::tasks::align::{EncoderSample, EncoderTrack};
+
+/// How long the time-alignment stage waits for encoder samples that should exist by now.
+pub const ENCODER_WAIT: Duration = Duration::from_millis(30);
+
+pub struct LiveSource {
+    capture: StereoCapture,
+    encoders: Option<EncoderStream>,
+    width: u32,
+    height: u32,
+    /// The pair handed out last (its buffers go back to the capture on the next call).
+    current: Option<FramePair>,
+    emitted: u64,
+    pair_timeout: Duration,
+    /// Why the capture ended, if it did.
+    pub ended: Option<String>,
+    /// Pairs of another size than the pipeline's (dropped).
+    pub wrong_size: u64,
+}
+
+impl LiveSource {
+    /// `width` x `height`: the size the cameras were opened with (they refuse another one).
+    pub fn new(capture: StereoCapture, encoders: EncoderStream, width: u32, height: u32) -> LiveSource {
+        LiveSource {
+            capture,
+            encoders: Some(encoders),
+            width,
+            height,
+            current: None,
+            emitted: 0,
+            pair_timeout: Duration::from_secs(2),
+            ended: None,
+            wrong_size: 0,
+        }
+    }
+}
+
+impl PairSource for LiveSource {
+    fn size(&self) -> (u32, u32) {
+        (self.width, self.height)
+    }
+
+    fn start(&mut self, _now_ns: i64) -> Box<dyn EncoderFeed> {
+        let stream = self.encoders.take().expect("a live source starts once");
+        Box::new(LiveEncoders { stream, newest_ns: [i64::MIN; 2] })
+    }
+
+    fn next_frame(&mut self, limit: Option<u64>) -> Option<ReplayFrame<'_>> {
+        if let Some(p) = self.current.take() {
+            self.capture.recycle(p);
+        }
+        if limit.is_some_and(|n| self.emitted >= n) {
+            return None;
+        }
+        loop {
+            match self.capture.next_pair(self.pair_timeout) {
+                Ok(p) if (p.left.width, p.left.height) != (self.width, self.height) => {
+                    self.wrong_size += 1;
+                    self.capture.recycle(p);
+                }
+                Ok(p) => {
+                    self.current = Some(p);
+                    break;
+                }
+                Err(e) => {
+                    self.ended = Some(match e {
+                        CaptureError::Timeout { .. } => {
+                            format!("no stereo pair for {:.1} s", self.pair_timeout.as_secs_f64())
+                        }
+                        e => e.to_string(),
+                    });
+                    return None;
+                }
+            }
+        }
+        self.emitted += 1;
+        let p = self.current.as_ref().expect("just stored");
+        Some(ReplayFrame {
+            // the camera's own frame number (a stand-in camera replaying a session puts the
+            // session index there, which lets ground truth be looked up)
+            index: p.left.seq as usize,
+            seq: p.seq,
+            t_start_ns: p.left.t_start_ns,
+            right_t_start_ns: p.right.t_start_ns,
+            exposure_ns: p.left.exposure_ns,
+            left: &p.left.gray,
+            right: &p.right.gray,
+        })
+    }
+
+    fn finish(&mut self, stats: &mut RunStats) {
+        let c = self.capture.stats();
+        stats.extra.insert("capture".into(), serde_json::to_value(c).unwrap_or_default());
+        stats.extra.insert("capture_wrong_size".into(), serde_json::json!(self.wrong_size));
+        if let Some(e) = &self.ended {
+            stats.extra.insert("capture_ended".into(), serde_json::json!(e));
+        }
+    }
+}
+
+/// The encoder stream as the pipeline's [`EncoderFeed`].
+struct LiveEncoders {
+    stream: EncoderStream,
+    newest_ns: [i64; 2],
+}
+
+impl LiveEncoders {
+    fn push(&mut self, r: crate::session::EncoderRecord, tracks: &mut [EncoderTrack; 2]) {
+        let s = r.sample();
+        let eye = usize::from(r.eye.min(1));
+        self.newest_ns[eye] = self.newest_ns[eye].max(r.t_ns);
+        let _ = tracks[eye].push(EncoderSample { t_s: s.t_s, theta_deg: s.theta_deg });
+    }
+}
+
+impl EncoderFeed for LiveEncoders {
+    fn feed(&mut self, t_ns: i64, tracks: &mut [EncoderTrack; 2]) {
+        while let Ok(r) = self.stream.records().try_recv() {
+            self.push(r, tracks);
+        }
+        // Samples up to t_ns may still be in the serial link: wait for them a little.
+        let deadline = Instant::now() + ENCODER_WAIT;
+        while self.newest_ns.iter().any(|&n| n < t_ns) {
+            let left = deadline.saturating_duration_since(Instant::now());
+            match self.stream.records().recv_timeout(left) {
+                Ok(r) => self.push(r, tracks),
+                Err(_) => break,
+            }
+        }
+    }
+}
