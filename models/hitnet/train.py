@@ -25,23 +25,38 @@ from hitnet import build, n_params, upsample_planes, VARIANTS  # noqa: E402
 
 
 class Data:
+    """One data set directory, or several separated by commas (sampled uniformly over all pairs)."""
+
     def __init__(self, path):
-        self.left = np.load(os.path.join(path, "left.npy"), mmap_mode="r")
-        self.right = np.load(os.path.join(path, "right.npy"), mmap_mode="r")
-        self.disp = np.load(os.path.join(path, "disp.npy"), mmap_mode="r")
-        self.meta = json.load(open(os.path.join(path, "meta.json")))
-        self.n = len(self.left)
+        self.sets = []
+        for p in path.split(","):
+            self.sets.append((np.load(os.path.join(p, "left.npy"), mmap_mode="r"),
+                              np.load(os.path.join(p, "right.npy"), mmap_mode="r"),
+                              np.load(os.path.join(p, "disp.npy"), mmap_mode="r")))
+        metas = [json.load(open(os.path.join(p, "meta.json"))) for p in path.split(",")]
+        self.meta = metas[0] if len(metas) == 1 else dict(
+            seed=[m["seed"] for m in metas], command=" ; ".join(m["command"] for m in metas))
+        self.sizes = [len(s[0]) for s in self.sets]
+        self.n = sum(self.sizes)
+        self.left = self.sets[0][0]
+
+    def get(self, i):
+        for (l, r, d), k in zip(self.sets, self.sizes):
+            if i < k:
+                return l[i], r[i], d[i]
+            i -= k
 
     def batch(self, rng, bs, cw, ch):
         H, W = self.left.shape[1:]
         xs, ds = [], []
         for _ in range(bs):
             i = int(rng.integers(self.n))
+            li, ri, di = self.get(i)
             y0 = int(rng.integers(0, H - ch + 1))
             x0 = int(rng.integers(0, W - cw + 1))
-            l = self.left[i, y0:y0 + ch, x0:x0 + cw].astype(np.float32) / 255
-            r = self.right[i, y0:y0 + ch, x0:x0 + cw].astype(np.float32) / 255
-            d = self.disp[i, y0:y0 + ch, x0:x0 + cw].astype(np.float32)
+            l = li[y0:y0 + ch, x0:x0 + cw].astype(np.float32) / 255
+            r = ri[y0:y0 + ch, x0:x0 + cw].astype(np.float32) / 255
+            d = di[y0:y0 + ch, x0:x0 + cw].astype(np.float32)
             if rng.random() < 0.5:  # vertical flip keeps rectification
                 l, r, d = l[::-1], r[::-1], d[::-1]
             # extra per-eye photometric jitter
