@@ -205,7 +205,12 @@ class Propagation(nn.Module):
             wr = g[k] * (1 - fr_) + g[k + 1] * fr_
             costs.append((fl - wr).abs().mean(1, keepdim=True))
         cost = torch.cat(costs, 1)
-        x = torch.cat([cost, fl, dl / (max_disp / scale) , dx, dy, p], 1)
+        return self._update(cost, fl, dl, d, dx, dy, p, scale, max_disp)
+
+
+    def _update(self, cost, fl, dl, d, dx, dy, p, scale, max_disp):
+        """Residual update of the hypotheses from the local costs, the left features and the hypotheses."""
+        x = torch.cat([cost, fl, dl / (max_disp / scale), dx, dy, p], 1)
         u = self.out(self.blocks(self.inp(x)))
         d = d + u[:, 0:1] * scale
         dx = dx + u[:, 1:2]
@@ -213,7 +218,6 @@ class Propagation(nn.Module):
         if not self.light:
             p = p + u[:, 3:]
         return d, dx, dy, p
-
 
     def forward_cost(self, fl, fr, d, dx, dy, p, scale, max_disp):
         B, C, h, w = fl.shape
@@ -229,14 +233,7 @@ class Propagation(nn.Module):
         c = (fl.unsqueeze(3) - g).abs().mean(1).permute(0, 2, 1, 3)  # [B,4,h,w]: costs at x0+2, x0+1, x0, x0-1
         # costs at xr + 1, xr, xr - 1 (offsets -1, 0, +1: same order as the "feat" warp)
         cost = c[:, 1:4] * (1 - fr_) + c[:, 0:3] * fr_
-        x = torch.cat([cost, fl, dl / (max_disp / scale), dx, dy, p], 1)
-        u = self.out(self.blocks(self.inp(x)))
-        d = d + u[:, 0:1] * scale
-        dx = dx + u[:, 1:2]
-        dy = dy + u[:, 2:3]
-        if not self.light:
-            p = p + u[:, 3:]
-        return d, dx, dy, p
+        return self._update(cost, fl, dl, d, dx, dy, p, scale, max_disp)
 
 
 class HITNetLite(nn.Module):
