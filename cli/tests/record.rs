@@ -234,7 +234,8 @@ fn live_pipeline_on_the_rig_gives_depth_as_good_as_the_replay() {
     let j = stats.json(1.0);
     eprintln!("{}", serde_json::to_string_pretty(&j).unwrap());
     assert_eq!(stats.frames_in, n, "{j}");
-    // Frames whose encoders the link lost (corrupt-every 997) may fail; nearly all are published.
+    // On an idle machine all 50 are published; under heavy load a frame can fail when its encoder
+    // samples arrive after the live feed's 30 ms wait (counted in frames_failed), so allow 2.
     assert!(stats.frames_published >= n - 2, "{j}");
     let abs_rel = j["depth_error"]["abs_rel"].as_f64().unwrap();
     // The replay of the same session gives 0.035-0.041 (cli/tests/runtime.rs); nominal FK ~0.5.
