@@ -14,7 +14,7 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use abvs_camera::Camera;
-use crossbeam_channel::{bounded, Receiver, Sender, TrySendError};
+use crossbeam_channel::{bounded, Receiver, Select, Sender, TrySendError};
 
 use crate::error::{Result, RuntimeError};
 use crate::sinks::stats::{monotonic_ns, Latency, RunStats};
@@ -156,6 +156,51 @@ fn push(
     }
 }
 
+/// crossbeam allocates once, lazily, the first time a thread blocks on any channel (its thread-local wait
+/// context). Left to chance that can happen hundreds of frames into a run (the first time a stage finds its
+/// queue empty), so every stage thread takes that allocation at start-up instead.
+fn prewarm_thread() {
+    let (_tx, rx) = bounded::<()>(0);
+    let _ = rx.recv_timeout(Duration::from_micros(1));
+}
+
+/// The other lazy crossbeam allocation: the list of threads waiting on one side of a channel is allocated
+/// (capacity 4, kept afterwards) the first time a thread waits there. A `Select` with a zero timeout
+/// registers a waiter on every operation that is not ready and then gives up without blocking, so it
+/// allocates every list at once: receivers on the empty channels, then senders on the full work queues.
+fn prewarm_waiter_lists(
+    free: (&Sender<Box<Work>>, &Receiver<Box<Work>>),
+    queues: [(&Sender<Box<Work>>, &Receiver<Box<Work>>); 3],
+) {
+    let mut spare: Vec<Box<Work>> = free.1.try_iter().collect();
+    let n = spare.len();
+    let mut sel = Select::new();
+    sel.recv(free.1);
+    for q in &queues {
+        sel.recv(q.1);
+    }
+    // all channels are empty: nothing can be selected, the call only registers and times out
+    assert!(sel.select_timeout(Duration::ZERO).is_err(), "pre-warm: an empty queue was ready");
+    let mut sel = Select::new();
+    for q in &queues {
+        while !q.0.is_full() {
+            let Some(w) = spare.pop() else { break };
+            let _ = q.0.try_send(w);
+        }
+        sel.send(q.0);
+    }
+    if queues.iter().all(|q| q.0.is_full()) {
+        assert!(sel.select_timeout(Duration::ZERO).is_err(), "pre-warm: a full queue was ready");
+    }
+    for q in &queues {
+        spare.extend(q.1.try_iter());
+    }
+    assert_eq!(spare.len(), n, "pre-warm lost a buffer");
+    for w in spare {
+        free.0.send(w).expect("free list has room");
+    }
+}
+
 /// Scales calibration intrinsics to the frames' size (sensor binning modes keep the lens).
 pub fn camera_for_frames(cam: &Camera, w: u32, h: u32) -> Result<Camera> {
     if cam.width == w && cam.height == h {
@@ -268,6 +313,8 @@ pub fn run<S: PairSource>(
     let (q1_tx, q1_rx) = bounded::<Box<Work>>(q);
     let (q2_tx, q2_rx) = bounded::<Box<Work>>(q);
     let (q3_tx, q3_rx) = bounded::<Box<Work>>(q);
+    // (the free list's senders never wait: it has room for every buffer)
+    prewarm_waiter_lists((&free_tx, &free_rx), [(&q1_tx, &q1_rx), (&q2_tx, &q2_rx), (&q3_tx, &q3_rx)]);
     let dropped = Arc::new(AtomicU64::new(0));
     let frames_in = Arc::new(AtomicU64::new(0));
     let mut stats = RunStats::new(&STAGES);
@@ -281,6 +328,7 @@ pub fn run<S: PairSource>(
             let (dropped, frames_in) = (dropped.clone(), frames_in.clone());
             let source = &mut source;
             s.spawn(move || -> Latency {
+                prewarm_thread();
                 let mut lat = Latency::default();
                 while let Some(f) = source.next_frame(cfg.frames) {
                     frames_in.fetch_add(1, Ordering::Relaxed);
@@ -325,6 +373,7 @@ pub fn run<S: PairSource>(
             let tracks = &mut tracks;
             let encoders = &mut encoders;
             s.spawn(move || -> (Latency, Vec<&'static str>) {
+                prewarm_thread();
                 let mut lat = Latency::default();
                 let mut failed = Vec::new();
                 for mut w in q1_rx.iter() {
@@ -369,6 +418,7 @@ pub fn run<S: PairSource>(
             let dropped = dropped.clone();
             let engine = &mut engine;
             s.spawn(move || -> (Latency, Vec<&'static str>) {
+                prewarm_thread();
                 let mut lat = Latency::default();
                 let mut failed = Vec::new();
                 for mut w in q2_rx.iter() {
