@@ -1,8 +1,9 @@
 //! Detection time per 1600x1200 image (both AprilGrid detectors) and pose solve per image, on a
 //! rendered four-board image through the OV8856 fisheye. Medians go to camcal/BENCHMARKS.md.
-use abvs_camcal::detect::{detect, gray_mat, AprilDetector, Detection};
+use abvs_camcal::detect::{aprilgrid_crate_tags, detect, gray_mat, AprilDetector, Detection};
 use abvs_camcal::measure::{solve, SolveOptions};
 use abvs_camcal::render_grid::GridScene;
+use abvs_camcal::saddle::refine_tags;
 use abvs_camcal::target::{AprilGridSpec, Target};
 use abvs_camera::Camera;
 use abvs_eye::Pose;
@@ -25,12 +26,14 @@ fn bench(c: &mut Criterion) {
         .collect();
     let mut g = c.benchmark_group("detect_1600x1200");
     g.sample_size(10);
-    g.bench_function("opencv_aruco_cornersubpix", |b| {
-        b.iter(|| detect(&imgs[1], &target, AprilDetector::OpenCv).unwrap())
-    });
+    g.bench_function("opencv_aruco_saddle", |b| b.iter(|| detect(&imgs[1], &target, AprilDetector::OpenCv).unwrap()));
     g.bench_function("aprilgrid_crate", |b| {
         b.iter(|| detect(&imgs[1], &target, AprilDetector::AprilGridCrate).unwrap())
     });
+    // the two halves of the default detector: finding the tags, refining their corners
+    let tags = aprilgrid_crate_tags(&imgs[1], &grid.spec).unwrap();
+    g.bench_function("aprilgrid_crate_tags_only", |b| b.iter(|| aprilgrid_crate_tags(&imgs[1], &grid.spec).unwrap()));
+    g.bench_function("saddle_refinement_only", |b| b.iter(|| refine_tags(&imgs[1], &tags).unwrap()));
     g.finish();
 
     // pose solve: home + one moved image (boards and one camera pose jointly), per image

@@ -2,6 +2,7 @@
 //! cornerSubPix on the grid's saddle points, or the pure-Rust `aprilgrid` crate) and chessboards
 //! (OpenCV findChessboardCorners + cornerSubPix).
 use crate::error::{CamcalError, Result};
+use crate::saddle;
 use crate::target::{AprilGridSpec, ChessboardSpec, Target};
 use opencv::core::{Mat, Point2f, Ptr, Size, TermCriteria, TermCriteria_Type, Vector};
 use opencv::prelude::*;
@@ -187,52 +188,23 @@ fn apriltag3_tags(gray: &Mat) -> Result<Vec<(u32, [[f64; 2]; 4])>> {
 /// `floor(x - 0.5)`); OpenCV and this project at (0, 0).
 pub const APRILTAG_PIXEL_OFFSET: f64 = 0.5;
 
-/// Sub-pixel refinement of saddle points with a window of half-size `half` px.
-fn refine(gray: &Mat, pts: &mut [[f64; 2]], half: i32) -> Result<()> {
-    let (w, h) = size_of(gray);
-    let mut v: Vector<Point2f> = pts.iter().map(|p| Point2f::new(p[0] as f32, p[1] as f32)).collect();
-    // cornerSubPix needs the whole window inside the image
-    let m = (half + 2) as f32;
-    if v.iter().any(|p| p.x < m || p.y < m || p.x > w as f32 - 1.0 - m || p.y > h as f32 - 1.0 - m) {
-        return Err(CamcalError::Invalid("corner too close to the image border".into()));
-    }
-    imgproc::corner_sub_pix(gray, &mut v, Size::new(half, half), Size::new(-1, -1), criteria()?)?;
-    for (p, q) in pts.iter_mut().zip(v.iter()) {
-        *p = [q.x as f64, q.y as f64];
-    }
-    Ok(())
-}
-
 /// AprilGrid corners with OpenCV: aruco finds the tags (outer corners of their black border,
-/// which are the grid's saddle points), cornerSubPix refines them with a window scaled to the
-/// gap between tags. Corners that are refined far from the aruco estimate, or touch the border,
-/// are dropped.
-pub fn detect_aprilgrid_opencv(gray: &Mat, spec: &AprilGridSpec) -> Result<Detection> {
-    detect_aprilgrid_tags(gray, spec, opencv_tags(gray)?)
+/// which are the grid's saddle points), then [`refine_grid_corners`].
+pub fn detect_aprilgrid_opencv(gray: &Mat, _spec: &AprilGridSpec) -> Result<Detection> {
+    refine_grid_corners(gray, opencv_tags(gray)?)
 }
 
-/// Grid corners from tag detections (any detector): each tag's outer corners refined with
-/// cornerSubPix (window scaled to the gap between tags) as corners 4 id + k.
-fn detect_aprilgrid_tags(gray: &Mat, spec: &AprilGridSpec, tags: Vec<(u32, [[f64; 2]; 4])>) -> Result<Detection> {
+/// Grid corners from tag detections (any detector: id, corners in Kalibr order): every tag corner
+/// is a saddle point of the grid, refined by [`crate::saddle`] (iterated quadratic fit on a patch
+/// scaled to the tag) as corner 4 id + k. A corner whose refinement does not converge near the
+/// detector's estimate is left out (it then counts as not found).
+pub fn refine_grid_corners(gray: &Mat, tags: Vec<(u32, [[f64; 2]; 4])>) -> Result<Detection> {
     let (width, height) = size_of(gray);
     let mut corners = Vec::new();
-    for (id, mut c) in tags {
-        let side = (0..4)
-            .map(|k| {
-                let (a, b) = (c[k], c[(k + 1) % 4]);
-                ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2)).sqrt()
-            })
-            .fold(f64::INFINITY, f64::min);
-        let gap_px = side * spec.spacing;
-        let half = ((0.5 * gap_px).floor() as i32).clamp(2, 8);
-        let before = c;
-        if refine(gray, &mut c, half).is_err() {
-            continue;
-        }
-        for k in 0..4 {
-            let d = ((c[k][0] - before[k][0]).powi(2) + (c[k][1] - before[k][1]).powi(2)).sqrt();
-            if d <= (0.5 * half as f64).max(1.5) {
-                corners.push(Corner { id: 4 * id + k as u32, px: c[k] });
+    for (id, c) in saddle::refine_tags(gray, &tags)? {
+        for (k, p) in c.iter().enumerate() {
+            if let Some(px) = p {
+                corners.push(Corner { id: 4 * id + k as u32, px: *px });
             }
         }
     }
@@ -249,10 +221,15 @@ pub fn mat_to_image(gray: &Mat) -> Result<image::GrayImage> {
     image::GrayImage::from_raw(w, h, bytes).ok_or_else(|| CamcalError::Invalid("image buffer size".into()))
 }
 
-/// AprilGrid corners with the `aprilgrid` crate (Kalibr grids, 2-bit border). Its corners come
-/// out in the AprilTag library's order; mapped to Kalibr's k here.
+/// AprilGrid corners with the `aprilgrid` crate (Kalibr grids, 2-bit border): it finds and decodes
+/// the tags ([`aprilgrid_crate_tags`]); its own one-shot sub-pixel step is biased (see
+/// [`crate::saddle`]), so the corners go through [`refine_grid_corners`].
 pub fn detect_aprilgrid_crate(gray: &Mat, spec: &AprilGridSpec) -> Result<Detection> {
-    let (width, height) = size_of(gray);
+    refine_grid_corners(gray, aprilgrid_crate_tags(gray, spec)?)
+}
+
+/// The `aprilgrid` crate's tags (id, corners in Kalibr order, the crate's own sub-pixel estimate).
+pub fn aprilgrid_crate_tags(gray: &Mat, spec: &AprilGridSpec) -> Result<Vec<(u32, [[f64; 2]; 4])>> {
     let img = image::DynamicImage::ImageLuma8(mat_to_image(gray)?);
     let params = aprilgrid::detector::DetectorParams {
         tag_spacing_ratio: spec.spacing as f32,
@@ -260,14 +237,19 @@ pub fn detect_aprilgrid_crate(gray: &Mat, spec: &AprilGridSpec) -> Result<Detect
         ..aprilgrid::detector::DetectorParams::default_params()
     };
     let det = aprilgrid::detector::TagDetector::new(&aprilgrid::TagFamily::T36H11, Some(params));
-    let mut corners = Vec::new();
-    for (id, c) in det.detect(&img) {
-        for (j, p) in c.iter().enumerate() {
-            corners.push(Corner { id: 4 * id + CRATE_ORDER[j], px: [p.0 as f64, p.1 as f64] });
-        }
-    }
-    corners.sort_by_key(|c| c.id);
-    Ok(Detection { width, height, corners })
+    let mut tags: Vec<(u32, [[f64; 2]; 4])> = det
+        .detect(&img)
+        .into_iter()
+        .map(|(id, c)| {
+            let mut k = [[0.0; 2]; 4];
+            for (j, p) in c.iter().enumerate() {
+                k[CRATE_ORDER[j] as usize] = [p.0 as f64, p.1 as f64];
+            }
+            (id, k)
+        })
+        .collect();
+    tags.sort_by_key(|t| t.0);
+    Ok(tags)
 }
 
 /// Kalibr corner index of the aprilgrid crate's j-th corner (checked against OpenCV on rendered

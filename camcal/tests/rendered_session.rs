@@ -79,9 +79,8 @@ fn measured_poses_match_the_truth() {
     let (rot, tr, n) = compare(&ds, &truth);
     eprintln!("{n} non-home poses vs truth: rotation RMS {rot:.5} deg, translation RMS {tr:.4} mm");
     assert!(rot < 0.01, "rotation RMS {rot} deg");
-    // the issue asks for 0.05 mm; this 12-image session gives ~0.06 mm (boards 1.5 m away, corner
-    // noise ~0.04 px): the bound is set at what is reached, see camcal/README.md
-    assert!(tr < 0.08, "translation RMS {tr} mm");
+    // the issue's bound (boards 1.5 m away; ~0.06 mm before the saddle refinement, see camcal/README.md)
+    assert!(tr < 0.05, "translation RMS {tr} mm");
     // the dataset file round-trips through abvs-eye's reader
     let out = dir.parent().unwrap().join("measured.csv");
     ds.write(&out).unwrap();
@@ -194,7 +193,8 @@ fn detectors_on_rendered_grids() {
         // merge with the grid's corner squares, only some (recall recorded in camcal/README.md)
         let min_recall = if det == AprilDetector::AprilGridCrate { 0.95 } else { 0.05 };
         assert!(found as f64 > min_recall * visible as f64, "{det:?} found {found} of {visible}");
-        assert!(rms < 0.1, "{det:?} RMS {rms} px");
+        // both detectors' corners go through the same saddle refinement (0.04 px before it)
+        assert!(rms < 0.03, "{det:?} RMS {rms} px");
         assert!(max < 0.5, "{det:?} max {max} px");
     }
 }
