@@ -234,9 +234,13 @@ fn live_pipeline_on_the_rig_gives_depth_as_good_as_the_replay() {
     let j = stats.json(1.0);
     eprintln!("{}", serde_json::to_string_pretty(&j).unwrap());
     assert_eq!(stats.frames_in, n, "{j}");
-    // On an idle machine all 50 are published; under heavy load a frame can fail when its encoder
-    // samples arrive after the live feed's 30 ms wait (counted in frames_failed), so allow 2.
-    assert!(stats.frames_published >= n - 2, "{j}");
+    // On an idle machine all 50 are published; under heavy load (this test shares 2 cores with the
+    // other rig tests and their board processes) a frame can fail when its encoder samples arrive
+    // after the live feed's 30 ms wait. Such a frame is counted with its reason, never lost: every
+    // frame is published or counted, and at most 10 % fail.
+    let failed: u64 = stats.frames_failed.values().sum();
+    assert_eq!(stats.frames_published + failed + stats.frames_dropped, n, "every frame accounted for: {j}");
+    assert!(stats.frames_published >= n - n / 10, "{j}");
     let abs_rel = j["depth_error"]["abs_rel"].as_f64().unwrap();
     // The replay of the same session gives 0.035-0.041 (cli/tests/runtime.rs); nominal FK ~0.5.
     assert!(abs_rel < 0.06, "abs_rel {abs_rel}: {j}");
