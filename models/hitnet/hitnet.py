@@ -61,6 +61,16 @@ VARIANTS = {
     "hitnet-s-v4": dict(width=320, height=240, max_disparity=40, ch=(None, 12, 24, 32), init_level=1,
                         desc=8, upd=(16, 16), upd_blocks=(1, 1), init_mode="rows", fuse2=True, match_ch=8, lcn=True,
                         light_last=False, lcn_half=True, lcn_k=5, finest=4, fast_up=True, warp="cost"),
+    # hitnet-m (v4, issue 7's fast design at 640x480): hitnet-s-v4 with max disparity 80 (init at 1/4 with 21
+    # candidates, 0..80 px in 4 px steps; 8x8 px tiles), propagation at 1/8 and 1/4; same tensor shapes as
+    # hitnet-s-v4, so it is initialised from the shipped hitnet-s weights
+    "hitnet-m-v4": dict(width=640, height=480, max_disparity=80, ch=(None, 12, 24, 32), init_level=1,
+                        desc=8, upd=(16, 16), upd_blocks=(1, 1), init_mode="rows", fuse2=True, match_ch=8, lcn=True,
+                        light_last=False, lcn_half=True, lcn_k=5, finest=4, fast_up=True, warp="cost"),
+    # experiment: hitnet-m-v4 + a light propagation level at 1/2 on the contrast-normalised input (2 ch)
+    "hitnet-m-v4h": dict(width=640, height=480, max_disparity=80, ch=(None, 12, 24, 32), init_level=1,
+                         desc=8, upd=(16, 16, 8), upd_blocks=(1, 1, 0), init_mode="rows", fuse2=True, match_ch=8,
+                         lcn=True, light_last=True, lcn_half=True, lcn_k=5, finest=2, fast_up=True, warp="cost"),
     # first (weaker) design, kept so its checkpoints stay loadable
     "hitnet-s-v0": dict(width=320, height=240, max_disparity=40, ch=(8, 12, 24, 32), init_level=0,
                         desc=8, upd=(16, 8), upd_blocks=(1, 0)),
@@ -253,7 +263,7 @@ class HITNetLite(nn.Module):
         self.tile_scale = self.init_scale * 2  # tiles = 2x2 init-level pixels
         self.nd = int(-(-max_disparity // self.init_scale)) + 1  # integer disparities at init level
         self.feat = FeatureUNet(ch, fuse2, 2 if lcn else 1, first_stride=1 if lcn_half else 2,
-                                dec_min=min(init_level, {2: 0, 4: 1, 8: 2, 16: 3}[finest]))
+                                dec_min=max(min(init_level, {2: 0, 4: 1, 8: 2, 16: 3}[finest]), 1 if ch[0] is None else 0))
         cm = ch[init_level]
         # HITNet-style tile features: left 2x2 stride 2; right 2x1 stride (2,1) keeps the
         # init-level x resolution, so every init-level integer disparity can be tested.
