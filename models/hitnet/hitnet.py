@@ -7,15 +7,15 @@ Pipeline
   1. Shared feature U-Net on left and right (stacked on the batch axis),
      features at 1/2, 1/4, 1/8 (and 1/16 for deeper variants).
   2. Initialisation at the init feature level (1/4 for hitnet-s (v4) and
-     hitnet-m, 1/2 for hitnet-s-v3 and older): L1 matching cost between left
+     hitnet-m (v4, v1), 1/2 for hitnet-s-v3 and older): L1 matching cost between left
      features and right features shifted by every integer disparity of that
      level (one Gather along the outermost axis), cost averaged over 2x2 ->
      tiles (1 tile = 8x8 px at 1/4, 4x4 px at 1/2). Per tile: hard argmin + soft-argmin in a
      +-2 window (sub-pixel, differentiable), slant dx = dy = 0 and a learned
      descriptor from the tile feature and local costs -> tile hypothesis
      h = (d, dx, dy, p).
-  3. Propagation/refinement from coarse to fine (down to 1/4 for hitnet-s,
-     1/2 for the others): at every level the right features are warped by
+  3. Propagation/refinement from coarse to fine (down to 1/4 for hitnet-s and
+     hitnet-m, 1/2 for the others): at every level the right features are warped by
      the current hypotheses (linear interpolation along x via GatherElements;
      hitnet-s: L1 costs at the 4 integer columns around x - d, interpolated)
      at offsets -1, 0, +1 level-pixels; the local costs + left features +
@@ -44,9 +44,10 @@ VARIANTS = {
     # lcn_half / lcn_k: LCN window lcn_k on the 2x2-averaged image; finest: finest propagation level
     # (2 = 1/2, 4 = 1/4); fast_up: slanted-plane upsampling as one fixed ConvTranspose; warp "cost":
     # propagation costs from one GatherElements (see Propagation).
-    # hitnet-s (shipped) = hitnet-s-v4 below
-    "hitnet-m": dict(width=640, height=480, max_disparity=80, ch=(8, 16, 24, 32, 48), init_level=1,
-                     desc=8, upd=(32, 16, 8), upd_blocks=(2, 1, 0), init_mode="pixel", fuse2=True, match_ch=16, lcn=True),
+    # hitnet-s (shipped) = hitnet-s-v4 below, hitnet-m (shipped) = hitnet-m-v4 below
+    # hitnet-m shipped until hitnet-m-v4 (U-Net to 1/32, init at 1/4, propagation at 1/8, 1/4 and 1/2)
+    "hitnet-m-v1": dict(width=640, height=480, max_disparity=80, ch=(8, 16, 24, 32, 48), init_level=1,
+                        desc=8, upd=(32, 16, 8), upd_blocks=(2, 1, 0), init_mode="pixel", fuse2=True, match_ch=16, lcn=True),
     # hitnet-s shipped until issue 7's fast redesign (init at 1/2 with 21 candidates, propagation at 1/4 and 1/2)
     "hitnet-s-v3": dict(width=320, height=240, max_disparity=40, ch=(8, 12, 24, 32), init_level=0,
                         desc=8, upd=(16, 8), upd_blocks=(1, 0), init_mode="rows", fuse2=True, match_ch=8, lcn=True,
@@ -76,6 +77,7 @@ VARIANTS = {
                         desc=8, upd=(16, 8), upd_blocks=(1, 0)),
 }
 VARIANTS["hitnet-s"] = dict(VARIANTS["hitnet-s-v4"])
+VARIANTS["hitnet-m"] = dict(VARIANTS["hitnet-m-v4"])
 
 
 def conv(ci, co, k=3, s=1, d=1, act=True):
