@@ -44,7 +44,7 @@ VARIANTS = {
     # lcn_half / lcn_k: LCN window lcn_k on the 2x2-averaged image; finest: finest propagation level
     # (2 = 1/2, 4 = 1/4); fast_up: slanted-plane upsampling as one fixed ConvTranspose; warp "cost":
     # propagation costs from one GatherElements (see Propagation).
-    # hitnet-s (shipped) = hitnet-s-v4 below, hitnet-m (shipped) = hitnet-m-v4 below
+    # hitnet-s (shipped) = hitnet-s-v4 below, hitnet-m (shipped) = hitnet-m-v4h below
     # hitnet-m shipped until hitnet-m-v4 (U-Net to 1/32, init at 1/4, propagation at 1/8, 1/4 and 1/2)
     "hitnet-m-v1": dict(width=640, height=480, max_disparity=80, ch=(8, 16, 24, 32, 48), init_level=1,
                         desc=8, upd=(32, 16, 8), upd_blocks=(2, 1, 0), init_mode="pixel", fuse2=True, match_ch=16, lcn=True),
@@ -68,7 +68,8 @@ VARIANTS = {
     "hitnet-m-v4": dict(width=640, height=480, max_disparity=80, ch=(None, 12, 24, 32), init_level=1,
                         desc=8, upd=(16, 16), upd_blocks=(1, 1), init_mode="rows", fuse2=True, match_ch=8, lcn=True,
                         light_last=False, lcn_half=True, lcn_k=5, finest=4, fast_up=True, warp="cost"),
-    # experiment: hitnet-m-v4 + a light propagation level at 1/2 on the contrast-normalised input (2 ch)
+    # hitnet-m (shipped): hitnet-m-v4 + a light propagation level at 1/2 on the contrast-normalised input (2 ch,
+    # 8-ch update CNN, 1x1 output); its zero-initialised output makes it start as hitnet-m-v4
     "hitnet-m-v4h": dict(width=640, height=480, max_disparity=80, ch=(None, 12, 24, 32), init_level=1,
                          desc=8, upd=(16, 16, 8), upd_blocks=(1, 1, 0), init_mode="rows", fuse2=True, match_ch=8,
                          lcn=True, light_last=True, lcn_half=True, lcn_k=5, finest=2, fast_up=True, warp="cost"),
@@ -77,7 +78,7 @@ VARIANTS = {
                         desc=8, upd=(16, 8), upd_blocks=(1, 0)),
 }
 VARIANTS["hitnet-s"] = dict(VARIANTS["hitnet-s-v4"])
-VARIANTS["hitnet-m"] = dict(VARIANTS["hitnet-m-v4"])
+VARIANTS["hitnet-m"] = dict(VARIANTS["hitnet-m-v4h"])
 
 
 def conv(ci, co, k=3, s=1, d=1, act=True):
