@@ -7,15 +7,15 @@ Pipeline
   1. Shared feature U-Net on left and right (stacked on the batch axis),
      features at 1/2, 1/4, 1/8 (and 1/16 for deeper variants).
   2. Initialisation at the init feature level (1/4 for hitnet-s (v4) and
-     hitnet-m, 1/2 for hitnet-s-v3 and older): L1 matching cost between left
+     hitnet-m (v4, v1), 1/2 for hitnet-s-v3 and older): L1 matching cost between left
      features and right features shifted by every integer disparity of that
      level (one Gather along the outermost axis), cost averaged over 2x2 ->
      tiles (1 tile = 8x8 px at 1/4, 4x4 px at 1/2). Per tile: hard argmin + soft-argmin in a
      +-2 window (sub-pixel, differentiable), slant dx = dy = 0 and a learned
      descriptor from the tile feature and local costs -> tile hypothesis
      h = (d, dx, dy, p).
-  3. Propagation/refinement from coarse to fine (down to 1/4 for hitnet-s,
-     1/2 for the others): at every level the right features are warped by
+  3. Propagation/refinement from coarse to fine (down to 1/4 for hitnet-s and
+     hitnet-m, 1/2 for the others): at every level the right features are warped by
      the current hypotheses (linear interpolation along x via GatherElements;
      hitnet-s: L1 costs at the 4 integer columns around x - d, interpolated)
      at offsets -1, 0, +1 level-pixels; the local costs + left features +
@@ -44,9 +44,10 @@ VARIANTS = {
     # lcn_half / lcn_k: LCN window lcn_k on the 2x2-averaged image; finest: finest propagation level
     # (2 = 1/2, 4 = 1/4); fast_up: slanted-plane upsampling as one fixed ConvTranspose; warp "cost":
     # propagation costs from one GatherElements (see Propagation).
-    # hitnet-s (shipped) = hitnet-s-v4 below
-    "hitnet-m": dict(width=640, height=480, max_disparity=80, ch=(8, 16, 24, 32, 48), init_level=1,
-                     desc=8, upd=(32, 16, 8), upd_blocks=(2, 1, 0), init_mode="pixel", fuse2=True, match_ch=16, lcn=True),
+    # hitnet-s (shipped) = hitnet-s-v4 below, hitnet-m (shipped) = hitnet-m-v4h below
+    # hitnet-m shipped until hitnet-m-v4 (U-Net to 1/32, init at 1/4, propagation at 1/8, 1/4 and 1/2)
+    "hitnet-m-v1": dict(width=640, height=480, max_disparity=80, ch=(8, 16, 24, 32, 48), init_level=1,
+                        desc=8, upd=(32, 16, 8), upd_blocks=(2, 1, 0), init_mode="pixel", fuse2=True, match_ch=16, lcn=True),
     # hitnet-s shipped until issue 7's fast redesign (init at 1/2 with 21 candidates, propagation at 1/4 and 1/2)
     "hitnet-s-v3": dict(width=320, height=240, max_disparity=40, ch=(8, 12, 24, 32), init_level=0,
                         desc=8, upd=(16, 8), upd_blocks=(1, 0), init_mode="rows", fuse2=True, match_ch=8, lcn=True,
@@ -61,11 +62,23 @@ VARIANTS = {
     "hitnet-s-v4": dict(width=320, height=240, max_disparity=40, ch=(None, 12, 24, 32), init_level=1,
                         desc=8, upd=(16, 16), upd_blocks=(1, 1), init_mode="rows", fuse2=True, match_ch=8, lcn=True,
                         light_last=False, lcn_half=True, lcn_k=5, finest=4, fast_up=True, warp="cost"),
+    # hitnet-m (v4, issue 7's fast design at 640x480): hitnet-s-v4 with max disparity 80 (init at 1/4 with 21
+    # candidates, 0..80 px in 4 px steps; 8x8 px tiles), propagation at 1/8 and 1/4; same tensor shapes as
+    # hitnet-s-v4, so it is initialised from the shipped hitnet-s weights
+    "hitnet-m-v4": dict(width=640, height=480, max_disparity=80, ch=(None, 12, 24, 32), init_level=1,
+                        desc=8, upd=(16, 16), upd_blocks=(1, 1), init_mode="rows", fuse2=True, match_ch=8, lcn=True,
+                        light_last=False, lcn_half=True, lcn_k=5, finest=4, fast_up=True, warp="cost"),
+    # hitnet-m (shipped): hitnet-m-v4 + a light propagation level at 1/2 on the contrast-normalised input (2 ch,
+    # 8-ch update CNN, 1x1 output); its zero-initialised output makes it start as hitnet-m-v4
+    "hitnet-m-v4h": dict(width=640, height=480, max_disparity=80, ch=(None, 12, 24, 32), init_level=1,
+                         desc=8, upd=(16, 16, 8), upd_blocks=(1, 1, 0), init_mode="rows", fuse2=True, match_ch=8,
+                         lcn=True, light_last=True, lcn_half=True, lcn_k=5, finest=2, fast_up=True, warp="cost"),
     # first (weaker) design, kept so its checkpoints stay loadable
     "hitnet-s-v0": dict(width=320, height=240, max_disparity=40, ch=(8, 12, 24, 32), init_level=0,
                         desc=8, upd=(16, 8), upd_blocks=(1, 0)),
 }
 VARIANTS["hitnet-s"] = dict(VARIANTS["hitnet-s-v4"])
+VARIANTS["hitnet-m"] = dict(VARIANTS["hitnet-m-v4h"])
 
 
 def conv(ci, co, k=3, s=1, d=1, act=True):
@@ -253,7 +266,7 @@ class HITNetLite(nn.Module):
         self.tile_scale = self.init_scale * 2  # tiles = 2x2 init-level pixels
         self.nd = int(-(-max_disparity // self.init_scale)) + 1  # integer disparities at init level
         self.feat = FeatureUNet(ch, fuse2, 2 if lcn else 1, first_stride=1 if lcn_half else 2,
-                                dec_min=min(init_level, {2: 0, 4: 1, 8: 2, 16: 3}[finest]))
+                                dec_min=max(min(init_level, {2: 0, 4: 1, 8: 2, 16: 3}[finest]), 1 if ch[0] is None else 0))
         cm = ch[init_level]
         # HITNet-style tile features: left 2x2 stride 2; right 2x1 stride (2,1) keeps the
         # init-level x resolution, so every init-level integer disparity can be tested.
