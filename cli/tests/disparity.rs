@@ -29,10 +29,9 @@ fn read_pfm(p: &Path) -> (usize, usize, Vec<f32>) {
 
 /// A rectified pair rendered from the synthetic scene through two pinhole cameras 65 mm apart, and its exact
 /// disparity (f B / Z from the renderer's depth).
-fn rendered_pair(dir: &Path) -> (usize, usize, Vec<f32>) {
+fn rendered_pair(dir: &Path, (w, h): (u32, u32)) -> (usize, usize, Vec<f32>) {
     use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
-    let (w, h) = (320u32, 240u32);
-    let f = 160.0 / 50f64.to_radians().tan();
+    let f = (w as f64 / 2.0) / 50f64.to_radians().tan();
     let cam = abvs_camera::Camera::pinhole(w, h, f);
     let scene = abvs_runtime::synth::scene(7).unwrap();
     let look = UnitQuaternion::from_euler_angles(0.1, -0.15, 0.0);
@@ -47,51 +46,65 @@ fn rendered_pair(dir: &Path) -> (usize, usize, Vec<f32>) {
     (w as usize, h as usize, gt)
 }
 
+/// Runs `abvs disparity` with `engine` (and `model`) on the pair in `dir`; returns EPE over the pixels it
+/// answers, bad-2 % (unanswered pixels count as bad) and the answered fraction, over GT below `max_d`.
+fn score(dir: &Path, engine: &str, model: Option<&Path>, (gw, gh): (usize, usize), gt: &[f32], max_d: f32) -> [f64; 3] {
+    let out = dir.join(format!("{engine}.pfm"));
+    let mut cmd = abvs();
+    cmd.args(["disparity", "--engine", engine, "--left"])
+        .arg(dir.join("left.png"))
+        .arg("--right")
+        .arg(dir.join("right.png"))
+        .arg("--out")
+        .arg(&out);
+    if let Some(m) = model {
+        cmd.arg("--model").arg(m);
+    }
+    let o = cmd.output().unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let (w, h, disp) = read_pfm(&out);
+    assert_eq!((w, h), (gw, gh));
+    assert!(disp.iter().all(|v| !v.is_nan()), "invalid is written as inf, never NaN");
+    let (mut sum, mut n, mut bad2, mut total) = (0f64, 0usize, 0usize, 0usize);
+    for (p, g) in disp.iter().zip(gt) {
+        if !(g.is_finite() && *g < max_d) {
+            continue;
+        }
+        total += 1;
+        if p.is_finite() {
+            let e = (p - g).abs() as f64;
+            sum += e;
+            n += 1;
+            bad2 += (e > 2.0) as usize;
+        } else {
+            bad2 += 1;
+        }
+    }
+    let r = [sum / n.max(1) as f64, 100.0 * bad2 as f64 / total as f64, n as f64 / total as f64];
+    eprintln!("{engine} {model:?} {gw}x{gh}: EPE {:.3} px, bad-2 {:.1}%, valid {:.3}", r[0], r[1], r[2]);
+    r
+}
+
 #[test]
 fn the_shipped_network_recovers_a_rendered_pair_and_writes_pfm() {
     let d = tempfile::tempdir().unwrap();
-    let (gw, gh, gt) = rendered_pair(d.path());
-    let mut epe = Vec::new();
-    for engine in ["onnx", "sgbm"] {
-        let out = d.path().join(format!("{engine}.pfm"));
-        let o = abvs()
-            .args(["disparity", "--engine", engine, "--left"])
-            .arg(d.path().join("left.png"))
-            .arg("--right")
-            .arg(d.path().join("right.png"))
-            .arg("--out")
-            .arg(&out)
-            .output()
-            .unwrap();
-        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-        let (w, h, disp) = read_pfm(&out);
-        assert_eq!((w, h), (gw, gh));
-        assert!(disp.iter().all(|v| !v.is_nan()), "invalid is written as inf, never NaN");
-        let (mut sum, mut n, mut bad2, mut total) = (0f64, 0usize, 0usize, 0usize);
-        for (p, g) in disp.iter().zip(&gt) {
-            if !(g.is_finite() && *g < 40.0) {
-                continue;
-            }
-            total += 1;
-            if p.is_finite() {
-                let e = (p - g).abs() as f64;
-                sum += e;
-                n += 1;
-                bad2 += (e > 2.0) as usize;
-            } else {
-                bad2 += 1;
-            }
-        }
-        let e = sum / n.max(1) as f64;
-        eprintln!(
-            "{engine}: EPE {e:.3} px, bad-2 {:.1}%, valid {:.3}",
-            100.0 * bad2 as f64 / total as f64,
-            n as f64 / total as f64
-        );
-        epe.push(e);
-    }
+    let (gw, gh, gt) = rendered_pair(d.path(), (320, 240));
+    let net = score(d.path(), "onnx", None, (gw, gh), &gt, 40.0);
+    score(d.path(), "sgbm", None, (gw, gh), &gt, 40.0);
     // stated bound for the shipped hitnet-s on a rendered pair of our scene generator
-    assert!(epe[0] < 1.0, "network EPE {} px", epe[0]);
+    assert!(net[0] < 1.0, "network EPE {} px", net[0]); // 0.22 px when written
+}
+
+#[test]
+fn the_shipped_640x480_network_recovers_a_rendered_pair() {
+    let d = tempfile::tempdir().unwrap();
+    let (gw, gh, gt) = rendered_pair(d.path(), (640, 480));
+    let model = Path::new(env!("CARGO_MANIFEST_DIR")).join("../models/hitnet/hitnet-m");
+    let net = score(d.path(), "onnx", Some(&model), (gw, gh), &gt, 80.0);
+    let sgbm = score(d.path(), "sgbm", None, (gw, gh), &gt, 80.0);
+    // stated bounds for the shipped hitnet-m on a rendered pair of our scene generator
+    assert!(net[0] < 0.6, "hitnet-m EPE {} px", net[0]); // 0.24 px when written
+    assert!(net[1] < sgbm[1], "hitnet-m bad-2 {} % vs SGBM {} %", net[1], sgbm[1]);
 }
 
 #[test]
@@ -124,7 +137,7 @@ fn disparity_eval_scores_both_engines_on_the_real_aloe_pair() {
 #[test]
 fn a_model_with_the_wrong_inputs_is_refused() {
     let d = tempfile::tempdir().unwrap();
-    rendered_pair(d.path());
+    rendered_pair(d.path(), (320, 240));
     // a real ONNX model that is not a stereo network: an FK network (theta [N,3] -> pose [N,6])
     use abvs_calib::mlp::{Affine, Net};
     let fk = d.path().join("fk_net.onnx");
