@@ -55,6 +55,10 @@ impl Param {
     pub fn plausible_max(&self) -> f64 {
         3.0 * self.sizes().1
     }
+    /// The unit model's hard limit (a little inside it, so a clamped value still validates).
+    pub fn hard_limit(&self) -> f64 {
+        0.999 * self.effect.param_limits()[self.index]
+    }
 }
 
 /// All scalar parameters of the given effects.
@@ -69,8 +73,11 @@ fn get(unit: &UnitModel, ps: &[Param]) -> Vec<f64> {
 fn set(unit: &mut UnitModel, ps: &[Param], x: &[f64]) {
     for (p, v) in ps.iter().zip(x) {
         let mut cur = unit.params(p.effect);
-        // Clearance cannot be negative: project onto the feasible set.
-        cur[p.index] = if p.effect == Effect::HingeBacklash { v.max(0.0) } else { *v };
+        // Iterates stay inside the feasible set: clearances cannot be negative, and no value
+        // may pass the unit model's hard limits (a fit that wants to is reported, not aborted).
+        let lim = p.hard_limit();
+        let v = if v.is_finite() { v.clamp(-lim, lim) } else { 0.0 };
+        cur[p.index] = if p.effect == Effect::HingeBacklash { v.max(0.0) } else { v };
         unit.set_params(p.effect, &cur).expect("length from param_names");
     }
 }
@@ -187,10 +194,15 @@ impl Problem<'_> {
                         (0..n)
                             .filter(|j| j % 2 == t)
                             .map(|j| {
+                                // Forward step; backward where the forward one leaves the valid
+                                // region (a singular pose, a hard limit, a clearance at zero).
                                 let h = 1e-3 * self.free[j].scale();
                                 let mut xp = x.to_vec();
                                 xp[j] += h;
-                                self.resid(&xp).map(|rp| (j, (rp - r0) / h))
+                                self.resid(&xp).map(|rp| (j, (rp - r0) / h)).or_else(|e| {
+                                    xp[j] = x[j] - h;
+                                    self.resid(&xp).map(|rm| (j, (r0 - rm) / h)).map_err(|_| e)
+                                })
                             })
                             .collect::<Vec<_>>()
                     })

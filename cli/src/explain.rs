@@ -12,7 +12,8 @@ use std::time::Instant;
 pub struct ExplainArgs {
     #[arg(long)]
     data: PathBuf,
-    /// Starting unit model (default: the nominal unit).
+    /// Starting unit model (default: the nominal unit with the geometric effects every real
+    /// unit has, fitted first as the known model).
     #[arg(long)]
     model: Option<PathBuf>,
     #[arg(long)]
@@ -46,6 +47,9 @@ pub fn run(a: ExplainArgs) -> anyhow::Result<ExitCode> {
     let mut unit = r.unit.clone();
     unit.name = format!("explained from {}", a.data.display());
     unit.save(&a.out.join("unit.toml"))?;
+    for n in &r.start_notes {
+        println!("start: {n}");
+    }
     println!(
         "noise floor {:.4} deg / {:.4} mm; held-out {:.4} deg / {:.4} mm at start",
         r.noise_floor_rot_deg, r.noise_floor_trans_mm, r.initial_rms.0, r.initial_rms.1
@@ -56,6 +60,19 @@ pub fn run(a: ExplainArgs) -> anyhow::Result<ExitCode> {
             s.effect, s.rms_rot_deg_before, s.rms_rot_deg_after, s.rms_trans_mm_before, s.rms_trans_mm_after
         );
     }
+    for a in &r.ambiguous {
+        println!("ambiguous between {}: {}", a.effects.join(" and "), a.evidence);
+    }
+    for b in &r.at_bounds {
+        println!("at a plausibility bound: {} = {:.4} (bound {:.4}); probably absorbing {}", b.param, b.value, b.bound, b.absorbing);
+    }
+    println!(
+        "final held-out {:.4} deg ({:.2}x the floor) / {:.4} mm ({:.2}x)",
+        r.final_rms.0,
+        r.final_rms.0 / r.noise_floor_rot_deg,
+        r.final_rms.1,
+        r.final_rms.1 / r.noise_floor_trans_mm
+    );
     for u in &r.unexplained {
         println!("unexplained: {} ({:.4} deg rms)", u.description, u.rms_rot_deg);
     }

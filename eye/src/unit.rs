@@ -12,7 +12,9 @@
 //!    off-centre by `e`, `eps = e / wheel_radius`, `s_i` is the head's position on the wheel (its
 //!    marker) and phi the direction of the offset; it is zero at home because homing re-zeroes it.
 //! 2. hinge_backlash: `theta_i -= dir_i * backlash_i / 2` (`dir_i` = +1 if link i last moved
-//!    in +, -1 if in -; the platform settles on the side it was pushed from);
+//!    in +, -1 if in -; the platform settles on the side it was pushed from); after step 3 the
+//!    platform also lags its own last motion: `R_P <- exp(-lag u) R_P`, `u` the unit axis of
+//!    the last platform rotation between samples (B);
 //! 3. SPM with per-leg link_angle_error (d1, d2), input_axis_tilt and platform_axis_error ->
 //!    platform orientation `R_P` (working mode, Newton);
 //! 4. gravity_sag: `R_P <- exp(rad((R_P a) x g)) R_P`, `a` the sag vector in P (deg);
@@ -132,13 +134,19 @@ pub struct EncoderScale {
     pub relative_error: [f64; 3],
 }
 
-/// hinge_backlash: clearance in the passive hinges of each leg (deg of equivalent link angle).
+/// hinge_backlash: clearance in the passive hinges. It shows two ways: per leg, as an
+/// equivalent link-angle clearance that depends on the direction each link last moved, and at
+/// the platform, which settles behind its own last motion (the clearances of all nine hinges
+/// seen together, whatever mix of links produced the motion).
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct HingeBacklash {
     pub enabled: bool,
-    /// Full clearance; the leg settles at -/+ half of it after moving +/-.
+    /// Full clearance per leg; the leg settles at -/+ half of it after moving +/-.
     pub backlash_deg: [f64; 3],
+    /// The platform lags its last motion by this angle (deg, >= 0): rotated by it about the
+    /// direction of that motion, backwards.
+    pub platform_lag_deg: f64,
 }
 
 /// gravity_sag: elastic deflection under the platform's and camera's weight.
@@ -263,7 +271,7 @@ impl Effect {
                 vec!["eccentricity_x_um".into(), "eccentricity_y_um".into()]
             }
             Effect::EncoderScale => per_leg("relative_error"),
-            Effect::HingeBacklash => per_leg("backlash_deg"),
+            Effect::HingeBacklash => [per_leg("backlash_deg"), vec!["platform_lag_deg".into()]].concat(),
             Effect::GravitySag => ["sag_deg.x", "sag_deg.y", "sag_deg.z"].map(String::from).to_vec(),
             Effect::EncoderTimeOffset => vec!["latency_ms".into()],
             Effect::MeasurementNoise => vec!["rot_deg".into(), "trans_mm".into()],
@@ -275,6 +283,33 @@ impl Effect {
     pub fn is_kinematic(self) -> bool {
         !matches!(self, Effect::EncoderTimeOffset | Effect::MeasurementNoise)
     }
+
+    /// Hard plausibility limits of the parameters (same order as [`Effect::param_names`]):
+    /// values beyond them describe no physical unit. [`UnitModel::validate`] refuses them and
+    /// fitting keeps its iterates inside them.
+    pub fn param_limits(self) -> Vec<f64> {
+        let lim = match self {
+            Effect::EncoderZeroOffset => 20.0,
+            Effect::LinkAngleError | Effect::InputAxisTilt | Effect::PlatformAxisError => 5.0,
+            Effect::CameraMount => return vec![30.0, 30.0, 30.0, 50.0, 50.0, 50.0],
+            Effect::CodeWheelEccentricity => 500.0,
+            Effect::EncoderScale => 0.05,
+            Effect::HingeBacklash | Effect::GravitySag => 2.0,
+            Effect::EncoderTimeOffset => 1000.0,
+            Effect::MeasurementNoise => return vec![5.0, 20.0],
+        };
+        vec![lim; self.param_names().len()]
+    }
+}
+
+fn check_limit(name: &str, v: f64, lim: f64) -> std::result::Result<(), String> {
+    if !v.is_finite() {
+        return Err(format!("{name}: not a finite number"));
+    }
+    if v.abs() > lim {
+        return Err(format!("{name}: {v} is beyond the plausible limit +-{lim}"));
+    }
+    Ok(())
 }
 
 impl std::fmt::Display for Effect {
@@ -346,49 +381,39 @@ impl UnitModel {
         if self.format != FORMAT {
             return Err(format!("format is '{}', expected '{FORMAT}'", self.format));
         }
-        let e = &self.effects;
-        let mut checks: Vec<(&str, f64, f64)> = vec![];
         let g = &self.geometry;
-        checks.push(("geometry.d1_deg", g.d1_deg - NOMINAL_D1_DEG, 20.0));
-        checks.push(("geometry.d2_deg", g.d2_deg - NOMINAL_D2_DEG, 20.0));
-        for i in 0..3 {
-            checks.push(("geometry.psi_deg", g.psi_deg[i] - NOMINAL_PSI_DEG[i], 30.0));
-            checks.push(("effects.encoder_zero_offset.offset_deg", e.encoder_zero_offset.offset_deg[i], 20.0));
-            checks.push(("effects.link_angle_error.d1_error_deg", e.link_angle_error.d1_error_deg[i], 5.0));
-            checks.push(("effects.link_angle_error.d2_error_deg", e.link_angle_error.d2_error_deg[i], 5.0));
-            checks.push(("effects.input_axis_tilt.tilt_x_deg", e.input_axis_tilt.tilt_x_deg[i], 5.0));
-            checks.push(("effects.input_axis_tilt.tilt_y_deg", e.input_axis_tilt.tilt_y_deg[i], 5.0));
-            checks.push(("effects.platform_axis_error.azimuth_deg", e.platform_axis_error.azimuth_deg[i], 5.0));
-            checks.push(("effects.platform_axis_error.elevation_deg", e.platform_axis_error.elevation_deg[i], 5.0));
-            checks.push(("effects.camera_mount.rotation_deg", e.camera_mount.rotation_deg[i], 30.0));
-            checks.push(("effects.camera_mount.offset_mm", e.camera_mount.offset_mm[i], 50.0));
-            checks.push(("effects.encoder_scale.relative_error", e.encoder_scale.relative_error[i], 0.05));
-            checks.push(("effects.hinge_backlash.backlash_deg", e.hinge_backlash.backlash_deg[i], 2.0));
-            checks.push(("effects.gravity_sag.sag_deg", e.gravity_sag.sag_deg[i], 2.0));
+        let geometry = [
+            ("geometry.d1_deg", g.d1_deg - NOMINAL_D1_DEG, 20.0),
+            ("geometry.d2_deg", g.d2_deg - NOMINAL_D2_DEG, 20.0),
+            ("geometry.psi_deg", g.psi_deg[0] - NOMINAL_PSI_DEG[0], 30.0),
+            ("geometry.psi_deg", g.psi_deg[1] - NOMINAL_PSI_DEG[1], 30.0),
+            ("geometry.psi_deg", g.psi_deg[2] - NOMINAL_PSI_DEG[2], 30.0),
+        ];
+        for (name, v, lim) in geometry {
+            check_limit(name, v, lim)?;
         }
-        checks.push((
+        for eff in Effect::ALL {
+            let (names, values, limits) = (eff.param_names(), self.params(eff), eff.param_limits());
+            for ((n, v), lim) in names.iter().zip(values).zip(limits) {
+                check_limit(&format!("effects.{eff}.{n}"), v, lim)?;
+            }
+        }
+        let e = &self.effects;
+        check_limit(
             "effects.code_wheel_eccentricity.eccentricity_um",
             e.code_wheel_eccentricity.eccentricity_um,
             500.0,
-        ));
-        checks.push(("effects.code_wheel_eccentricity.phase_deg", e.code_wheel_eccentricity.phase_deg, 720.0));
-        checks.push(("effects.encoder_time_offset.latency_ms", e.encoder_time_offset.latency_ms, 1000.0));
-        checks.push(("effects.measurement_noise.rot_deg", e.measurement_noise.rot_deg, 5.0));
-        checks.push(("effects.measurement_noise.trans_mm", e.measurement_noise.trans_mm, 20.0));
-        for (name, v, lim) in checks {
-            if !v.is_finite() {
-                return Err(format!("{name}: not a finite number"));
-            }
-            if v.abs() > lim {
-                return Err(format!("{name}: {v} is beyond the plausible limit +-{lim}"));
-            }
-        }
+        )?;
+        check_limit("effects.code_wheel_eccentricity.phase_deg", e.code_wheel_eccentricity.phase_deg, 720.0)?;
         let r = e.code_wheel_eccentricity.wheel_radius_mm;
         if !(r.is_finite() && r > 1.0 && r < 100.0) {
             return Err(format!("effects.code_wheel_eccentricity.wheel_radius_mm: {r} must be in (1, 100) mm"));
         }
         if e.hinge_backlash.backlash_deg.iter().any(|b| *b < 0.0) {
             return Err("effects.hinge_backlash.backlash_deg: must be >= 0".into());
+        }
+        if e.hinge_backlash.platform_lag_deg < 0.0 {
+            return Err("effects.hinge_backlash.platform_lag_deg: must be >= 0".into());
         }
         if e.measurement_noise.rot_deg < 0.0 || e.measurement_noise.trans_mm < 0.0 {
             return Err("effects.measurement_noise: sigmas must be >= 0".into());
@@ -452,7 +477,9 @@ impl UnitModel {
                 vec![c.eccentricity_um * ph.cos(), c.eccentricity_um * ph.sin()]
             }
             Effect::EncoderScale => x.encoder_scale.relative_error.to_vec(),
-            Effect::HingeBacklash => x.hinge_backlash.backlash_deg.to_vec(),
+            Effect::HingeBacklash => {
+                [x.hinge_backlash.backlash_deg.to_vec(), vec![x.hinge_backlash.platform_lag_deg]].concat()
+            }
             Effect::GravitySag => x.gravity_sag.sag_deg.to_vec(),
             Effect::EncoderTimeOffset => vec![x.encoder_time_offset.latency_ms],
             Effect::MeasurementNoise => {
@@ -498,7 +525,10 @@ impl UnitModel {
                 c.phase_deg = p[1].atan2(p[0]).to_degrees();
             }
             Effect::EncoderScale => fill(&mut arr_mut(&mut x.encoder_scale.relative_error)),
-            Effect::HingeBacklash => fill(&mut arr_mut(&mut x.hinge_backlash.backlash_deg)),
+            Effect::HingeBacklash => {
+                let b = &mut x.hinge_backlash;
+                fill(&mut arr_mut(&mut b.backlash_deg).chain(std::iter::once(&mut b.platform_lag_deg)))
+            }
             Effect::GravitySag => fill(&mut arr_mut(&mut x.gravity_sag.sag_deg)),
             Effect::EncoderTimeOffset => x.encoder_time_offset.latency_ms = p[0],
             Effect::MeasurementNoise => {
@@ -532,13 +562,20 @@ pub struct Conditions {
     pub dir: [f64; 3],
     /// Gravity in B (unit vector).
     pub gravity: [f64; 3],
+    /// Direction (unit rotation axis in B) of the platform's last motion; homing ends with a
+    /// positive roll, so +z before any other motion.
+    pub platform_dir: [f64; 3],
 }
 
 impl Default for Conditions {
     fn default() -> Self {
-        Conditions { dir: [1.0; 3], gravity: [0.0, 1.0, 0.0] }
+        Conditions { dir: [1.0; 3], gravity: [0.0, 1.0, 0.0], platform_dir: [0.0, 0.0, 1.0] }
     }
 }
+
+/// Smallest platform rotation between samples (rad) that counts as a motion for the platform
+/// lag: well below one encoder count's effect, well above Newton's round-off.
+const PLATFORM_MOTION_RAD: f64 = 1e-6;
 
 /// Tracks the direction each link last moved, from readings in acquisition order. A link that
 /// did not move keeps its previous direction; before any motion it is + (homing ends moving +).
@@ -659,20 +696,36 @@ impl UnitFk {
         cond: &Conditions,
         warm: Option<&Matrix3<f64>>,
     ) -> Result<(Pose, Matrix3<f64>)> {
-        let th = self.link_angles(reading_deg, &cond.dir);
+        let r = self.platform(reading_deg, &cond.dir, warm)?;
+        Ok((self.camera_from_platform(&r, cond), r))
+    }
+
+    /// Platform orientation of the mechanism (steps 1-3 of the module doc), before the platform
+    /// lag and the sag: the state the next sample warm-starts from.
+    fn platform(&self, reading_deg: &[f64; 3], dir: &[f64; 3], warm: Option<&Matrix3<f64>>) -> Result<Matrix3<f64>> {
+        let th = self.link_angles(reading_deg, dir);
         let sol = match warm {
             Some(r0) => self.geom.fk_from(&th, r0).or_else(|_| self.geom.fk_cold(&th))?,
             None => self.geom.fk_cold(&th)?,
         };
         self.geom.check_singularity(&sol.r, &th)?;
-        let mut rp = sol.r;
+        Ok(sol.r)
+    }
+
+    /// Camera pose in B from the mechanism's platform orientation: platform lag, sag, mount.
+    fn camera_from_platform(&self, r: &Matrix3<f64>, cond: &Conditions) -> Pose {
+        let mut rp = *r;
+        let lag = self.model.effects.hinge_backlash.platform_lag_deg;
+        if self.model.effects.hinge_backlash.enabled && lag != 0.0 {
+            rp = exp_so3(&(Vector3::from(cond.platform_dir) * -lag.to_radians())) * rp;
+        }
         let sag = &self.model.effects.gravity_sag;
         if sag.enabled {
             let a = Vector3::from(sag.sag_deg).map(f64::to_radians);
             let d = (rp * a).cross(&Vector3::from(cond.gravity));
             rp = exp_so3(&d) * rp;
         }
-        Ok((Pose::new(rp, Vector3::zeros()).compose(&self.mount), sol.r))
+        Pose::new(rp, Vector3::zeros()).compose(&self.mount)
     }
 
     /// Camera pose relative to home for readings (deg). Returns the pose and the platform
@@ -694,17 +747,22 @@ impl UnitFk {
 
     /// A new stream of readings in acquisition order (one per eye): see [`UnitFk::next`].
     pub fn stream(&self) -> UnitStream {
-        UnitStream { hist: MotionHistory::new(), warm: self.home_r }
+        UnitStream { hist: MotionHistory::new(), warm: self.home_r, platform_dir: [0.0, 0.0, 1.0] }
     }
 
     /// The next reading of a stream -> camera pose relative to home. The reading updates the
     /// motion history (backlash direction) even if the pose fails, as the links did move; the
     /// warm start advances only on success.
     pub fn next(&self, st: &mut UnitStream, reading_deg: &[f64; 3], gravity: [f64; 3]) -> Result<Pose> {
-        let cond = Conditions { dir: st.hist.update(reading_deg), gravity };
-        let (p, r) = self.pose(reading_deg, &cond, Some(&st.warm))?;
+        let dir = st.hist.update(reading_deg);
+        let r = self.platform(reading_deg, &dir, Some(&st.warm))?;
+        let w = crate::pose::rotation_vector(&(r * st.warm.transpose()));
+        if w.norm() > PLATFORM_MOTION_RAD {
+            st.platform_dir = (w / w.norm()).into();
+        }
+        let cond = Conditions { dir, gravity, platform_dir: st.platform_dir };
         st.warm = r;
-        Ok(p)
+        Ok(self.home_inv.compose(&self.camera_from_platform(&r, &cond)))
     }
 
     /// Predicted poses for a dataset, walking it in acquisition order so motion history
@@ -728,6 +786,7 @@ impl UnitFk {
 pub struct UnitStream {
     hist: MotionHistory,
     warm: Matrix3<f64>,
+    platform_dir: [f64; 3],
 }
 
 #[cfg(test)]
@@ -793,12 +852,35 @@ mod tests {
     #[test]
     fn backlash_depends_on_direction() {
         let mut u = UnitModel::nominal();
-        u.effects.hinge_backlash = HingeBacklash { enabled: true, backlash_deg: [0.1, 0.1, 0.1] };
+        u.effects.hinge_backlash =
+            HingeBacklash { enabled: true, backlash_deg: [0.1, 0.1, 0.1], platform_lag_deg: 0.0 };
         let fk = u.compile().unwrap();
         let q = [5.0, 5.0, 5.0];
         let up = fk.p6(&q, &Conditions { dir: [1.0; 3], ..Default::default() }).unwrap();
         let down = fk.p6(&q, &Conditions { dir: [-1.0; 3], ..Default::default() }).unwrap();
         // equal links: pure roll, shifted by the full clearance between directions
         assert!((up[1] - down[1] + 0.1).abs() < 1e-9, "{up:?} {down:?}");
+    }
+
+    #[test]
+    fn platform_lags_its_last_motion() {
+        let mut u = UnitModel::nominal();
+        u.effects.hinge_backlash = HingeBacklash { enabled: true, backlash_deg: [0.0; 3], platform_lag_deg: 0.05 };
+        let fk = u.compile().unwrap();
+        let nominal = UnitModel::nominal().compile().unwrap();
+        // Reach the same reading from two sides: the platform sits behind each motion by the lag.
+        let target = [8.0, -3.0, 5.0];
+        let mut a = fk.stream();
+        fk.next(&mut a, &[0.0, -6.0, 2.0], [0.0, 1.0, 0.0]).unwrap();
+        let pa = fk.next(&mut a, &target, [0.0, 1.0, 0.0]).unwrap();
+        let mut b = fk.stream();
+        fk.next(&mut b, &[16.0, 0.0, 8.0], [0.0, 1.0, 0.0]).unwrap();
+        let pb = fk.next(&mut b, &target, [0.0, 1.0, 0.0]).unwrap();
+        let p0 = nominal.next(&mut nominal.stream(), &target, [0.0, 1.0, 0.0]).unwrap();
+        let (da, db) = (crate::pose::rotation_angle_deg(&pa.r, &p0.r), crate::pose::rotation_angle_deg(&pb.r, &p0.r));
+        // Relative to home (which lags along +z): both differ from nominal, from each other by ~2 lags.
+        assert!(da > 0.01 && db > 0.01, "{da} {db}");
+        let ab = crate::pose::rotation_angle_deg(&pa.r, &pb.r);
+        assert!((ab - 0.1).abs() < 0.02, "{ab}");
     }
 }
