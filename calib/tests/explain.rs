@@ -1,26 +1,22 @@
-//! The discrepancy workflow on data in which an effect is hidden: simulate a unit with the
-//! effect on top of the usual geometric errors, start from a model lacking it, and check that
-//! the workflow names it first, recovers its size within 20% and brings the held-out residual
-//! to within 1.5x of the noise floor. Also: two effects at once, a null dataset, an effect not
-//! in the library, and the noise floor itself.
+//! The discrepancy workflow on data of our own simulator in which effects are hidden: a unit
+//! with the geometric errors every unit has plus the hidden effect, explained from the default
+//! start (nothing given: the geometric effects are the known model); the workflow must name
+//! exactly the hidden effects, recover their size within 20% and bring the held-out residual to
+//! within 1.2x of the noise floor. Hidden geometric effects are searched from an explicit start
+//! that lacks them. Also: two effects at once, a null dataset, an effect not in the library,
+//! and the noise floor itself. Data the project did not make: `explain_independent.rs`.
 use abvs_calib::explain::{effect_size, explain, ExplainOptions, ExplainResult};
 use abvs_eye::dataset::Dataset;
 use abvs_eye::sim::{draw_unit, simulate_dataset, Commanded, SimSpec};
 use abvs_eye::unit::{Effect, UnitModel};
 use abvs_eye::Pose;
 
-const GEOMETRIC: [Effect; 5] = [
-    Effect::EncoderZeroOffset,
-    Effect::LinkAngleError,
-    Effect::InputAxisTilt,
-    Effect::PlatformAxisError,
-    Effect::CameraMount,
-];
+use abvs_calib::explain::KNOWN_GEOMETRIC as GEOMETRIC;
 
 /// A unit with the geometric errors plus `hidden` (drawn at effects.md magnitudes), measured
 /// with mid-range noise (0.01 deg, 0.05 mm) on the paper's 3 deg training grid (4,851 poses, no
-/// dropout so the motion history is complete), and the starting model: the geometric effects
-/// switched on at zero (their values are fitted in round 0), `hidden` absent.
+/// dropout so the motion history is complete), and the starting model: the nominal unit (the
+/// default start) or, where a geometric effect is hidden, the other geometric effects at zero.
 fn scenario(hidden: &[Effect], seed: u64) -> (UnitModel, Dataset, UnitModel) {
     let mut on: Vec<Effect> = GEOMETRIC.iter().copied().filter(|e| !hidden.contains(e)).collect();
     on.extend(hidden);
@@ -31,8 +27,10 @@ fn scenario(hidden: &[Effect], seed: u64) -> (UnitModel, Dataset, UnitModel) {
     let spec = SimSpec { commanded: Commanded::Step(3.0), dropout: 0.0, seed, ..Default::default() };
     let (data, _) = simulate_dataset(&unit, &spec, |_, _| {}).unwrap();
     let mut start = UnitModel::nominal();
-    for e in GEOMETRIC.iter().filter(|e| !hidden.contains(e)) {
-        start.set_enabled(*e, true);
+    if hidden.iter().any(|h| GEOMETRIC.contains(h)) {
+        for e in GEOMETRIC.iter().filter(|e| !hidden.contains(e)) {
+            start.set_enabled(*e, true);
+        }
     }
     (unit, data, start)
 }
@@ -63,7 +61,7 @@ fn assert_found(hidden: Effect, seed: u64) {
     let (truth, data, start) = scenario(&[hidden], seed);
     let r = run(&data, &start);
     let names: Vec<&str> = r.steps.iter().map(|s| s.effect.as_str()).collect();
-    assert_eq!(names.first().copied(), Some(hidden.name()), "{hidden}: steps {names:?}");
+    assert_eq!(names, vec![hidden.name()], "{hidden}: steps {names:?}, ambiguous {:?}", r.ambiguous);
     let (want, got) = (effect_size(&truth, hidden), effect_size(&r.unit, hidden));
     eprintln!("truth {:?}", truth.params(hidden));
     assert!((got / want - 1.0).abs() < 0.2, "{hidden}: size {got} vs truth {want}");
@@ -80,13 +78,13 @@ fn assert_found(hidden: Effect, seed: u64) {
         r.noise_floor_trans_mm
     );
     assert!(
-        last.rms_rot_deg_after < 1.5 * r.noise_floor_rot_deg,
+        last.rms_rot_deg_after < 1.2 * r.noise_floor_rot_deg,
         "{hidden}: rot {} vs floor {}",
         last.rms_rot_deg_after,
         r.noise_floor_rot_deg
     );
     assert!(
-        last.rms_trans_mm_after < 1.5 * r.noise_floor_trans_mm,
+        last.rms_trans_mm_after < 1.2 * r.noise_floor_trans_mm,
         "{hidden}: trans {} vs floor {}",
         last.rms_trans_mm_after,
         r.noise_floor_trans_mm
@@ -159,7 +157,24 @@ fn finds_two_hidden_effects() {
         let (want, got) = (effect_size(&truth, e), effect_size(&r.unit, e));
         assert!((got / want - 1.0).abs() < 0.2, "{e}: {got} vs {want}");
     }
-    assert!(r.steps.last().unwrap().rms_rot_deg_after < 1.5 * r.noise_floor_rot_deg);
+    assert!(r.steps.last().unwrap().rms_rot_deg_after < 1.2 * r.noise_floor_rot_deg);
+}
+
+/// The pair the first round's workflow could not name together: each alone explains a good
+/// share, and a 2-cycle ripple used to veto both.
+#[test]
+fn finds_eccentricity_and_sag_hidden_together() {
+    let hidden = [Effect::CodeWheelEccentricity, Effect::GravitySag];
+    let (truth, data, start) = scenario(&hidden, 43);
+    let r = run(&data, &start);
+    let mut names: Vec<&str> = r.steps.iter().map(|s| s.effect.as_str()).collect();
+    names.sort();
+    assert_eq!(names, vec!["code_wheel_eccentricity", "gravity_sag"], "ambiguous {:?}", r.ambiguous);
+    for e in hidden {
+        let (want, got) = (effect_size(&truth, e), effect_size(&r.unit, e));
+        assert!((got / want - 1.0).abs() < 0.25, "{e}: {got} vs {want}");
+    }
+    assert!(r.final_rms.0 < 1.2 * r.noise_floor_rot_deg);
 }
 
 /// An effect outside the library: a 6-cycle-per-revolution error on link 2's angle (e.g. the
@@ -189,4 +204,5 @@ fn effect_outside_the_library_is_reported_unexplained() {
     assert_eq!(r.unexplained.len(), 1);
     let d = &r.unexplained[0].description;
     assert!(d.contains("theta2") && d.contains("6 cycles"), "{d}");
+    assert!(r.ambiguous.is_empty(), "{:?}", r.ambiguous);
 }
