@@ -55,6 +55,9 @@ fn main() {
             r.unexplained.iter().map(|u| u.description.clone()).collect::<Vec<_>>(),
             r.at_bounds.iter().map(|b| b.param.clone()).collect::<Vec<_>>()
         );
+        for n in &r.start_notes {
+            println!("   note: {n}");
+        }
         for a in &r.ambiguous {
             println!("   ambiguous: {}", a.evidence);
         }

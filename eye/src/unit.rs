@@ -11,6 +11,8 @@
 //!    The last term is code_wheel_eccentricity: the wheel is
 //!    off-centre by `e`, `eps = e / wheel_radius`, `s_i` is the head's position on the wheel (its
 //!    marker) and phi the direction of the offset; it is zero at home because homing re-zeroes it.
+//!    It is fitted per head (`eps sin(s_i - phi)`, `eps cos(s_i - phi)` free for each head), so
+//!    heads placed anywhere on the wheel are described ([`CodeWheelEccentricity`]).
 //! 2. hinge_backlash: `theta_i -= dir_i * backlash_i / 2` (`dir_i` = +1 if link i last moved
 //!    in +, -1 if in -; the platform settles on the side it was pushed from); after step 3 the
 //!    platform also lags its own last motion: `R_P <- exp(-lag u) R_P`, `u` the unit axis of
@@ -106,6 +108,13 @@ pub struct CameraMount {
 /// code_wheel_eccentricity: the shared wheel is mounted off-centre by `eccentricity_um` towards
 /// azimuth `phase_deg` (wheel angle); a head at wheel angle w reads an extra
 /// `eps sin(w - phase)` with `eps = eccentricity / wheel_radius`.
+///
+/// Where each read head sits on the wheel is a design fact the spec leaves open (ours: at its
+/// link's marker), so the effect is fitted per head: head i reads an extra
+/// `(x_i sin q_i + y_i (cos q_i - 1)) / wheel_radius` (`head_um[i] = [x_i, y_i]`, um at the code
+/// track, zero at home). For one eccentric wheel every head sees the same amplitude
+/// `hypot(x_i, y_i) = eccentricity_um`, at a phase set by the head's position; absent,
+/// `head_um` follows from `eccentricity_um`, `phase_deg` and the heads at their markers.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct CodeWheelEccentricity {
@@ -114,14 +123,37 @@ pub struct CodeWheelEccentricity {
     pub phase_deg: f64,
     /// Radius of the code track (mm); a design constant, not fitted.
     pub wheel_radius_mm: f64,
+    /// Per-head form (see above); when present it overrides `eccentricity_um` / `phase_deg`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub head_um: Option<[[f64; 2]; 3]>,
 }
 
 /// Code-track radius of the 1448-line wheel (mm): 20 um of eccentricity is ~0.1 deg.
 pub const WHEEL_RADIUS_MM: f64 = 11.5;
 
+impl CodeWheelEccentricity {
+    /// Each head's `[x_i, y_i]` (um): the per-head form, or the one wheel's seen by heads at
+    /// their markers.
+    pub fn per_head_um(&self) -> [[f64; 2]; 3] {
+        self.head_um.unwrap_or_else(|| {
+            std::array::from_fn(|i| {
+                let s = MARKER_COUNTS[i] as f64 * std::f64::consts::TAU / COUNTS_PER_REV as f64;
+                let a = s - self.phase_deg.to_radians();
+                [self.eccentricity_um * a.cos(), self.eccentricity_um * a.sin()]
+            })
+        })
+    }
+}
+
 impl Default for CodeWheelEccentricity {
     fn default() -> Self {
-        CodeWheelEccentricity { enabled: false, eccentricity_um: 0.0, phase_deg: 0.0, wheel_radius_mm: WHEEL_RADIUS_MM }
+        CodeWheelEccentricity {
+            enabled: false,
+            eccentricity_um: 0.0,
+            phase_deg: 0.0,
+            wheel_radius_mm: WHEEL_RADIUS_MM,
+            head_um: None,
+        }
     }
 }
 
@@ -249,7 +281,8 @@ impl Effect {
     }
 
     /// Names and units of the parameters exposed to fitting, in vector order.
-    /// code_wheel_eccentricity is fitted in Cartesian form (linear near zero, no phase wrap).
+    /// code_wheel_eccentricity is fitted per head in Cartesian form (linear near zero, no phase
+    /// wrap, any head placement).
     pub fn param_names(self) -> Vec<String> {
         let per_leg = |p: &str| (1..=3).map(|i| format!("{p}.{i}")).collect::<Vec<_>>();
         match self {
@@ -267,9 +300,7 @@ impl Effect {
             ]
             .map(String::from)
             .to_vec(),
-            Effect::CodeWheelEccentricity => {
-                vec!["eccentricity_x_um".into(), "eccentricity_y_um".into()]
-            }
+            Effect::CodeWheelEccentricity => [per_leg("head_x_um"), per_leg("head_y_um")].concat(),
             Effect::EncoderScale => per_leg("relative_error"),
             Effect::HingeBacklash => [per_leg("backlash_deg"), vec!["platform_lag_deg".into()]].concat(),
             Effect::GravitySag => ["sag_deg.x", "sag_deg.y", "sag_deg.z"].map(String::from).to_vec(),
@@ -472,9 +503,8 @@ impl UnitModel {
             }
             Effect::CameraMount => [x.camera_mount.rotation_deg, x.camera_mount.offset_mm].concat(),
             Effect::CodeWheelEccentricity => {
-                let c = &x.code_wheel_eccentricity;
-                let ph = c.phase_deg.to_radians();
-                vec![c.eccentricity_um * ph.cos(), c.eccentricity_um * ph.sin()]
+                let h = x.code_wheel_eccentricity.per_head_um();
+                [h.map(|v| v[0]), h.map(|v| v[1])].concat()
             }
             Effect::EncoderScale => x.encoder_scale.relative_error.to_vec(),
             Effect::HingeBacklash => {
@@ -521,8 +551,12 @@ impl UnitModel {
             }
             Effect::CodeWheelEccentricity => {
                 let c = &mut x.code_wheel_eccentricity;
-                c.eccentricity_um = p[0].hypot(p[1]);
-                c.phase_deg = p[1].atan2(p[0]).to_degrees();
+                let h: [[f64; 2]; 3] = std::array::from_fn(|i| [p[i], p[3 + i]]);
+                // The wheel-level summary: the heads' mean amplitude, the phase seen by head 1.
+                c.eccentricity_um = h.iter().map(|v| v[0].hypot(v[1])).sum::<f64>() / 3.0;
+                let s1 = MARKER_COUNTS[0] as f64 * 360.0 / COUNTS_PER_REV as f64;
+                c.phase_deg = (s1 - h[0][1].atan2(h[0][0]).to_degrees()).rem_euclid(360.0);
+                c.head_um = Some(h);
             }
             Effect::EncoderScale => fill(&mut arr_mut(&mut x.encoder_scale.relative_error)),
             Effect::HingeBacklash => {
@@ -613,8 +647,8 @@ pub struct UnitFk {
     mount: Pose,
     home_inv: Pose,
     home_r: Matrix3<f64>,
-    /// eps (rad), phi (rad) of the code wheel.
-    ecc: (f64, f64),
+    /// Per head: the reading error's sin and (cos - 1) coefficients (rad).
+    ecc: [(f64, f64); 3],
 }
 
 impl UnitFk {
@@ -647,9 +681,10 @@ impl UnitFk {
         };
         let c = &e.code_wheel_eccentricity;
         let ecc = if c.enabled {
-            (c.eccentricity_um * 1e-3 / c.wheel_radius_mm, c.phase_deg.to_radians())
+            let h = c.per_head_um();
+            std::array::from_fn(|i| (h[i][0] * 1e-3 / c.wheel_radius_mm, h[i][1] * 1e-3 / c.wheel_radius_mm))
         } else {
-            (0.0, 0.0)
+            [(0.0, 0.0); 3]
         };
         let mut fk =
             UnitFk { model: model.clone(), geom, mount, home_inv: Pose::identity(), home_r: Matrix3::identity(), ecc };
@@ -677,9 +712,9 @@ impl UnitFk {
             if e.encoder_zero_offset.enabled {
                 t += e.encoder_zero_offset.offset_deg[i].to_radians();
             }
-            if self.ecc.0 != 0.0 {
-                let s = MARKER_COUNTS[i] as f64 * std::f64::consts::TAU / COUNTS_PER_REV as f64;
-                t -= self.ecc.0 * ((s + q - self.ecc.1).sin() - (s - self.ecc.1).sin());
+            let (ex, ey) = self.ecc[i];
+            if ex != 0.0 || ey != 0.0 {
+                t -= ex * q.sin() + ey * (q.cos() - 1.0);
             }
             if e.hinge_backlash.enabled {
                 t -= dir[i] * 0.5 * e.hinge_backlash.backlash_deg[i].to_radians();
@@ -755,14 +790,38 @@ impl UnitFk {
     /// warm start advances only on success.
     pub fn next(&self, st: &mut UnitStream, reading_deg: &[f64; 3], gravity: [f64; 3]) -> Result<Pose> {
         let dir = st.hist.update(reading_deg);
-        let r = self.platform(reading_deg, &dir, Some(&st.warm))?;
-        let w = crate::pose::rotation_vector(&(r * st.warm.transpose()));
-        if w.norm() > PLATFORM_MOTION_RAD {
-            st.platform_dir = (w / w.norm()).into();
-        }
-        let cond = Conditions { dir, gravity, platform_dir: st.platform_dir };
+        let (cond, r) = self.step(st, reading_deg, dir, gravity)?;
+        st.platform_dir = cond.platform_dir;
         st.warm = r;
         Ok(self.home_inv.compose(&self.camera_from_platform(&r, &cond)))
+    }
+
+    /// The conditions (link directions, platform motion direction, gravity) and the platform
+    /// orientation that [`UnitFk::next`] would give the reading, without advancing the stream:
+    /// for solvers that try candidate readings (calibrated IK) and then evaluate them with
+    /// [`UnitFk::pose`] under these conditions.
+    pub fn peek(
+        &self,
+        st: &UnitStream,
+        reading_deg: &[f64; 3],
+        gravity: [f64; 3],
+    ) -> Result<(Conditions, Matrix3<f64>)> {
+        let dir = st.hist.clone().update(reading_deg);
+        self.step(st, reading_deg, dir, gravity)
+    }
+
+    /// Platform orientation and conditions of the stream's next reading (shared by next and peek).
+    fn step(
+        &self,
+        st: &UnitStream,
+        reading_deg: &[f64; 3],
+        dir: [f64; 3],
+        gravity: [f64; 3],
+    ) -> Result<(Conditions, Matrix3<f64>)> {
+        let r = self.platform(reading_deg, &dir, Some(&st.warm))?;
+        let w = crate::pose::rotation_vector(&(r * st.warm.transpose()));
+        let platform_dir = if w.norm() > PLATFORM_MOTION_RAD { (w / w.norm()).into() } else { st.platform_dir };
+        Ok((Conditions { dir, gravity, platform_dir }, r))
     }
 
     /// Predicted poses for a dataset, walking it in acquisition order so motion history
@@ -882,5 +941,41 @@ mod tests {
         assert!(da > 0.01 && db > 0.01, "{da} {db}");
         let ab = crate::pose::rotation_angle_deg(&pa.r, &pb.r);
         assert!((ab - 0.1).abs() < 0.02, "{ab}");
+    }
+
+    /// The per-head form describes the wheel exactly (heads at their markers), and any other
+    /// head placement: heads 120 deg apart read `eps sin(s_i + q - phi)` minus its home value.
+    #[test]
+    fn eccentricity_per_head_form() {
+        let mut wheel = UnitModel::nominal();
+        wheel.set_enabled(Effect::CodeWheelEccentricity, true);
+        wheel.effects.code_wheel_eccentricity.eccentricity_um = 25.0;
+        wheel.effects.code_wheel_eccentricity.phase_deg = 40.0;
+        let mut heads = wheel.clone();
+        let p = wheel.params(Effect::CodeWheelEccentricity);
+        heads.set_params(Effect::CodeWheelEccentricity, &p).unwrap();
+        assert!(heads.effects.code_wheel_eccentricity.head_um.is_some());
+        let q = [17.0, -23.0, 31.0];
+        let dir = [1.0; 3];
+        let (a, b) = (wheel.compile().unwrap().link_angles(&q, &dir), heads.compile().unwrap().link_angles(&q, &dir));
+        for i in 0..3 {
+            assert!((a[i] - b[i]).abs() < 1e-15, "{a:?} {b:?}");
+        }
+        // Heads at 90, 210, 330 deg on the wheel (another placement): one amplitude, any phase.
+        let (eps, phi) = (25e-3 / WHEEL_RADIUS_MM, 40f64.to_radians());
+        let s: [f64; 3] = [90f64, 210.0, 330.0].map(f64::to_radians);
+        let h: Vec<f64> =
+            (0..6).map(|k| 25.0 * if k < 3 { (s[k] - phi).cos() } else { (s[k - 3] - phi).sin() }).collect();
+        heads.set_params(Effect::CodeWheelEccentricity, &h).unwrap();
+        assert!((heads.effects.code_wheel_eccentricity.eccentricity_um - 25.0).abs() < 1e-9);
+        let t = heads.compile().unwrap().link_angles(&q, &dir);
+        for i in 0..3 {
+            let qr = q[i].to_radians();
+            let want = qr - eps * ((s[i] + qr - phi).sin() - (s[i] - phi).sin());
+            assert!((t[i] - want).abs() < 1e-15, "head {i}: {} vs {want}", t[i]);
+        }
+        // The per-head form survives the unit file.
+        let back = UnitModel::from_toml_str(&heads.to_toml_string(), Path::new("u.toml")).unwrap();
+        assert_eq!(back.effects.code_wheel_eccentricity.head_um, heads.effects.code_wheel_eccentricity.head_um);
     }
 }

@@ -105,6 +105,33 @@ impl Scorer<'_> {
             })
             .fold(0.0, f64::max)
     }
+    /// code_wheel_eccentricity is fitted per head with free phases (head placement is a design
+    /// fact); one eccentric wheel shows every head the same amplitude. Per-head amplitudes that
+    /// differ beyond their uncertainty (chi-square, 2 dof, 99.9%) describe something else (a
+    /// ripple of one link, a scale error), not the wheel.
+    fn not_one_wheel(&self, set: &[usize], ripple: Option<usize>, member: usize) -> Option<String> {
+        let cols = self.cols(set, ripple);
+        let (x, _) = self.d.fit(&cols);
+        let se = self.d.std_errors(&cols);
+        let c = &self.cands[member];
+        let mut xy = [[0.0f64; 2]; 3];
+        let mut se_max: f64 = 0.0;
+        for (col, p) in c.cols.iter().zip(&c.params) {
+            let at = cols.iter().position(|k| k == col).expect("member column in set");
+            xy[p.index % 3][p.index / 3] = x[at];
+            se_max = se_max.max(se[at]);
+        }
+        let amp = xy.map(|v| v[0].hypot(v[1]));
+        let mean = amp.iter().sum::<f64>() / 3.0;
+        let chi: f64 = amp.iter().map(|a| ((a - mean) / se_max.max(1e-9)).powi(2)).sum();
+        (chi > 13.8).then(|| {
+            format!(
+                "per-head amplitudes {:.1}, {:.1}, {:.1} um differ beyond their uncertainty ({se_max:.1} um): not one eccentric wheel",
+                amp[0], amp[1], amp[2]
+            )
+        })
+    }
+
     /// Why a member of `set` does not hold (None: it holds).
     fn member_fails(&mut self, set: &[usize], ripple: Option<usize>, i: usize, o: &SelectOptions) -> Option<String> {
         let rest: Vec<usize> = set.iter().copied().filter(|&j| j != i).collect();
@@ -117,6 +144,11 @@ impl Scorer<'_> {
         let structured = (without - o.floor).max(1e-9);
         if m < o.min_share * structured {
             return Some(format!("explains only {:.0}% of the structured misfit", 100.0 * m / structured));
+        }
+        if self.cands[i].effect == Effect::CodeWheelEccentricity {
+            if let Some(why) = self.not_one_wheel(set, ripple, i) {
+                return Some(why);
+            }
         }
         let ratio = self.size_ratio(set, ripple, i);
         if ratio > 1.0 {
