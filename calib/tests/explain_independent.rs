@@ -17,13 +17,18 @@ fn dir(family: &str) -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/independent/data").join(family)
 }
 
-/// The hidden effects of a set, from the generator's truth.json (a missing file fails).
-fn hidden(family: &str, set: &str) -> (Vec<String>, Option<String>) {
+/// The generator's truth.json of a family (a missing file fails).
+fn truth_json(family: &str) -> serde_json::Value {
     let path = dir(family).join("truth.json");
     let text = std::fs::read_to_string(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
-    let t: serde_json::Value = serde_json::from_str(&text).unwrap();
+    serde_json::from_str(&text).unwrap()
+}
+
+/// The hidden effects of a set.
+fn hidden(family: &str, set: &str) -> (Vec<String>, Option<String>) {
+    let t = truth_json(family);
     let s = &t["sets"][set];
-    assert!(s.is_object(), "{set} missing from {}", path.display());
+    assert!(s.is_object(), "{set} missing from {family}/truth.json");
     let names = s["hidden"].as_array().unwrap().iter().map(|v| v.as_str().unwrap().to_string()).collect();
     (names, s["hidden_geometric"].as_str().map(String::from))
 }
@@ -40,7 +45,21 @@ fn run(family: &str, set: &str) -> (Vec<String>, Option<String>, ExplainResult) 
         }
     }
     let r = explain(&start, &data, &ExplainOptions::default(), &mut |_| {}).unwrap();
-    let named: Vec<&str> = r.steps.iter().map(|s| s.effect.as_str()).collect();
+    // Sizes as pose signatures (RMS rotation each effect contributes, deg): the generator's own
+    // parameterisations differ from ours, the pose change they cause does not.
+    let truth = truth_json(family);
+    let per = &truth["sets"][set]["hidden_effect_pose_change_per_effect"];
+    let named: Vec<String> = r
+        .steps
+        .iter()
+        .map(|s| {
+            let t = per[s.effect.as_str()]["rms_rot_deg"]
+                .as_f64()
+                .or_else(|| truth["sets"][set]["hidden_effect_pose_change"]["rms_rot_deg"].as_f64())
+                .unwrap_or(f64::NAN);
+            format!("{} (signature {:.4} deg, truth {:.4})", s.effect, s.signature_rms_rot_deg, t)
+        })
+        .collect();
     eprintln!(
         "{family}/{set}: hidden {names:?} {geometric:?} named {named:?} ambiguous {:?} unexplained {:?} held-out rot {:.4} -> {:.4} deg, floor {:.4} ({:.2}x)",
         r.ambiguous.iter().map(|a| &a.effects).collect::<Vec<_>>(),
@@ -87,8 +106,7 @@ fn assert_null(family: &str) {
 /// reported as periodic in the rippled link.
 fn assert_outside(family: &str) {
     let (_, _, r) = run(family, "ripple3");
-    let text = std::fs::read_to_string(dir(family).join("truth.json")).unwrap();
-    let t: serde_json::Value = serde_json::from_str(&text).unwrap();
+    let t = truth_json(family);
     let link = t["sets"]["ripple3"]["hidden_effects"]["outside:ripple3"]["link"].as_u64().unwrap();
     assert!(r.steps.is_empty(), "{family}: named {:?}", r.steps.iter().map(|s| &s.effect).collect::<Vec<_>>());
     assert_eq!(r.unexplained.len(), 1, "{family}");

@@ -244,3 +244,40 @@ fn encoder_stream_through_a_pseudo_terminal() {
     assert_eq!(d.stats.resets, 1);
     assert_eq!(events.iter().filter(|e| matches!(e, LinkEvent::Reset(_))).count(), 1);
 }
+
+/// The README's default call, `abvs calib explain --data X --out DIR` (no `--model`), on a
+/// dataset of the independent simulator (calib/tests/independent) with backlash hidden as a
+/// platform lag: it names the effect and writes the report, the plots, the summary and the
+/// explained unit. A 30-row dataset still ends in a report; 29 rows end in a clear error.
+#[test]
+fn calib_explain_default_start_on_independent_data() {
+    let d = tempfile::tempdir().unwrap();
+    let data = repo().join("calib/tests/independent/data/final/hinge_backlash.csv");
+    let out = ok(&["calib", "explain", "--data", data.to_str().unwrap(), "--out", &p(d.path(), "x")]);
+    assert!(out.contains("added hinge_backlash"), "{out}");
+    assert!(out.contains("start: no starting model given"), "{out}");
+    for f in ["report.md", "summary.json", "unit.toml"] {
+        assert!(d.path().join("x").join(f).is_file(), "{f} missing");
+    }
+    let pngs = std::fs::read_dir(d.path().join("x"))
+        .unwrap()
+        .filter(|e| e.as_ref().unwrap().path().extension().is_some_and(|x| x == "png"));
+    assert!(pngs.count() >= 2);
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(d.path().join("x/summary.json")).unwrap()).unwrap();
+    assert!(summary.to_string().contains("hinge_backlash"));
+    abvs_eye::UnitModel::load(&d.path().join("x/unit.toml")).expect("the explained unit loads");
+
+    // Degenerate: the first 30 and 29 rows of the same file.
+    let text = std::fs::read_to_string(&data).unwrap();
+    for (n, good) in [(30, true), (29, false)] {
+        let f = d.path().join(format!("rows{n}.csv"));
+        std::fs::write(&f, text.lines().take(n + 1).collect::<Vec<_>>().join("\n")).unwrap();
+        let o = abvs(&["calib", "explain", "--data", f.to_str().unwrap(), "--out", &p(d.path(), &format!("o{n}"))]);
+        assert_eq!(o.status.success(), good, "{n} rows: {}", String::from_utf8_lossy(&o.stderr));
+        if !good {
+            let e = String::from_utf8_lossy(&o.stderr);
+            assert!(e.contains("29 samples") && e.contains("at least 30"), "{e}");
+        }
+    }
+}
