@@ -12,17 +12,50 @@
 //! ```
 //! Counts are relative to each link's home (theta = 360 * count / 92672 deg, conventions.md), stamped with the
 //! drive board's time already mapped to CLOCK_MONOTONIC; timestamps of both files share that clock.
-//! Every reader error names the file and line.
-use std::path::{Path, PathBuf};
+//! Every reader error names the file and line, and for session.toml the field: a bad TOML type, a value out
+//! of range (a size, rate or loop period that is not positive, a gravity that is not a unit vector), a
+//! truncated or malformed CSV row, rows out of order. Every path a session names (calibration, truth, frame
+//! files) is relative and stays inside the session directory: absolute paths and `..` are refused.
+use std::ops::Range;
+use std::path::{Component, Path, PathBuf};
 
 use abvs_eye::encoder::COUNTS_PER_REV;
 use serde::{Deserialize, Serialize};
+use toml::Spanned;
 
 use crate::error::{Result, RuntimeError};
 use crate::tasks::align::EncoderSample;
 
 pub const SESSION_FORMAT: &str = "abvs-session/1";
 pub const SESSION_FILE: &str = "session.toml";
+
+/// Largest frame width or height a session may declare (pixels): the pipeline allocates its buffers from it.
+pub const MAX_FRAME_SIDE: u32 = 16384;
+/// Highest frame rate a session may declare (Hz).
+pub const MAX_FPS: f64 = 1000.0;
+/// Longest exposure of a frame (ns).
+pub const MAX_EXPOSURE_NS: i64 = 1_000_000_000;
+/// Timestamps (ns) must lie in [0, MAX_T_NS): CLOCK_MONOTONIC values, far from overflow when shifted.
+pub const MAX_T_NS: i64 = 1 << 60;
+
+/// Checks a path read from a session or a model manifest: relative to that file's directory and inside it.
+/// Refuses an empty path, an absolute path and any `..` component (the check is on the text: a symbolic
+/// link inside the directory is followed).
+pub fn check_inside(rel: &str) -> std::result::Result<(), String> {
+    if rel.is_empty() {
+        return Err("empty path".into());
+    }
+    for c in Path::new(rel).components() {
+        match c {
+            Component::Normal(_) | Component::CurDir => {}
+            Component::ParentDir => return Err(format!("path `{rel}` leaves its directory (`..`)")),
+            Component::RootDir | Component::Prefix(_) => {
+                return Err(format!("path `{rel}` is absolute (paths are relative to their directory)"))
+            }
+        }
+    }
+    Ok(())
+}
 
 /// session.toml
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -120,15 +153,32 @@ impl Session {
     pub fn open(dir: &Path) -> Result<Session> {
         let mp = dir.join(SESSION_FILE);
         let text = std::fs::read_to_string(&mp).map_err(|e| io_err(&mp, e))?;
-        let meta: SessionMeta = toml::from_str(&text).map_err(|e| io_err(&mp, e))?;
-        if meta.format != SESSION_FORMAT {
-            return Err(io_err(&mp, format!("format `{}`, expected `{SESSION_FORMAT}`", meta.format)));
-        }
-        if meta.width == 0 || meta.height == 0 || !(meta.fps > 0.0) {
-            return Err(io_err(&mp, "width, height and fps must be positive"));
-        }
+        let (meta, spans) = parse_meta(&mp, &text)?;
         let frames = read_frames(&dir.join("frames.csv"))?;
         let encoders = read_encoders(&dir.join("encoders.csv"))?;
+        if let Some(period) = meta.loop_period_ns {
+            // a looped replay shifts every time by the period: it must exceed each stream's span, or
+            // timestamps would go back at the seam
+            let span = |t: &mut dyn Iterator<Item = i64>| {
+                let (lo, hi) = t.fold((i64::MAX, i64::MIN), |(lo, hi), x| (lo.min(x), hi.max(x)));
+                hi - lo
+            };
+            let fs = span(&mut frames.iter().map(|f| f.t_start_ns));
+            let es = (0..2u8).map(|e| span(&mut encoders.iter().filter(|r| r.eye == e).map(|r| r.t_ns))).max();
+            for (what, s) in [("frames.csv", fs), ("encoders.csv", es.unwrap_or(0))] {
+                if period <= s {
+                    return Err(field_err(
+                        &mp,
+                        &text,
+                        spans.loop_period_ns.as_ref().map(Spanned::span),
+                        "loop_period_ns",
+                        format!(
+                            "{period} ns is not longer than the {s} ns {what} spans (looped timestamps would go back)"
+                        ),
+                    ));
+                }
+            }
+        }
         Ok(Session { dir: dir.to_path_buf(), meta, frames, encoders })
     }
 
@@ -165,49 +215,193 @@ fn write_csv<T: Serialize>(path: &Path, rows: &[T]) -> Result<()> {
     w.flush().map_err(|e| io_err(path, e))
 }
 
-fn read_csv<T: for<'de> Deserialize<'de>>(path: &Path) -> Result<Vec<T>> {
+/// Line of a byte offset in a text (1-based).
+fn line_of(text: &str, offset: usize) -> u64 {
+    let end = offset.min(text.len());
+    text.as_bytes()[..end].iter().filter(|&&b| b == b'\n').count() as u64 + 1
+}
+
+fn field_err(
+    path: &Path,
+    text: &str,
+    span: Option<Range<usize>>,
+    field: &str,
+    msg: impl std::fmt::Display,
+) -> RuntimeError {
+    RuntimeError::File {
+        path: path.to_path_buf(),
+        line: span.map(|s| line_of(text, s.start)),
+        msg: format!("`{field}`: {msg}"),
+    }
+}
+
+/// Where each field of session.toml is (for errors), read alongside [`SessionMeta`].
+#[derive(Deserialize, Default)]
+struct MetaSpans {
+    format: Option<Spanned<toml::Value>>,
+    width: Option<Spanned<toml::Value>>,
+    height: Option<Spanned<toml::Value>>,
+    fps: Option<Spanned<toml::Value>>,
+    loop_period_ns: Option<Spanned<toml::Value>>,
+    stereo: Option<Spanned<toml::Value>>,
+    fk: Option<Spanned<toml::Value>>,
+    gravity: Option<Spanned<toml::Value>>,
+    truth: Option<TruthSpans>,
+}
+
+#[derive(Deserialize, Default)]
+struct TruthSpans {
+    units: Option<Spanned<toml::Value>>,
+    stereo: Option<Spanned<toml::Value>>,
+    poses: Option<Spanned<toml::Value>>,
+}
+
+/// The key of a `key = value` line (for a TOML error that points into a value).
+fn key_at(text: &str, offset: usize) -> Option<String> {
+    let bytes = &text.as_bytes()[..offset.min(text.len())];
+    let start = bytes.iter().rposition(|&b| b == b'\n').map_or(0, |i| i + 1);
+    let line = text.get(start..)?.lines().next()?;
+    let (k, _) = line.split_once('=')?;
+    let k = k.trim().trim_matches('"');
+    (!k.is_empty() && !k.starts_with('[')).then(|| k.to_string())
+}
+
+/// Parses and checks session.toml: every error names the file, the line and the field.
+fn parse_meta(mp: &Path, text: &str) -> Result<(SessionMeta, MetaSpans)> {
+    let meta: SessionMeta = toml::from_str(text).map_err(|e| {
+        let span = e.span().filter(|s| s.start < text.len());
+        let msg = e.message().trim().to_string();
+        match span.as_ref().and_then(|s| key_at(text, s.start)) {
+            // (a missing field's span is the whole table: no line to point at)
+            Some(k) if !msg.starts_with("missing field") => field_err(mp, text, span, &k, msg),
+            _ => RuntimeError::File {
+                path: mp.to_path_buf(),
+                line: span.filter(|s| s.start > 0).map(|s| line_of(text, s.start)),
+                msg,
+            },
+        }
+    })?;
+    let spans: MetaSpans = toml::from_str(text).unwrap_or_default();
+    let sp = |s: &Option<Spanned<toml::Value>>| s.as_ref().map(Spanned::span);
+    let bad = |span: Option<Range<usize>>, field: &str, msg: String| Err(field_err(mp, text, span, field, msg));
+    if meta.format != SESSION_FORMAT {
+        return bad(sp(&spans.format), "format", format!("`{}`, expected `{SESSION_FORMAT}`", meta.format));
+    }
+    for (field, v, s) in [("width", meta.width, &spans.width), ("height", meta.height, &spans.height)] {
+        if v == 0 || v > MAX_FRAME_SIDE {
+            return bad(sp(s), field, format!("{v} is out of range (1 ..= {MAX_FRAME_SIDE} pixels)"));
+        }
+    }
+    if !(meta.fps > 0.0 && meta.fps <= MAX_FPS) {
+        return bad(sp(&spans.fps), "fps", format!("{} is out of range (0 < fps <= {MAX_FPS})", meta.fps));
+    }
+    if let Some(p) = meta.loop_period_ns {
+        if p <= 0 || p >= MAX_T_NS {
+            return bad(
+                sp(&spans.loop_period_ns),
+                "loop_period_ns",
+                format!("{p} is out of range (a positive duration in ns)"),
+            );
+        }
+    }
+    let g = meta.gravity;
+    let norm = (g[0] * g[0] + g[1] * g[1] + g[2] * g[2]).sqrt();
+    if !((norm - 1.0).abs() <= 1e-3) {
+        return bad(sp(&spans.gravity), "gravity", format!("{g:?} is not a unit vector (norm {norm})"));
+    }
+    let mut paths = vec![("stereo", &meta.stereo, sp(&spans.stereo))];
+    paths.extend(meta.fk.iter().map(|p| ("fk", p, sp(&spans.fk))));
+    if let Some(t) = &meta.truth {
+        let ts = spans.truth.as_ref();
+        let tsp = |f: fn(&TruthSpans) -> &Option<Spanned<toml::Value>>| ts.and_then(|t| sp(f(t)));
+        paths.extend(t.units.iter().map(|p| ("truth.units", p, tsp(|t| &t.units))));
+        paths.push(("truth.stereo", &t.stereo, tsp(|t| &t.stereo)));
+        paths.push(("truth.poses", &t.poses, tsp(|t| &t.poses)));
+    }
+    for (field, p, span) in paths {
+        if let Err(e) = check_inside(p) {
+            return bad(span, field, e);
+        }
+    }
+    Ok((meta, spans))
+}
+
+/// A CSV error with the line of its record and, for a value that does not parse, the column's name.
+fn csv_err(path: &Path, e: &csv::Error, headers: &csv::StringRecord) -> RuntimeError {
+    let line = e.position().map(|p| p.line());
+    let msg = match e.kind() {
+        csv::ErrorKind::UnequalLengths { expected_len, len, .. } => {
+            format!("{len} fields, expected {expected_len} (a truncated or malformed row)")
+        }
+        csv::ErrorKind::Deserialize { err, .. } => match err.field().and_then(|i| headers.get(i as usize)) {
+            Some(name) => format!("field `{name}`: {}", err.kind()),
+            None => err.kind().to_string(),
+        },
+        _ => e.to_string(),
+    };
+    RuntimeError::File { path: path.to_path_buf(), line, msg }
+}
+
+/// Reads a CSV file with a header row: each row with its line.
+fn read_csv<T: for<'de> Deserialize<'de>>(path: &Path) -> Result<Vec<(u64, T)>> {
     let mut r = csv::Reader::from_path(path).map_err(|e| io_err(path, e))?;
+    let headers = r.headers().map_err(|e| csv_err(path, &e, &csv::StringRecord::new()))?.clone();
     let mut out = Vec::new();
-    for (i, row) in r.deserialize().enumerate() {
-        // header is line 1
-        out.push(row.map_err(|e: csv::Error| line_err(path, i as u64 + 2, e))?);
+    let mut rec = csv::StringRecord::new();
+    while r.read_record(&mut rec).map_err(|e| csv_err(path, &e, &headers))? {
+        let line = rec.position().map_or(0, |p| p.line());
+        let row: T = rec.deserialize(Some(&headers)).map_err(|e| csv_err(path, &e, &headers))?;
+        out.push((line, row));
     }
     Ok(out)
 }
 
 fn read_frames(path: &Path) -> Result<Vec<FrameRecord>> {
-    let rows: Vec<FrameRecord> = read_csv(path)?;
+    let rows: Vec<(u64, FrameRecord)> = read_csv(path)?;
     if rows.is_empty() {
         return Err(io_err(path, "no frames"));
     }
-    for (i, w) in rows.windows(2).enumerate() {
-        if w[1].t_start_ns <= w[0].t_start_ns {
-            return Err(line_err(
-                path,
-                i as u64 + 3,
-                format!("t_start_ns {} is not after the previous row's {}", w[1].t_start_ns, w[0].t_start_ns),
-            ));
+    for (i, (line, r)) in rows.iter().enumerate() {
+        let bad = |msg: String| Err(line_err(path, *line, msg));
+        if !(0..MAX_T_NS).contains(&r.t_start_ns) {
+            return bad(format!("t_start_ns {} is out of range (0 .. 2^60 ns)", r.t_start_ns));
+        }
+        if r.exposure_ns <= 0 || r.exposure_ns > MAX_EXPOSURE_NS {
+            return bad(format!("exposure_ns {} is out of range (1 ..= {MAX_EXPOSURE_NS})", r.exposure_ns));
+        }
+        if i > 0 {
+            let prev = &rows[i - 1].1;
+            // frames are matched (truth, pipeline seq) by seq: it identifies a row
+            if r.seq <= prev.seq {
+                return bad(format!("seq {} is not after the previous row's {}", r.seq, prev.seq));
+            }
+            if r.t_start_ns <= prev.t_start_ns {
+                return bad(format!("t_start_ns {} is not after the previous row's {}", r.t_start_ns, prev.t_start_ns));
+            }
+        }
+        for (side, p) in [("left", &r.left), ("right", &r.right)] {
+            if let Err(e) = check_inside(p) {
+                return bad(format!("{side}: {e}"));
+            }
         }
     }
-    for (i, r) in rows.iter().enumerate() {
-        if r.exposure_ns <= 0 {
-            return Err(line_err(path, i as u64 + 2, format!("exposure_ns {} is not positive", r.exposure_ns)));
-        }
-    }
-    Ok(rows)
+    Ok(rows.into_iter().map(|(_, r)| r).collect())
 }
 
 fn read_encoders(path: &Path) -> Result<Vec<EncoderRecord>> {
-    let rows: Vec<EncoderRecord> = read_csv(path)?;
-    for (i, r) in rows.iter().enumerate() {
+    let rows: Vec<(u64, EncoderRecord)> = read_csv(path)?;
+    for (line, r) in &rows {
         if r.eye > 1 {
-            return Err(line_err(path, i as u64 + 2, format!("eye {} (expected 0 = left or 1 = right)", r.eye)));
+            return Err(line_err(path, *line, format!("eye {} (expected 0 = left or 1 = right)", r.eye)));
+        }
+        if !(0..MAX_T_NS).contains(&r.t_ns) {
+            return Err(line_err(path, *line, format!("t_ns {} is out of range (0 .. 2^60 ns)", r.t_ns)));
         }
     }
     for eye in 0..2u8 {
-        if !rows.iter().any(|r| r.eye == eye) {
+        if !rows.iter().any(|(_, r)| r.eye == eye) {
             return Err(io_err(path, format!("no samples of eye {eye}")));
         }
     }
-    Ok(rows)
+    Ok(rows.into_iter().map(|(_, r)| r).collect())
 }

@@ -89,6 +89,9 @@ impl OnnxEngine {
                     msg: format!("format `{}`, expected `{DISPARITY_FORMAT}`", m.format),
                 });
             }
+            // the model file is named relative to the manifest and stays in its directory
+            crate::session::check_inside(&m.file)
+                .map_err(|e| RuntimeError::Model { path: mp.clone(), msg: format!("bad manifest: `file`: {e}") })?;
             let f = path.join(&m.file);
             (Some(m), f)
         } else {
