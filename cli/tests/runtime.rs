@@ -90,6 +90,38 @@ fn a_corrupted_frame_file_is_counted_and_the_rest_plays() {
     let v = run(&s, &["--engine", "sgbm", "--lossless", "--truth-stride", "0"]).unwrap();
     assert_eq!(v["bad_frame_files"], 1);
     assert_eq!(v["frames_published"], 49);
+    assert_eq!(v["frames_in"], 50, "{v}");
+    assert_eq!(v["frames_failed"], serde_json::json!({ "frame file unreadable": 1 }), "{v}");
+}
+
+#[test]
+fn a_missing_frame_is_counted_and_the_others_keep_their_truth() {
+    let d = fixture_copy();
+    let s = d.path().join("s");
+    std::fs::remove_file(s.join("frames/right_000025.png")).unwrap();
+    let gap = run(&s, &["--engine", "sgbm", "--lossless"]).unwrap();
+    assert_eq!(gap["frames_failed"], serde_json::json!({ "frame file missing": 1 }), "{gap}");
+    assert_eq!((gap["frames_in"].as_u64(), gap["frames_published"].as_u64()), (Some(50), Some(49)), "{gap}");
+    // frames after the gap are scored against their own truth (they used to take the previous frame's:
+    // abs_rel 0.036 -> 0.066); runtime/tests/replay_identity.rs compares every frame with the intact run
+    let intact = run(&fixture(), &["--engine", "sgbm", "--lossless"]).unwrap();
+    let (g, i) = (depth_err(&gap), depth_err(&intact));
+    assert!((g.0 - i.0).abs() < 0.1 * i.0, "abs_rel with the gap {} vs intact {}", g.0, i.0);
+}
+
+#[test]
+fn a_bad_session_toml_is_refused_with_file_line_and_field() {
+    let d = fixture_copy();
+    let s = d.path().join("s");
+    let toml = std::fs::read_to_string(s.join("session.toml")).unwrap();
+    let line = toml.lines().position(|l| l.starts_with("loop_period_ns")).unwrap() + 1;
+    // loop_period_ns 0 made the encoder replay stand still and `abvs run` hang
+    std::fs::write(s.join("session.toml"), toml.replace("loop_period_ns = 2000000000", "loop_period_ns = 0")).unwrap();
+    let e = run(&s, &["--engine", "sgbm", "--lossless", "--frames", "60"]).unwrap_err();
+    assert!(e.contains(&format!("session.toml:{line}: `loop_period_ns`: 0 is out of range")), "{e}");
+    std::fs::write(s.join("session.toml"), toml.replace("width = 800", "width = \"800\"")).unwrap();
+    let e = run(&s, &["--engine", "sgbm"]).unwrap_err();
+    assert!(e.contains("session.toml:3: `width`: invalid type"), "{e}");
 }
 
 #[test]

@@ -30,8 +30,8 @@ pub const STAGES: [&str; 4] = ["source", "rectify", "disparity", "output"];
 /// One frame's buffers and results as it moves through the stages.
 pub struct Work {
     pub seq: u64,
-    /// Index of the frame in its session (replay), for ground truth.
-    pub index: usize,
+    /// The frame's `seq` in its session (before looping): the key of its ground truth.
+    pub session_seq: u64,
     /// Left mid-exposure time (CLOCK_MONOTONIC ns): the frame's timestamp.
     pub t_frame_ns: i64,
     pub t_right_ns: i64,
@@ -56,7 +56,7 @@ impl Work {
         let no = (out.0 * out.1) as usize;
         Box::new(Work {
             seq: 0,
-            index: 0,
+            session_seq: 0,
             t_frame_ns: 0,
             t_right_ns: 0,
             raw_left: vec![0; nr],
@@ -77,7 +77,8 @@ impl Work {
 /// What an output sink sees of one finished frame.
 pub struct Published<'a> {
     pub seq: u64,
-    pub index: usize,
+    /// The frame's `seq` in its session (before looping): the key of its ground truth.
+    pub session_seq: u64,
     pub t_frame_ns: i64,
     pub theta: &'a [[f64; 3]; 2],
     pub pose: &'a StereoPose,
@@ -250,6 +251,11 @@ impl PairSource for ReplaySource {
     }
     fn finish(&mut self, stats: &mut RunStats) {
         stats.extra.insert("bad_frame_files".into(), serde_json::json!(self.bad_frames.len()));
+        // frames the replay reached but could not read: in, and failed with their reason
+        for (reason, n) in self.frames_failed() {
+            stats.frames_in += n;
+            *stats.frames_failed.entry(reason.to_string()).or_default() += n;
+        }
     }
 }
 
@@ -349,7 +355,7 @@ pub fn run<S: PairSource>(
                         }
                     };
                     w.seq = f.seq;
-                    w.index = f.index;
+                    w.session_seq = f.session_seq;
                     w.t_frame_ns = f.t_start_ns + f.exposure_ns / 2;
                     w.t_right_ns = f.right_t_start_ns + f.exposure_ns / 2;
                     w.raw_left.copy_from_slice(f.left);
@@ -453,7 +459,7 @@ pub fn run<S: PairSource>(
             depth.compute(&w.disparity, |i| valid[i] != 0, &w.rect_left, &cfg.out, rect, &pose.rel_left, &cfg.depth);
             let published = Published {
                 seq: w.seq,
-                index: w.index,
+                session_seq: w.session_seq,
                 t_frame_ns: w.t_frame_ns,
                 theta: &w.theta,
                 pose,

@@ -5,7 +5,8 @@
 //! (true unit model at the true link angles) and a ray cast into the true scene. Errors compare the published
 //! point with that true surface point: `abs_rel` = |r_est - r_true| / r_true (ranges from the true optical
 //! centre) and `rmse_m` = RMS of the 3D distance. Points are scored on a fixed pixel stride (casting every
-//! point would cost more than the pipeline).
+//! point would cost more than the pipeline). Frames are matched to their truth by `seq` (the first column of
+//! the truth's poses file), never by position: a frame the replay could not read shifts nothing.
 use abvs_camera::{Camera, StereoCalibration};
 use abvs_eye::{Pose, UnitModel};
 use abvs_render::Scene;
@@ -19,10 +20,12 @@ use crate::sinks::stats::{DepthError, RunStats};
 pub struct TruthSink {
     scene: Scene,
     camera: Camera,
-    /// True T_rel of the left eye per session frame (metres).
-    poses: Vec<Pose>,
+    /// True T_rel of the left eye per session frame (metres), by seq (increasing).
+    poses: Vec<(u64, Pose)>,
     stride: usize,
     err: DepthError,
+    /// Frames published without a truth row for their seq (not scored).
+    unscored: u64,
 }
 
 impl TruthSink {
@@ -47,22 +50,36 @@ impl TruthSink {
         let mut stream = fk.stream();
         let mut poses = Vec::new();
         for (i, line) in text.lines().enumerate().skip(1) {
-            let v: Vec<f64> =
-                line.split(',').map(|x| x.trim().parse::<f64>()).collect::<std::result::Result<_, _>>().map_err(
-                    |e| RuntimeError::File { path: pp.clone(), line: Some(i as u64 + 1), msg: e.to_string() },
-                )?;
-            if v.len() != 7 {
-                return Err(RuntimeError::File {
-                    path: pp.clone(),
-                    line: Some(i as u64 + 1),
-                    msg: format!("{} columns, expected 7", v.len()),
-                });
+            let at = |msg: String| RuntimeError::File { path: pp.clone(), line: Some(i as u64 + 1), msg };
+            let cols: Vec<&str> = line.split(',').map(str::trim).collect();
+            if cols.len() != 7 {
+                return Err(at(format!("{} columns, expected 7 (seq,l1,l2,l3,r1,r2,r3)", cols.len())));
             }
-            let p = fk.next(&mut stream, &[v[1], v[2], v[3]], session.meta.gravity).map_err(|e| model(&up, &e))?;
-            poses.push(Pose::new(p.r, p.t * 1e-3));
+            let seq: u64 = cols[0].parse().map_err(|e| at(format!("seq `{}`: {e}", cols[0])))?;
+            if let Some((prev, _)) = poses.last() {
+                if seq <= *prev {
+                    return Err(at(format!("seq {seq} is not after the previous row's {prev}")));
+                }
+            }
+            let mut v = [0.0; 6];
+            for (k, x) in v.iter_mut().enumerate() {
+                *x = cols[k + 1].parse::<f64>().map_err(|e| at(format!("column {}: `{}`: {e}", k + 2, cols[k + 1])))?;
+            }
+            let p = fk.next(&mut stream, &[v[0], v[1], v[2]], session.meta.gravity).map_err(|e| model(&up, &e))?;
+            poses.push((seq, Pose::new(p.r, p.t * 1e-3)));
         }
         let camera = crate::pipeline::camera_for_frames(&stereo.left, session.meta.width, session.meta.height)?;
-        Ok(Some(TruthSink { scene, camera, poses, stride: stride.max(1), err: DepthError::default() }))
+        Ok(Some(TruthSink { scene, camera, poses, stride: stride.max(1), err: DepthError::default(), unscored: 0 }))
+    }
+
+    /// What was measured so far (sums over the frames scored).
+    pub fn error(&self) -> DepthError {
+        self.err
+    }
+
+    /// The true pose of the left eye for a frame of the session, by its seq.
+    fn true_pose(&self, seq: u64) -> Option<Pose> {
+        self.poses.binary_search_by_key(&seq, |(s, _)| *s).ok().map(|i| self.poses[i].1)
     }
 }
 
@@ -72,7 +89,10 @@ impl Sink for TruthSink {
     }
 
     fn consume(&mut self, out: &Published) -> Result<()> {
-        let Some(true_pose) = self.poses.get(out.index) else { return Ok(()) };
+        let Some(true_pose) = self.true_pose(out.session_seq) else {
+            self.unscored += 1;
+            return Ok(());
+        };
         let w = out.cam.width as usize;
         let cam_from_rect = out.rect.rect_from_left.transpose();
         let origin = Point3::from(true_pose.t);
@@ -98,5 +118,6 @@ impl Sink for TruthSink {
     fn finish(&mut self, stats: &mut RunStats) {
         // valid_fraction over the scored pixel stride
         stats.depth_error = Some(self.err);
+        stats.extra.insert("truth_frames_unscored".into(), serde_json::json!(self.unscored));
     }
 }

@@ -89,8 +89,8 @@ impl PairSource for LiveSource {
         let p = self.current.as_ref().expect("just stored");
         Some(ReplayFrame {
             // the camera's own frame number (a stand-in camera replaying a session puts the
-            // session index there, which lets ground truth be looked up)
-            index: p.left.seq as usize,
+            // session seq there, which lets ground truth be looked up)
+            session_seq: p.left.seq,
             seq: p.seq,
             t_start_ns: p.left.t_start_ns,
             right_t_start_ns: p.right.t_start_ns,

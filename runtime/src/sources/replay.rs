@@ -3,8 +3,11 @@
 //! Frames are decoded once at start-up (sessions are short; decoding per frame would allocate and cost more
 //! than the pipeline), then copied into the pipeline's pooled buffers. Timestamps are shifted onto this
 //! process's CLOCK_MONOTONIC so latency means the same as live; when more frames are asked for than the
-//! session holds it loops, with timestamps (frames and encoders) kept increasing. A frame file that cannot be
-//! decoded is reported by path, counted and skipped: the rest of the session still plays.
+//! session holds it loops, with timestamps (frames and encoders) kept increasing.
+//!
+//! Every row of frames.csv keeps its identity: its `seq` (ground truth is looked up by it) and its time (the
+//! encoders are). A frame whose file is missing, unreadable or of the wrong size is reported by path at
+//! start-up and counted in `frames_failed` with its reason each time the replay reaches it; it shifts nothing.
 use std::path::PathBuf;
 
 use crate::error::{Result, RuntimeError};
@@ -13,17 +16,49 @@ use crate::tasks::align::{EncoderSample, EncoderTrack};
 
 /// A decoded stereo frame of the session.
 struct Decoded {
-    seq: u64,
-    t_start_ns: i64,
-    exposure_ns: i64,
     left: Vec<u8>,
     right: Vec<u8>,
 }
 
+/// Why a frame of the session cannot be replayed (the `frames_failed` reasons of the replay).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum FrameFault {
+    // (the discriminants index the replay's counters, in the order of `ALL`)
+    /// A frame file named by frames.csv does not exist.
+    Missing,
+    /// A frame file exists but does not decode as an image.
+    Unreadable,
+    /// A frame file decodes to another size than session.toml says.
+    WrongSize,
+}
+
+impl FrameFault {
+    pub const ALL: [FrameFault; 3] = [FrameFault::Missing, FrameFault::Unreadable, FrameFault::WrongSize];
+
+    /// The reason as counted in `frames_failed`.
+    pub fn reason(self) -> &'static str {
+        match self {
+            FrameFault::Missing => "frame file missing",
+            FrameFault::Unreadable => "frame file unreadable",
+            FrameFault::WrongSize => "frame file of the wrong size",
+        }
+    }
+}
+
+/// One row of frames.csv: its identity and time, and its images or why there are none.
+struct Slot {
+    seq: u64,
+    t_start_ns: i64,
+    exposure_ns: i64,
+    frame: std::result::Result<Decoded, FrameFault>,
+}
+
 /// What the replay hands the pipeline for one pair (written into pooled buffers).
 pub struct ReplayFrame<'a> {
-    /// Index of the pair in the session (before looping).
-    pub index: usize,
+    /// The frame's `seq` in its session (before looping; for a live camera its frame number): the key of
+    /// its ground truth.
+    pub session_seq: u64,
+    /// Pipeline sequence number (keeps increasing when a replay loops).
     pub seq: u64,
     pub t_start_ns: i64,
     /// The right frame's start of exposure (live pairs differ by up to the pairing tolerance).
@@ -35,13 +70,18 @@ pub struct ReplayFrame<'a> {
 
 pub struct ReplaySource {
     pub session: Session,
-    frames: Vec<Decoded>,
-    /// Frames that could not be decoded: (path, reason).
+    /// One slot per row of frames.csv, in order.
+    slots: Vec<Slot>,
+    /// Files that could not be used: (path, reason).
     pub bad_frames: Vec<(PathBuf, String)>,
+    /// Frames reached by the replay and skipped, per [`FrameFault::ALL`].
+    failed: [u64; 3],
     /// Shift from recorded time to replay time (ns), set by `start`.
     shift_ns: i64,
     /// Duration of one loop (ns).
     period_ns: i64,
+    /// `seq` advance of one loop (last seq - first seq + 1).
+    seq_span: u64,
     next: usize,
     loops: i64,
     emitted: u64,
@@ -82,54 +122,65 @@ impl EncoderReplay {
 
 impl ReplaySource {
     pub fn open(session: Session) -> Result<ReplaySource> {
-        let mut frames = Vec::with_capacity(session.frames.len());
+        let mut slots = Vec::with_capacity(session.frames.len());
         let mut bad_frames = Vec::new();
         let (w, h) = (session.meta.width, session.meta.height);
         for r in &session.frames {
-            let load = |rel: &str| -> std::result::Result<Vec<u8>, String> {
+            let load = |rel: &str| -> std::result::Result<Vec<u8>, (FrameFault, String)> {
                 let p = session.path(rel);
-                let img = image::open(&p).map_err(|e| e.to_string())?.into_luma8();
+                let img = image::open(&p)
+                    .map_err(|e| {
+                        let missing =
+                            matches!(&e, image::ImageError::IoError(io) if io.kind() == std::io::ErrorKind::NotFound);
+                        (if missing { FrameFault::Missing } else { FrameFault::Unreadable }, e.to_string())
+                    })?
+                    .into_luma8();
                 if img.width() != w || img.height() != h {
-                    return Err(format!("{}x{} image, the session says {w}x{h}", img.width(), img.height()));
+                    return Err((
+                        FrameFault::WrongSize,
+                        format!("{}x{} image, the session says {w}x{h}", img.width(), img.height()),
+                    ));
                 }
                 Ok(img.into_raw())
             };
-            match (load(&r.left), load(&r.right)) {
-                (Ok(left), Ok(right)) => frames.push(Decoded {
-                    seq: r.seq,
-                    t_start_ns: r.t_start_ns,
-                    exposure_ns: r.exposure_ns,
-                    left,
-                    right,
-                }),
+            let frame = match (load(&r.left), load(&r.right)) {
+                (Ok(left), Ok(right)) => Ok(Decoded { left, right }),
                 (l, rr) => {
-                    if let Err(e) = l {
-                        bad_frames.push((session.path(&r.left), e));
+                    let mut fault = None;
+                    for (rel, res) in [(&r.left, l), (&r.right, rr)] {
+                        if let Err((f, e)) = res {
+                            fault.get_or_insert(f);
+                            bad_frames.push((session.path(rel), e));
+                        }
                     }
-                    if let Err(e) = rr {
-                        bad_frames.push((session.path(&r.right), e));
-                    }
+                    Err(fault.expect("one side failed"))
                 }
-            }
+            };
+            slots.push(Slot { seq: r.seq, t_start_ns: r.t_start_ns, exposure_ns: r.exposure_ns, frame });
         }
-        if frames.is_empty() {
+        if !slots.iter().any(|s| s.frame.is_ok()) {
             return Err(RuntimeError::File {
                 path: session.dir.join("frames.csv"),
                 line: None,
                 msg: format!("no readable frame pair ({} unreadable files)", bad_frames.len()),
             });
         }
+        // times and seq from the session's rows, readable or not: a bad frame changes neither
         let mut encoders = session.encoders.clone();
         encoders.sort_by_key(|e| (e.t_ns, e.eye));
-        let t_first = frames[0].t_start_ns.min(encoders[0].t_ns);
-        let t_last = frames.last().map(|f| f.t_start_ns).unwrap_or(0).max(encoders.last().map(|e| e.t_ns).unwrap_or(0));
+        let (first, last) = (&session.frames[0], &session.frames[session.frames.len() - 1]);
+        let t_first = first.t_start_ns.min(encoders[0].t_ns);
+        let t_last = last.t_start_ns.max(encoders.last().map(|e| e.t_ns).unwrap_or(0));
         let period_ns = session.meta.loop_period_ns.unwrap_or(t_last - t_first + (1e9 / session.meta.fps) as i64);
+        let seq_span = last.seq - first.seq + 1;
         Ok(ReplaySource {
             session,
-            frames,
+            slots,
             bad_frames,
+            failed: [0; 3],
             shift_ns: 0,
             period_ns,
+            seq_span,
             next: 0,
             loops: 0,
             emitted: 0,
@@ -137,21 +188,28 @@ impl ReplaySource {
         })
     }
 
+    /// Rows of frames.csv (readable or not).
     pub fn frames_in_session(&self) -> usize {
-        self.frames.len()
+        self.slots.len()
     }
 
     pub fn size(&self) -> (u32, u32) {
         (self.session.meta.width, self.session.meta.height)
     }
 
-    /// Anchors recorded time to `now_ns` (CLOCK_MONOTONIC): the first frame starts its exposure then.
-    /// Returns the encoder stream on the same clock.
+    /// Frames reached and skipped so far, by reason.
+    pub fn frames_failed(&self) -> impl Iterator<Item = (&'static str, u64)> + '_ {
+        FrameFault::ALL.iter().zip(self.failed).filter(|(_, n)| *n > 0).map(|(f, n)| (f.reason(), n))
+    }
+
+    /// Anchors recorded time to `now_ns` (CLOCK_MONOTONIC): the session's first frame starts its exposure
+    /// then. Returns the encoder stream on the same clock.
     pub fn start(&mut self, now_ns: i64) -> EncoderReplay {
-        self.shift_ns = now_ns - self.frames[0].t_start_ns;
+        self.shift_ns = now_ns - self.slots[0].t_start_ns;
         self.next = 0;
         self.loops = 0;
         self.emitted = 0;
+        self.failed = [0; 3];
         EncoderReplay { shift_ns: self.shift_ns, next: 0, loops: 0, ..self.encoders.clone() }
     }
 
@@ -159,29 +217,37 @@ impl ReplaySource {
         self.shift_ns + loops * self.period_ns
     }
 
-    /// The next pair (looping), or `None` once `limit` pairs were emitted (`None` limit: one pass).
+    /// The next pair (looping), or `None` once `limit` rows were reached (`None` limit: one pass). Rows
+    /// whose frame cannot be replayed count towards the limit and in [`ReplaySource::frames_failed`].
     pub fn next_frame(&mut self, limit: Option<u64>) -> Option<ReplayFrame<'_>> {
-        let limit = limit.unwrap_or(self.frames.len() as u64);
-        if self.emitted >= limit {
-            return None;
+        let limit = limit.unwrap_or(self.slots.len() as u64);
+        loop {
+            if self.emitted >= limit {
+                return None;
+            }
+            if self.next == self.slots.len() {
+                self.next = 0;
+                self.loops += 1;
+            }
+            let i = self.next;
+            self.next += 1;
+            self.emitted += 1;
+            let shift = self.loop_shift(self.loops);
+            let s = &self.slots[i];
+            match &s.frame {
+                Err(fault) => self.failed[*fault as usize] += 1,
+                Ok(f) => {
+                    return Some(ReplayFrame {
+                        session_seq: s.seq,
+                        seq: s.seq + self.loops as u64 * self.seq_span,
+                        t_start_ns: s.t_start_ns + shift,
+                        right_t_start_ns: s.t_start_ns + shift,
+                        exposure_ns: s.exposure_ns,
+                        left: &f.left,
+                        right: &f.right,
+                    })
+                }
+            }
         }
-        if self.next == self.frames.len() {
-            self.next = 0;
-            self.loops += 1;
-        }
-        let shift = self.loop_shift(self.loops);
-        let i = self.next;
-        self.next += 1;
-        self.emitted += 1;
-        let f = &self.frames[i];
-        Some(ReplayFrame {
-            index: i,
-            seq: f.seq + self.loops as u64 * self.frames.len() as u64,
-            t_start_ns: f.t_start_ns + shift,
-            right_t_start_ns: f.t_start_ns + shift,
-            exposure_ns: f.exposure_ns,
-            left: &f.left,
-            right: &f.right,
-        })
     }
 }
