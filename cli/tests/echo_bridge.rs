@@ -36,10 +36,9 @@ impl Pub {
         h.baseline_m = 0.065;
         let n = 2000 + (self.seq as usize % 5) * 100;
         let r = self.p.publish_cloud(&h, n, |pts| {
-            for (i, p) in pts.iter_mut().enumerate() {
-                p.write(CloudPoint { x: i as f32 * 1e-3, y: 0.0, z: 1.0, rgba: 0xFFFF_FFFF });
+            for i in 0..n {
+                pts.push(CloudPoint { x: i as f32 * 1e-3, y: 0.0, z: 1.0, rgba: 0xFFFF_FFFF });
             }
-            n
         });
         assert!(r.is_ok(), "publish {} failed: {r:?}", self.seq);
         self.seq += 1;

@@ -16,11 +16,8 @@ fn header(seq: u64, w: u32, h: u32) -> FrameHeader {
     hd
 }
 
-fn copy_into<T: Copy>(dst: &mut [std::mem::MaybeUninit<T>], src: &[T]) -> usize {
-    for (d, s) in dst.iter_mut().zip(src) {
-        d.write(*s);
-    }
-    src.len().min(dst.len())
+fn copy_into<T: Copy>(dst: &mut SampleWriter<'_, T>, src: &[T]) {
+    dst.extend_from_slice(src)
 }
 
 fn cloud_frame(n: usize) -> Vec<CloudPoint> {
@@ -70,10 +67,7 @@ fn bench(c: &mut Criterion) {
         g.bench_function(format!("depth_{w}x{h}"), |b| {
             b.iter(|| {
                 seq += 1;
-                dp.publish_depth(&header(seq, w, h), |d| {
-                    copy_into(d, &depth);
-                })
-                .unwrap()
+                dp.publish_depth(&header(seq, w, h), |d| copy_into(d, &depth)).unwrap()
             })
         });
         g.bench_function(format!("cloud_{w}x{h}_{n}pts"), |b| {
@@ -95,10 +89,7 @@ fn bench(c: &mut Criterion) {
         g.bench_function(format!("depth_{w}x{h}"), |b| {
             b.iter(|| {
                 seq += 1;
-                dp.publish_depth(&header(seq, w, h), |d| {
-                    copy_into(d, &depth);
-                })
-                .unwrap();
+                dp.publish_depth(&header(seq, w, h), |d| copy_into(d, &depth)).unwrap();
                 let r = ds.wait(Duration::from_secs(1)).unwrap().unwrap();
                 assert_eq!(r.header().seq, seq);
             })

@@ -56,16 +56,15 @@ fn publish_allocates_nothing_in_steady_state() {
         h.seq = seq;
         h.t_frame_ns = monotonic_ns();
         dp.publish_depth(&h, |d| {
-            for v in d.iter_mut() {
-                v.write(1.0);
+            for _ in 0..d.capacity() {
+                d.push(1.0);
             }
         })
         .unwrap();
         cp.publish_cloud(&h, 100, |p| {
-            for v in p.iter_mut().take(90) {
-                v.write(CloudPoint { x: 0.0, y: 0.0, z: 1.0, rgba: 0 });
+            for _ in 0..90 {
+                p.push(CloudPoint { x: 0.0, y: 0.0, z: 1.0, rgba: 0 });
             }
-            90
         })
         .unwrap();
     };

@@ -1,6 +1,5 @@
 //! The iceoryx2 bridge on real shared memory: round trip, late joiner, a subscriber that never reads, and a
 //! publisher restarted after its process was killed.
-use std::mem::MaybeUninit;
 use std::process::Command;
 use std::sync::atomic::{AtomicU32, Ordering};
 use std::time::Duration;
@@ -44,8 +43,8 @@ fn depth_and_cloud_round_trip_exactly() {
     let hd = header(7, 64, 48);
     let n = dp
         .publish_depth(&hd, |d| {
-            for (i, v) in d.iter_mut().enumerate() {
-                v.write(if i % 5 == 0 { f32::NAN } else { i as f32 * 0.01 });
+            for i in 0..d.capacity() {
+                d.push(if i % 5 == 0 { f32::NAN } else { i as f32 * 0.01 });
             }
         })
         .unwrap();
@@ -75,18 +74,16 @@ fn depth_and_cloud_round_trip_exactly() {
     // a cloud with fewer points than n_max: only the written points arrive
     let hc = header(8, 64, 48);
     cp.publish_cloud(&hc, 1000, |pts| {
-        for (i, p) in pts.iter_mut().take(600).enumerate() {
-            p.write(point(i));
+        for i in 0..600 {
+            pts.push(point(i));
         }
-        600
     })
     .unwrap();
     // and one with the exact count
     cp.publish_cloud(&header(9, 64, 48), 3, |pts| {
-        for (i, p) in pts.iter_mut().enumerate() {
-            p.write(point(i + 100));
+        for i in 0..3 {
+            pts.push(point(i + 100));
         }
-        3
     })
     .unwrap();
     let r = cs.wait(Duration::from_secs(2)).unwrap().expect("cloud sample");
@@ -103,7 +100,7 @@ fn depth_and_cloud_round_trip_exactly() {
     assert_eq!(cs.stats().received, 2);
 
     // too large: a clear error naming the service, not a panic
-    let e = cp.publish_cloud(&hc, 64 * 48 + 1, |_| 0).unwrap_err();
+    let e = cp.publish_cloud(&hc, 64 * 48 + 1, |_| {}).unwrap_err();
     assert!(e.to_string().contains("/cloud") && e.to_string().contains("exceed"), "{e}");
     let e = dp.publish_depth(&header(1, 640, 480), |_| {}).unwrap_err();
     assert!(e.to_string().contains("/depth"), "{e}");
@@ -117,10 +114,9 @@ fn late_joiner_gets_the_latest_sample() {
     let mut cp = CloudPublisher::new(&cfg).unwrap();
     for seq in 0..5u64 {
         cp.publish_cloud(&header(seq, 32, 24), 10, |pts| {
-            for (i, p) in pts.iter_mut().enumerate() {
-                p.write(point(i + seq as usize));
+            for i in 0..10 {
+                pts.push(point(i + seq as usize));
             }
-            10
         })
         .unwrap();
     }
@@ -137,8 +133,7 @@ fn late_joiner_gets_the_latest_sample() {
     // a second late joiner, history delivered by the next send instead
     let mut cs2 = CloudSubscriber::new(&cfg).unwrap();
     cp.publish_cloud(&header(5, 32, 24), 1, |pts| {
-        pts[0].write(point(5));
-        1
+        pts.push(point(5));
     })
     .unwrap();
     let a = cs2.wait(Duration::from_secs(2)).unwrap().expect("history");
@@ -162,10 +157,9 @@ fn a_subscriber_that_never_reads_does_not_block_the_publisher() {
         let d = cp
             .publish_cloud(&header(seq, 320, 240), 76_800, |pts| {
                 let n = 1000 + (seq as usize % 7) * 100;
-                for (i, p) in pts.iter_mut().take(n).enumerate() {
-                    p.write(point(i));
+                for i in 0..n {
+                    pts.push(point(i));
                 }
-                n
             })
             .unwrap();
         assert_eq!(d, 3, "delivered to all three subscribers at sample {seq}");
@@ -208,8 +202,7 @@ fn crash_helper_publisher() {
     let mut p = CloudPublisher::new(&cfg).unwrap();
     let mut s = CloudSubscriber::new(&cfg).unwrap();
     p.publish_cloud(&header(1, 16, 16), 1, |pts| {
-        pts[0].write(point(1));
-        1
+        pts.push(point(1));
     })
     .unwrap();
     let _held = s.wait(Duration::from_secs(2)).unwrap().unwrap();
@@ -230,9 +223,8 @@ fn publisher_restart_after_kill() {
     // else this publisher would be refused
     let mut p = CloudPublisher::new(&cfg).expect("restart after a crash");
     let mut s = CloudSubscriber::new(&cfg).unwrap();
-    p.publish_cloud(&header(2, 16, 16), 1, |pts: &mut [MaybeUninit<CloudPoint>]| {
-        pts[0].write(point(2));
-        1
+    p.publish_cloud(&header(2, 16, 16), 1, |pts| {
+        pts.push(point(2));
     })
     .unwrap();
     let r = s.wait(Duration::from_secs(2)).unwrap().expect("sample after restart");
@@ -258,8 +250,8 @@ fn a_subscriber_may_start_first_and_a_mismatching_configuration_is_refused() {
     let mut h = header(3, 16, 8);
     h.valid = 128;
     dp.publish_depth(&h, |d| {
-        for v in d.iter_mut() {
-            v.write(2.5);
+        for _ in 0..d.capacity() {
+            d.push(2.5);
         }
     })
     .unwrap();
@@ -271,7 +263,7 @@ fn a_subscriber_may_start_first_and_a_mismatching_configuration_is_refused() {
     // an empty cloud is a valid sample too
     let mut cp = CloudPublisher::new(&cfg).unwrap();
     let mut cs = CloudSubscriber::new(&cfg).unwrap();
-    cp.publish_cloud(&header(4, 16, 8), 0, |_| 0).unwrap();
+    cp.publish_cloud(&header(4, 16, 8), 0, |_| {}).unwrap();
     let r = cs.wait(Duration::from_secs(2)).unwrap().expect("empty cloud");
     assert_eq!((r.header().seq, r.header().valid, r.data().len()), (4, 0, 0));
 
@@ -280,4 +272,146 @@ fn a_subscriber_may_start_first_and_a_mismatching_configuration_is_refused() {
     let e = DepthSubscriber::new(&other).err().expect("mismatching configuration");
     let msg = e.to_string();
     assert!(msg.contains(&cfg.service_name("depth")) && msg.contains("BridgeConfig"), "{msg}");
+}
+
+#[test]
+fn nothing_unwritten_is_ever_sent() {
+    let cfg = unique_config(16, 8);
+    let mut dp = DepthPublisher::new(&cfg).unwrap();
+    let mut cp = CloudPublisher::new(&cfg).unwrap();
+    let mut ds = DepthSubscriber::new(&cfg).unwrap();
+    let mut cs = CloudSubscriber::new(&cfg).unwrap();
+    // The misuse, `publish_cloud(&h, 100, |_| 100)`, does not compile any more (the count is the
+    // writer's, not the closure's; see the compile_fail example on SampleWriter). Its nearest legal form,
+    // a fill that writes nothing into 100 loaned points, sends no point and an all-NaN tail.
+    cp.publish_cloud(&header(1, 16, 8), 100, |_| {}).unwrap();
+    let r = cs.wait(Duration::from_secs(2)).unwrap().expect("cloud");
+    assert_eq!((r.header().valid, r.data().len()), (0, 0), "valid = what the writer counted");
+    drop(r);
+    // a depth fill that writes half the map: the other half arrives as NaN, never as old shared memory
+    dp.publish_depth(&header(2, 16, 8), |d| {
+        for _ in 0..64 {
+            d.push(1.5);
+        }
+    })
+    .unwrap();
+    let r = ds.wait(Duration::from_secs(2)).unwrap().expect("depth");
+    assert_eq!(r.data().len(), 128);
+    assert!(r.data()[..64].iter().all(|&v| v == 1.5));
+    assert!(r.data()[64..].iter().all(|v| v.is_nan()), "{:?}", &r.data()[64..]);
+    drop(r);
+    // writing past the sample is refused and nothing is sent
+    let e = cp
+        .publish_cloud(&header(3, 16, 8), 3, |p| {
+            for i in 0..4 {
+                p.push(point(i));
+            }
+        })
+        .unwrap_err();
+    assert!(matches!(e, BridgeError::Overflow { capacity: 3, .. }), "{e}");
+    let e = cp.publish_cloud(&header(4, 16, 8), 2, |p| p.extend_from_slice(&[point(0); 3])).unwrap_err();
+    assert!(e.to_string().contains("/cloud") && e.to_string().contains("wrote past"), "{e}");
+    // more points than the header's organised width x height: refused before loaning
+    let e = cp.publish_cloud(&header(5, 4, 2), 9, |_| {}).unwrap_err();
+    assert!(matches!(e, BridgeError::TooLarge { n: 9, max: 8, .. }), "{e}");
+    assert!(cs.wait(Duration::from_millis(50)).unwrap().is_none(), "nothing sent by the refused calls");
+    assert_eq!(cp.stats().published, 1);
+}
+
+#[test]
+fn a_service_created_with_foreign_settings_is_refused() {
+    let cfg = unique_config(16, 8);
+    // another process got there first with room for a second publisher: opening it would let that process
+    // publish next to the runtime, so neither side uses it
+    let foreign = BridgeConfig { max_publishers: 2, history: 2, ..cfg.clone() };
+    let _other = DepthSubscriber::new(&foreign).unwrap();
+    for e in [DepthPublisher::new(&cfg).err().expect("foreign"), DepthSubscriber::new(&cfg).err().expect("foreign")] {
+        let msg = e.to_string();
+        assert!(matches!(e, BridgeError::Foreign { .. }), "{msg}");
+        assert!(
+            msg.contains(&cfg.service_name("depth"))
+                && msg.contains("max_publishers 2 (expected 1)")
+                && msg.contains("history 2 (expected 1)")
+                && msg.contains("another process created it"),
+            "{msg}"
+        );
+    }
+    // the event service is checked too
+    let cfg = unique_config(16, 8);
+    let _other = CloudSubscriber::new(&BridgeConfig { max_subscribers: 9, ..cfg.clone() }).unwrap();
+    let e = CloudSubscriber::new(&cfg).err().expect("foreign");
+    assert!(e.to_string().contains("max_subscribers 9 (expected 8)"), "{e}");
+}
+
+#[test]
+fn a_taken_publisher_slot_names_the_holder() {
+    let cfg = unique_config(8, 8);
+    let _p = CloudPublisher::new(&cfg).unwrap();
+    let e = CloudPublisher::new(&cfg).err().expect("max_publishers = 1");
+    let msg = e.to_string();
+    assert!(matches!(e, BridgeError::PublisherTaken { .. }), "{msg}");
+    assert!(
+        msg.contains(&cfg.service_name("cloud"))
+            && msg.contains("only publisher slot")
+            && msg.contains(&format!("process {}", std::process::id())),
+        "{msg}"
+    );
+}
+
+/// A publisher outside the bridge's API (raw iceoryx2 on the same service) sends payloads that do not fit
+/// their headers: the subscriber drops and counts them, and hands out the good one after them.
+#[test]
+fn subscribers_drop_payloads_that_do_not_fit_their_header() {
+    use iceoryx2::prelude::*;
+    let cfg = unique_config(16, 8);
+    let mut ds = DepthSubscriber::new(&cfg).unwrap();
+    let node = NodeBuilder::new().signal_handling_mode(SignalHandlingMode::Disabled).create::<Ipc>().unwrap();
+    let open = |topic: &str| {
+        let name = ServiceName::new(&cfg.service_name(topic)).unwrap();
+        node.service_builder(&name)
+            .publish_subscribe::<[f32]>()
+            .user_header::<FrameHeader>()
+            .max_publishers(cfg.max_publishers)
+            .max_subscribers(cfg.max_subscribers)
+            .subscriber_max_buffer_size(cfg.subscriber_buffer)
+            .subscriber_max_borrowed_samples(cfg.subscriber_max_borrowed)
+            .history_size(cfg.history)
+            .enable_safe_overflow(true)
+            .max_nodes(cfg.max_nodes)
+            .open()
+            .unwrap()
+    };
+    let depth = open("depth");
+    let raw = depth.publisher_builder().initial_max_slice_len(256).create().unwrap();
+    let send = |len: usize, w: u32, h: u32, valid: u32, seq: u64| {
+        let mut s = raw.loan_slice(len).unwrap();
+        let uh = s.user_header_mut();
+        (uh.width, uh.height, uh.valid, uh.seq) = (w, h, valid, seq);
+        for v in s.payload_mut().iter_mut() {
+            *v = 3.0;
+        }
+        s.send().unwrap();
+    };
+    // 200 values for a 16x8 map; more valid pixels than values; width x height beyond usize on 32 bits and
+    // any real map (65536 x 65536 with 128 values)
+    for (i, (len, w, h, valid)) in [(200, 16, 8, 0), (128, 16, 8, 129), (128, 65536, 65536, 0)].into_iter().enumerate()
+    {
+        send(len, w, h, valid, i as u64);
+        assert!(ds.try_receive().unwrap().is_none(), "malformed sample {i} handed out");
+        assert_eq!(ds.stats().malformed, i as u64 + 1);
+    }
+    send(128, 16, 8, 100, 7);
+    let r = ds.wait(Duration::from_secs(2)).unwrap().expect("the good sample");
+    assert_eq!((r.header().seq, r.data().len()), (7, 128));
+    drop(r);
+    assert_eq!((ds.stats().received, ds.stats().malformed), (1, 3));
+
+    // the rule for both payloads (a cloud: at least `valid`, at most width x height points)
+    let mut h = FrameHeader { width: 4, height: 2, valid: 3, ..Default::default() };
+    assert!(payload_fits::<CloudPoint>(&h, 3) && payload_fits::<CloudPoint>(&h, 8));
+    assert!(!payload_fits::<CloudPoint>(&h, 2), "fewer points than valid");
+    assert!(!payload_fits::<CloudPoint>(&h, 9), "more points than width x height");
+    assert!(payload_fits::<f32>(&h, 8) && !payload_fits::<f32>(&h, 7));
+    h.valid = 9;
+    assert!(!payload_fits::<f32>(&h, 8));
 }

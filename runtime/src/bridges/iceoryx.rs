@@ -36,10 +36,33 @@
 //! # Publishing
 //!
 //! The caller writes straight into the loaned shared-memory slice ([`Publisher::publish_depth`],
-//! [`Publisher::publish_cloud`]); nothing is allocated per sample in steady state. A subscriber that is
-//! slow, dead or late never makes a publish fail: publish returns `Ok` and counts what was unusual in
-//! [`PublishStats`]. Errors are for the caller's mistakes (a sample larger than configured) and broken
-//! shared memory.
+//! [`Publisher::publish_cloud`]) through a [`SampleWriter`]: it appends elements and counts them itself, and
+//! every element it did not write is sent as [`BridgePayload::INVALID`] (NaN), so no call, whatever its
+//! closure does, can send memory nobody wrote. Nothing is allocated per sample in steady state. A subscriber
+//! that is slow, dead or late never makes a publish fail: publish returns `Ok` and counts what was unusual
+//! in [`PublishStats`]. Errors are for the caller's mistakes (a sample larger than configured or than its
+//! header says, a fill that writes past the sample) and broken shared memory.
+//!
+//! # Receiving
+//!
+//! A subscriber checks every sample against its header before handing it out: a depth payload must hold
+//! exactly `width x height` values, a cloud at most `width x height` points and at least `valid`. A sample
+//! that does not (only a foreign publisher can send one) is dropped and counted
+//! ([`SubscribeStats::malformed`]).
+//!
+//! # Other processes
+//!
+//! iceoryx2 services live in shared memory and files of this machine that every process of the same user
+//! can open. Such a process can: subscribe (and so read every depth map and cloud); hold borrowed samples
+//! up to `subscriber_max_borrowed` (the publisher's preallocation covers that); crash while holding them
+//! (cleaned up at the next node creation); create `{prefix}/depth` before the runtime starts, or take its
+//! one publisher slot. It cannot make the runtime block, send memory nobody wrote, or go unnoticed when it
+//! holds the service: a service found with settings other than this [`BridgeConfig`]'s
+//! ([`BridgeError::Foreign`]) or with its publisher slot taken ([`BridgeError::PublisherTaken`]) is refused
+//! with an error that says so (and names the holding process). A process that holds the publisher slot
+//! and sends well-formed samples is indistinguishable from the runtime: iceoryx2 offers no access control
+//! beyond file permissions, so a robot that must exclude that runs the runtime as its own user or uses a
+//! private prefix.
 use core::fmt::Debug;
 use std::mem::MaybeUninit;
 use std::time::{Duration, Instant};
@@ -239,6 +262,22 @@ pub enum BridgeError {
     /// A depth payload whose size does not match the header's width x height.
     #[error("{service}: header says {width}x{height} but {max} elements fit")]
     BadSize { service: String, width: u32, height: u32, max: usize },
+    /// The fill tried to write more elements than the sample holds (nothing was sent).
+    #[error("{service}: the fill wrote past the sample's {capacity} elements; nothing was sent")]
+    Overflow { service: String, capacity: usize },
+    /// The service exists with static settings other than this side's [`BridgeConfig`]: another process
+    /// created it differently.
+    #[error(
+        "{service}: the service exists with other settings than this process's BridgeConfig ({diffs}): \
+         another process created it; stop that process or use another service prefix"
+    )]
+    Foreign { service: String, diffs: String },
+    /// Another publisher holds the service's one publisher slot.
+    #[error(
+        "{service}: another publisher holds the service's only publisher slot ({holders}); \
+         stop that process (is another abvs publishing already?) or use another service prefix"
+    )]
+    PublisherTaken { service: String, holders: String },
 }
 
 fn iox<'a, E: Debug>(service: &'a str, what: &'static str) -> impl FnOnce(E) -> BridgeError + 'a {
@@ -311,6 +350,7 @@ fn open_services<T: BridgePayload>(
             service,
             "opening or creating the publish-subscribe service (settings must match the other side's BridgeConfig)",
         ))?;
+    check_pubsub_settings(service, pubsub.static_config(), cfg)?;
     let ev_name_s = cfg.event_name(T::TOPIC);
     let ev_name = ServiceName::new(&ev_name_s).map_err(iox(service, "naming the event service"))?;
     let event = node
@@ -321,7 +361,76 @@ fn open_services<T: BridgePayload>(
         .max_nodes(cfg.max_nodes)
         .open_or_create()
         .map_err(iox(service, "opening or creating the event service"))?;
+    let e = event.static_config();
+    let diffs = differences(&[
+        ("event max_notifiers", e.max_notifiers(), cfg.max_publishers),
+        ("event max_listeners", e.max_listeners(), cfg.max_subscribers),
+        ("event max_nodes", e.max_nodes(), cfg.max_nodes),
+    ]);
+    if !diffs.is_empty() {
+        return Err(BridgeError::Foreign { service: ev_name_s, diffs });
+    }
     Ok((pubsub, event))
+}
+
+/// "name found (expected x), ..." for every setting that differs.
+fn differences(s: &[(&str, usize, usize)]) -> String {
+    let d: Vec<String> =
+        s.iter().filter(|(_, a, b)| a != b).map(|(n, found, want)| format!("{n} {found} (expected {want})")).collect();
+    d.join(", ")
+}
+
+/// iceoryx2 opens an existing service whose limits are at least the requested ones; the bridge needs exactly
+/// its own (e.g. a service created with 4 publisher slots would let a second process publish next to the
+/// runtime), so anything else is refused.
+fn check_pubsub_settings(
+    service: &str,
+    c: &iceoryx2::service::static_config::publish_subscribe::StaticConfig,
+    cfg: &BridgeConfig,
+) -> Result<(), BridgeError> {
+    let mut diffs = differences(&[
+        ("max_publishers", c.max_publishers(), cfg.max_publishers),
+        ("max_subscribers", c.max_subscribers(), cfg.max_subscribers),
+        ("subscriber_buffer", c.subscriber_max_buffer_size(), cfg.subscriber_buffer),
+        ("subscriber_max_borrowed", c.subscriber_max_borrowed_samples(), cfg.subscriber_max_borrowed),
+        ("history", c.history_size(), cfg.history),
+        ("max_nodes", c.max_nodes(), cfg.max_nodes),
+    ]);
+    if !c.has_safe_overflow() {
+        diffs += if diffs.is_empty() { "" } else { ", " };
+        diffs += "safe overflow off (expected on)";
+    }
+    if diffs.is_empty() {
+        Ok(())
+    } else {
+        Err(BridgeError::Foreign { service: service.to_string(), diffs })
+    }
+}
+
+/// The processes holding a service's publisher ports, for the error that says the slot is taken.
+fn publisher_holders<T: BridgePayload>(pubsub: &PubSubFactory<T>) -> String {
+    let mut pids = Vec::new();
+    pubsub.dynamic_config().list_publishers(|p| {
+        pids.push(p.node_id.pid::<Ipc>().map(|pid| pid.value()).ok());
+        CallbackProgression::Continue
+    });
+    let me = std::process::id() as i32;
+    let names: Vec<String> = pids
+        .into_iter()
+        .map(|pid| match pid {
+            Some(p) if p == me => format!("process {p}, this one"),
+            Some(p) => match std::fs::read_to_string(format!("/proc/{p}/comm")) {
+                Ok(c) => format!("process {p} `{}`", c.trim()),
+                Err(_) => format!("process {p}"),
+            },
+            None => "a process of unknown id".to_string(),
+        })
+        .collect();
+    if names.is_empty() {
+        "held by a port being removed".to_string()
+    } else {
+        format!("held by {}", names.join(", "))
+    }
 }
 
 /// What a publisher saw that was not a plain delivery. None of it makes a publish fail.
@@ -375,7 +484,12 @@ impl<T: BridgePayload> Publisher<T> {
             .max_loaned_samples(1)
             .backpressure_strategy(BackpressureStrategy::DiscardData)
             .create()
-            .map_err(iox(&service, "creating the publisher (is another abvs publishing already?)"))?;
+            .map_err(|e| match e {
+                iceoryx2::port::publisher::PublisherCreateError::ExceedsMaxSupportedPublishers => {
+                    BridgeError::PublisherTaken { service: service.clone(), holders: publisher_holders(&pubsub) }
+                }
+                e => iox(&service, "creating the publisher")(e),
+            })?;
         let notifier = event.notifier_builder().create().map_err(iox(&service, "creating the event notifier"))?;
         let stats = PublishStats { dead_nodes_cleaned: cleaned, ..Default::default() };
         Ok(Self { service, max, stats, publisher, notifier, _pubsub: pubsub, _event: event, node })
@@ -396,10 +510,10 @@ impl<T: BridgePayload> Publisher<T> {
         self.stats
     }
 
-    /// Loans `n_max` elements, lets `fill` write the first `n` of them (returned), writes
-    /// [`BridgePayload::INVALID`] into the rest, sets `header` (with `t_publish_ns` = now) as the user
-    /// header, sends and notifies. Returns the number of subscribers the sample was delivered to.
-    /// With `valid_from_fill`, `header.valid` becomes `n`.
+    /// Loans `n_max` elements, lets `fill` append to the front of them through a [`SampleWriter`], writes
+    /// [`BridgePayload::INVALID`] into the rest, sets `header` (with `t_publish_ns` = now) as the user header,
+    /// sends and notifies. Returns the number of subscribers the sample was delivered to. With
+    /// `valid_from_fill`, `header.valid` becomes the number of elements written.
     fn publish_impl<F>(
         &mut self,
         header: &FrameHeader,
@@ -408,7 +522,7 @@ impl<T: BridgePayload> Publisher<T> {
         fill: F,
     ) -> Result<usize, BridgeError>
     where
-        F: FnOnce(&mut [MaybeUninit<T>]) -> usize,
+        F: FnOnce(&mut SampleWriter<'_, T>),
     {
         if n_max > self.max {
             return Err(BridgeError::TooLarge { service: self.service.clone(), n: n_max, max: self.max });
@@ -422,11 +536,20 @@ impl<T: BridgePayload> Publisher<T> {
             Err(e) => return Err(iox(&self.service, "loaning a sample")(e)),
         };
         let payload = sample.payload_mut();
-        let n = fill(payload).min(n_max);
-        for p in &mut payload[n..] {
+        let base = payload.as_ptr();
+        let mut writer = SampleWriter { buf: payload, len: 0, overflow: false };
+        fill(&mut writer);
+        let SampleWriter { buf, len: n, overflow } = writer;
+        // The writer is the only way in and cannot be built outside this module; the pointer check makes sure
+        // the one handed back is the one handed out (not another publish's, swapped in by a nested call).
+        if overflow || !std::ptr::eq(buf.as_ptr(), base) || buf.len() != n_max || n > n_max {
+            return Err(BridgeError::Overflow { service: self.service.clone(), capacity: n_max });
+        }
+        for p in &mut buf[n..] {
             p.write(T::INVALID);
         }
-        // SAFETY: `fill` initialised [..n] (its contract), the loop above [n..].
+        // SAFETY: the writer wrote [..n] (it advances its count only after a `MaybeUninit::write`), the loop
+        // above [n..]; both on this sample's payload (checked above).
         let mut sample = unsafe { sample.assume_init() };
         let uh = sample.user_header_mut();
         *uh = *header;
@@ -468,14 +591,92 @@ impl<T: BridgePayload> Publisher<T> {
     }
 }
 
+/// Where a publish's fill writes: the front of the loaned shared-memory slice, one element after the other.
+/// It counts what was written; the publisher sends every element it did not write as
+/// [`BridgePayload::INVALID`]. Only the publisher makes one.
+///
+/// The count is the writer's, so a fill cannot claim elements it did not write (the misuse the previous
+/// API allowed, a fill that reports 100 points and writes none, does not compile):
+/// ```compile_fail
+/// # use abvs_runtime::bridges::iceoryx::*;
+/// # fn f(p: &mut CloudPublisher, h: &FrameHeader) {
+/// p.publish_cloud(h, 100, |_| 100).unwrap();
+/// # }
+/// ```
+/// and a writer cannot be made outside the publisher:
+/// ```compile_fail
+/// # use abvs_runtime::bridges::iceoryx::*;
+/// let mut buf = [std::mem::MaybeUninit::<f32>::uninit(); 4];
+/// let w = SampleWriter { buf: &mut buf[..], len: 4, overflow: false };
+/// ```
+/// while this is how a fill writes:
+/// ```no_run
+/// # use abvs_runtime::bridges::iceoryx::*;
+/// # fn f(p: &mut CloudPublisher, h: &FrameHeader, pts: &[CloudPoint]) {
+/// p.publish_cloud(h, pts.len(), |w| w.extend_from_slice(pts)).unwrap();
+/// # }
+/// ```
+pub struct SampleWriter<'a, T> {
+    buf: &'a mut [MaybeUninit<T>],
+    len: usize,
+    overflow: bool,
+}
+
+impl<T: Copy> SampleWriter<'_, T> {
+    /// Elements the sample holds.
+    pub fn capacity(&self) -> usize {
+        self.buf.len()
+    }
+
+    /// Elements written so far.
+    pub fn len(&self) -> usize {
+        self.len
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.len == 0
+    }
+
+    /// Appends one element. Past the capacity nothing is written, `false` is returned and the publish fails
+    /// with [`BridgeError::Overflow`] (nothing is sent).
+    #[inline]
+    pub fn push(&mut self, v: T) -> bool {
+        match self.buf.get_mut(self.len) {
+            Some(slot) => {
+                slot.write(v);
+                self.len += 1;
+                true
+            }
+            None => {
+                self.overflow = true;
+                false
+            }
+        }
+    }
+
+    /// Appends all of `src`. What does not fit is not written and makes the publish fail, as [`Self::push`].
+    pub fn extend_from_slice(&mut self, src: &[T]) {
+        let room = self.buf.len() - self.len;
+        if src.len() > room {
+            self.overflow = true;
+        }
+        let n = src.len().min(room);
+        for (d, s) in self.buf[self.len..self.len + n].iter_mut().zip(src) {
+            d.write(*s);
+        }
+        self.len += n;
+    }
+}
+
 impl Publisher<f32> {
-    /// Publishes a depth map of `header.width x header.height` (row-major, metres, NaN = invalid):
-    /// `fill` writes every element of the loaned shared-memory slice. `header.valid` is sent as given.
+    /// Publishes a depth map of `header.width x header.height` (row-major, metres, NaN = invalid): `fill`
+    /// writes it through the [`SampleWriter`] into the loaned shared memory (elements not written are NaN).
+    /// `header.valid` is sent as given.
     pub fn publish_depth<F>(&mut self, header: &FrameHeader, fill: F) -> Result<usize, BridgeError>
     where
-        F: FnOnce(&mut [MaybeUninit<f32>]),
+        F: FnOnce(&mut SampleWriter<'_, f32>),
     {
-        let n = header.width as usize * header.height as usize;
+        let n = (header.width as usize).saturating_mul(header.height as usize);
         if n > self.max {
             return Err(BridgeError::BadSize {
                 service: self.service.clone(),
@@ -484,22 +685,23 @@ impl Publisher<f32> {
                 max: self.max,
             });
         }
-        self.publish_impl(header, n, false, |s| {
-            fill(s);
-            s.len()
-        })
+        self.publish_impl(header, n, false, fill)
     }
 }
 
 impl Publisher<CloudPoint> {
-    /// Publishes a cloud of at most `n_max` points: `fill` writes the valid points to the front of the
-    /// loaned shared-memory slice and returns how many it wrote (`header.valid` is set to that). The
-    /// sample carries `n_max` elements, the unused tail set to NaN: pass the exact count when it is known
-    /// (e.g. the valid depth pixels) to save that fill.
+    /// Publishes a cloud of at most `n_max` points (at most the header's organised `width x height`): `fill`
+    /// writes the valid points through the [`SampleWriter`] to the front of the loaned shared-memory slice
+    /// (`header.valid` is set to how many it wrote). The sample carries `n_max` elements, the unused tail
+    /// set to NaN: pass the exact count when it is known (e.g. the valid depth pixels) to save that fill.
     pub fn publish_cloud<F>(&mut self, header: &FrameHeader, n_max: usize, fill: F) -> Result<usize, BridgeError>
     where
-        F: FnOnce(&mut [MaybeUninit<CloudPoint>]) -> usize,
+        F: FnOnce(&mut SampleWriter<'_, CloudPoint>),
     {
+        let organised = (header.width as usize).saturating_mul(header.height as usize);
+        if n_max > organised {
+            return Err(BridgeError::TooLarge { service: self.service.clone(), n: n_max, max: organised });
+        }
         self.publish_impl(header, n_max, true, fill)
     }
 }
@@ -513,6 +715,9 @@ pub struct SubscribeStats {
     pub seq_gaps: u64,
     /// Dead nodes whose resources were removed when this subscriber started.
     pub dead_nodes_cleaned: u64,
+    /// Samples dropped because the payload did not fit the header (not `width x height` depth values, a
+    /// cloud longer than `width x height` or shorter than `valid`).
+    pub malformed: u64,
 }
 
 /// One received sample: the header and the payload, read in place in shared memory. Dropping it returns
@@ -535,6 +740,18 @@ impl<T: BridgePayload> Received<T> {
         } else {
             p
         }
+    }
+}
+
+/// Whether a received payload of `len` elements fits its header: depth `width x height` exactly, a cloud at
+/// most that and at least `valid`.
+pub fn payload_fits<T: BridgePayload>(h: &FrameHeader, len: usize) -> bool {
+    let Some(organised) = (h.width as usize).checked_mul(h.height as usize) else { return false };
+    let valid_ok = (h.valid as usize) <= len;
+    if T::TRIM_TO_VALID {
+        valid_ok && len <= organised
+    } else {
+        valid_ok && len == organised
     }
 }
 
@@ -582,20 +799,28 @@ impl<T: BridgePayload> Subscriber<T> {
         self.stats
     }
 
-    /// Takes the next sample without waiting.
+    /// Takes the next sample without waiting. A sample whose payload does not fit its header is dropped
+    /// and counted ([`SubscribeStats::malformed`]); the next one is taken instead.
     pub fn try_receive(&mut self) -> Result<Option<Received<T>>, BridgeError> {
-        let s = self.subscriber.receive().map_err(iox(&self.service, "receiving"))?;
-        Ok(s.map(|sample| {
-            let seq = sample.user_header().seq;
+        loop {
+            let Some(sample) = self.subscriber.receive().map_err(iox(&self.service, "receiving"))? else {
+                return Ok(None);
+            };
+            let h = sample.user_header();
+            if !payload_fits::<T>(h, sample.payload().len()) {
+                self.stats.malformed += 1;
+                continue;
+            }
+            let seq = h.seq;
             if let Some(last) = self.last_seq {
-                if seq > last + 1 {
+                if seq > last.saturating_add(1) {
                     self.stats.seq_gaps += 1;
                 }
             }
             self.last_seq = Some(seq);
             self.stats.received += 1;
-            Received { sample }
-        }))
+            return Ok(Some(Received { sample }));
+        }
     }
 
     /// Waits up to `timeout` for the next sample, asleep on the event service between samples.

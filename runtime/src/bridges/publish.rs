@@ -1,7 +1,5 @@
 //! The pipeline's publishing sink: each finished frame goes out as a depth map and a point cloud on the
 //! iceoryx2 services of [`crate::bridges::iceoryx`], written straight into the loaned shared memory.
-use std::mem::MaybeUninit;
-
 use abvs_eye::Pose;
 
 use crate::bridges::iceoryx::{BridgeConfig, CloudPoint, FrameHeader, Publisher};
@@ -49,22 +47,15 @@ impl Sink for PublishSink {
         h.baseline_m = out.rect.baseline_m;
         h.valid = out.depth.n_points as u32;
         let depth = &out.depth.depth;
-        self.depth
-            .publish_depth(&h, |s: &mut [MaybeUninit<f32>]| {
-                for (d, v) in s.iter_mut().zip(depth) {
-                    d.write(*v);
-                }
-            })
-            .map_err(err)?;
+        self.depth.publish_depth(&h, |s| s.extend_from_slice(depth)).map_err(err)?;
         let n = out.depth.n_points;
         let (pts, gray) = (&out.depth.points[..n], &out.depth.intensity[..n]);
         self.cloud
-            .publish_cloud(&h, n, |s: &mut [MaybeUninit<CloudPoint>]| {
-                for ((d, p), g) in s.iter_mut().zip(pts).zip(gray) {
+            .publish_cloud(&h, n, |s| {
+                for (p, g) in pts.iter().zip(gray) {
                     let g = *g as u32;
-                    d.write(CloudPoint { x: p.x, y: p.y, z: p.z, rgba: 0xff00_0000 | g << 16 | g << 8 | g });
+                    s.push(CloudPoint { x: p.x, y: p.y, z: p.z, rgba: 0xff00_0000 | g << 16 | g << 8 | g });
                 }
-                n.min(s.len())
             })
             .map_err(err)?;
         Ok(())
