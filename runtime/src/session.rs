@@ -306,7 +306,8 @@ fn parse_meta(mp: &Path, text: &str) -> Result<(SessionMeta, MetaSpans)> {
     }
     let g = meta.gravity;
     let norm = (g[0] * g[0] + g[1] * g[1] + g[2] * g[2]).sqrt();
-    if !((norm - 1.0).abs() <= 1e-3) {
+    let unit = norm.is_finite() && (norm - 1.0).abs() <= 1e-3;
+    if !unit {
         return bad(sp(&spans.gravity), "gravity", format!("{g:?} is not a unit vector (norm {norm})"));
     }
     let mut paths = vec![("stereo", &meta.stereo, sp(&spans.stereo))];
