@@ -15,10 +15,10 @@ mod run;
 mod sim;
 mod table;
 
-use clap::{Parser, Subcommand};
+use clap::{CommandFactory, FromArgMatches, Subcommand};
 use std::process::ExitCode;
 
-#[derive(Parser)]
+#[derive(clap::Parser)]
 #[command(name = "abvs", version, about = "Perception runtime and calibration tools for SPM robot eyes")]
 struct Cli {
     #[command(subcommand)]
@@ -53,13 +53,15 @@ enum Cmd {
 }
 
 fn main() -> ExitCode {
-    let cli = Cli::parse();
+    // The matches tell `abvs run` which flags were given (they override its --config file).
+    let matches = Cli::command().get_matches();
+    let cli = Cli::from_arg_matches(&matches).unwrap_or_else(|e| e.exit());
     let r = match cli.cmd {
         Cmd::Sim(c) => sim::run(c),
         Cmd::Kin(c) => kin::run(c),
         Cmd::Calib(c) => calib::run(c),
         Cmd::Demo(a) => demo::run(a),
-        Cmd::Run(a) => run::run(a),
+        Cmd::Run(a) => run::run(a, matches.subcommand_matches("run").expect("the run subcommand")),
         Cmd::Record(a) => record::run(a),
         Cmd::Echo(a) => echo::run(a),
         Cmd::Disparity(a) => disparity::run_disparity(a),

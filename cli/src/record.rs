@@ -52,6 +52,25 @@ pub struct DeviceArgs {
     pub homing_timeout: f64,
 }
 
+impl From<&abvs_runtime::config::LiveConfig> for DeviceArgs {
+    fn from(l: &abvs_runtime::config::LiveConfig) -> Self {
+        DeviceArgs {
+            left: l.left.clone(),
+            right: l.right.clone(),
+            encoders: l.encoders.clone(),
+            baud: l.baud,
+            width: l.width,
+            height: l.height,
+            fps: l.fps,
+            fourcc: l.fourcc.clone(),
+            exposure_ms: l.exposure_ms,
+            readout_ms: l.readout_ms,
+            pair_tolerance_ms: l.pair_tolerance_ms,
+            homing_timeout: l.homing_timeout_s,
+        }
+    }
+}
+
 #[derive(Args)]
 pub struct RecordArgs {
     #[command(flatten)]

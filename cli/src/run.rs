@@ -5,6 +5,7 @@ use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
 use abvs_camera::StereoCalibration;
+use abvs_runtime::config::{EngineKind, FkSource, RuntimeConfig, SourceKind};
 use abvs_runtime::pipeline::{run as run_pipeline, run_replay, PipelineConfig, Sink};
 use abvs_runtime::session::Session;
 use abvs_runtime::sinks::truth::TruthSink;
@@ -13,10 +14,18 @@ use abvs_runtime::tasks::disparity;
 use abvs_runtime::tasks::kinematics::{EyeFk, StereoKinematics};
 use abvs_runtime::tasks::rectify::RectifiedCamera;
 use anyhow::{bail, Context};
-use clap::Args;
+use clap::parser::ValueSource;
+use clap::{ArgMatches, Args};
 
 #[derive(Args)]
 pub struct RunArgs {
+    /// Runtime configuration file (`format = "abvs-runtime/1"`, see config/fixture.toml); flags given
+    /// on the command line override its fields.
+    #[arg(long)]
+    pub config: Option<PathBuf>,
+    /// Print the effective configuration (defaults, then --config, then flags) as TOML and exit.
+    #[arg(long)]
+    pub print_config: bool,
     /// Session directory to replay (default: the embedded fixture, fixtures/session).
     #[arg(long, conflicts_with = "live")]
     pub session: Option<PathBuf>,
@@ -36,8 +45,8 @@ pub struct RunArgs {
     #[arg(long)]
     pub stats_json: Option<PathBuf>,
     /// Disparity engine: onnx (the shipped network) or sgbm (OpenCV).
-    #[arg(long, default_value = "onnx")]
-    pub engine: String,
+    #[arg(long, value_enum, default_value = "onnx")]
+    pub engine: EngineKind,
     /// Disparity model directory or .onnx (default: models/hitnet/hitnet-s at 320x240, hitnet-m at 640x480).
     #[arg(long)]
     pub model: Option<PathBuf>,
@@ -49,14 +58,17 @@ pub struct RunArgs {
     pub rect_hfov: f64,
     /// FK used for the eyes: the session's calibrated models, the ideal mechanism (nominal), or the true units
     /// of a synthetic session (truth: the floor set by stereo matching alone).
-    #[arg(long, default_value = "calibrated")]
-    pub fk: String,
+    #[arg(long, value_enum, default_value = "calibrated")]
+    pub fk: FkSource,
     /// Process every frame (queues block instead of dropping the oldest) and replay as fast as possible.
     #[arg(long)]
     pub lossless: bool,
     /// Do not pace the replay at the recorded frame rate.
     #[arg(long)]
     pub no_pace: bool,
+    /// Nearest depth to match (m): sets the disparity range f B / min_depth.
+    #[arg(long, default_value_t = 0.2)]
+    pub min_depth: f64,
     /// Threads of the ONNX engine.
     #[arg(long, default_value_t = 2)]
     pub threads: usize,
@@ -118,15 +130,140 @@ enum Input {
     Live,
 }
 
-pub fn run(a: RunArgs) -> anyhow::Result<ExitCode> {
-    let input = if a.live {
-        Input::Live
-    } else {
-        let dir = a.session.clone().unwrap_or_else(|| shipped("fixtures/session"));
-        let session = Session::open(&dir).with_context(|| format!("opening session {}", dir.display()))?;
-        Input::Replay(session, dir)
+/// The effective configuration: the defaults (the embedded fixture), then `--config`, then
+/// every flag given on the command line (`m` tells which were).
+pub fn effective_config(a: &RunArgs, m: &ArgMatches) -> anyhow::Result<RuntimeConfig> {
+    let mut c = match &a.config {
+        Some(p) => RuntimeConfig::load(p)?,
+        None => RuntimeConfig::for_session(shipped("fixtures/session")),
     };
-    // calibration: the session's own, or --calib for a live run
+    let given = |id: &str| m.value_source(id) == Some(ValueSource::CommandLine);
+    // Paths from the command line are the working directory's: made absolute, so a printed
+    // configuration means the same from anywhere.
+    let abs = |p: &PathBuf| std::path::absolute(p).unwrap_or_else(|_| p.clone());
+    if given("session") {
+        c.source.kind = SourceKind::Session;
+        c.source.session = a.session.as_ref().map(abs);
+    }
+    if a.live {
+        c.source.kind = SourceKind::Live;
+    }
+    if given("calib") {
+        c.calibration.dir = a.calib.as_ref().map(abs);
+    }
+    let d = &a.devices;
+    let l = &mut c.source.live;
+    if given("left") {
+        l.left = abs(&d.left);
+    }
+    if given("right") {
+        l.right = abs(&d.right);
+    }
+    if given("encoders") {
+        l.encoders = d.encoders.clone();
+    }
+    if given("baud") {
+        l.baud = d.baud;
+    }
+    if given("width") {
+        l.width = d.width;
+    }
+    if given("height") {
+        l.height = d.height;
+    }
+    if given("fps") {
+        l.fps = d.fps;
+    }
+    if given("fourcc") {
+        l.fourcc = d.fourcc.clone();
+    }
+    if given("exposure_ms") {
+        l.exposure_ms = d.exposure_ms;
+    }
+    if given("readout_ms") {
+        l.readout_ms = d.readout_ms;
+    }
+    if given("pair_tolerance_ms") {
+        l.pair_tolerance_ms = d.pair_tolerance_ms;
+    }
+    if given("homing_timeout") {
+        l.homing_timeout_s = d.homing_timeout;
+    }
+    if given("frames") {
+        c.source.frames = a.frames;
+    }
+    if a.lossless {
+        c.source.lossless = true;
+    }
+    if a.no_pace {
+        c.source.paced = false;
+    }
+    if given("engine") {
+        c.disparity.engine = a.engine;
+    }
+    if given("model") {
+        c.disparity.model = a.model.as_ref().map(abs);
+    }
+    if given("resolution") {
+        (c.disparity.width, c.disparity.height) = parse_resolution(&a.resolution)?;
+    }
+    if given("rect_hfov") {
+        c.disparity.rect_hfov_deg = a.rect_hfov;
+    }
+    if given("min_depth") {
+        c.disparity.min_depth_m = a.min_depth;
+    }
+    if given("threads") {
+        c.disparity.threads = a.threads;
+    }
+    if given("fk") {
+        c.calibration.fk = a.fk;
+    }
+    if given("truth_stride") {
+        c.sinks.truth_stride = a.truth_stride;
+    }
+    if given("stats_json") {
+        c.sinks.stats_json = a.stats_json.as_ref().map(abs);
+    }
+    if given("dump") {
+        c.sinks.dump = a.dump.as_ref().map(abs);
+    }
+    if given("rerun") {
+        c.sinks.rerun = a.rerun.as_ref().map(abs);
+    }
+    if a.quiet {
+        c.sinks.quiet = true;
+    }
+    if a.no_publish {
+        c.bridges.iceoryx.enabled = false;
+    }
+    if given("service_prefix") {
+        c.bridges.iceoryx.service_prefix = a.service_prefix.clone();
+    }
+    c.check().map_err(|e| anyhow::anyhow!("configuration: {e}"))?;
+    Ok(c)
+}
+
+pub fn run(a: RunArgs, m: &ArgMatches) -> anyhow::Result<ExitCode> {
+    let c = effective_config(&a, m)?;
+    if a.print_config {
+        print!("{}", c.to_toml_string());
+        return Ok(ExitCode::SUCCESS);
+    }
+    run_config(&c)
+}
+
+/// Runs one deployment as its configuration describes it.
+pub fn run_config(c: &RuntimeConfig) -> anyhow::Result<ExitCode> {
+    let input = match c.source.kind {
+        SourceKind::Live => Input::Live,
+        SourceKind::Session => {
+            let dir = c.source.session.clone().context("source.session")?;
+            let session = Session::open(&dir).with_context(|| format!("opening session {}", dir.display()))?;
+            Input::Replay(session, dir)
+        }
+    };
+    // calibration: the session's own, or the calibration directory for a live run
     let (stereo_path, fk_paths, gravity) = match &input {
         Input::Replay(session, _) => (
             session.path(&session.meta.stereo),
@@ -134,53 +271,54 @@ pub fn run(a: RunArgs) -> anyhow::Result<ExitCode> {
             session.meta.gravity,
         ),
         Input::Live => {
-            let c =
-                abvs_runtime::sinks::session_writer::CalibFiles::from_dir(a.calib.as_ref().expect("clap: requires"));
+            let c = abvs_runtime::sinks::session_writer::CalibFiles::from_dir(
+                c.calibration.dir.as_ref().context("calibration.dir")?,
+            );
             c.check()?;
             (c.stereo, c.fk, [0.0, 1.0, 0.0])
         }
     };
-    let (w, h) = parse_resolution(&a.resolution)?;
+    let (w, h) = (c.disparity.width, c.disparity.height);
     let stereo = StereoCalibration::read_yaml(&stereo_path)?;
-    let (left, right) = match (a.fk.as_str(), &input) {
-        ("calibrated", _) => (EyeFk::load(&fk_paths[0])?, EyeFk::load(&fk_paths[1])?),
-        ("nominal", _) => (EyeFk::nominal(), EyeFk::nominal()),
-        ("truth", Input::Replay(session, _)) => {
+    let (left, right) = match (c.calibration.fk, &input) {
+        (FkSource::Calibrated, _) => (EyeFk::load(&fk_paths[0])?, EyeFk::load(&fk_paths[1])?),
+        (FkSource::Nominal, _) => (EyeFk::nominal(), EyeFk::nominal()),
+        (FkSource::Truth, Input::Replay(session, _)) => {
             let t = session.meta.truth.as_ref().context("--fk truth needs a synthetic session (with truth/)")?;
             (EyeFk::load(&session.path(&t.units[0]))?, EyeFk::load(&session.path(&t.units[1]))?)
         }
-        ("truth", Input::Live) => bail!("--fk truth needs a synthetic session, not --live"),
-        (other, _) => bail!("--fk `{other}`: expected calibrated, nominal or truth"),
+        (FkSource::Truth, Input::Live) => bail!("--fk truth needs a synthetic session, not --live"),
     };
     let mut kin = StereoKinematics::new(left, right, stereo.rotation, stereo.translation_mm / 1000.0);
     kin.gravity = gravity;
-    let out = RectifiedCamera::with_hfov(w, h, a.rect_hfov);
+    let out = RectifiedCamera::with_hfov(w, h, c.disparity.rect_hfov_deg);
     // disparity range for the eyes' working range at this resolution: f B / z_min
-    let max_disp = out.f * stereo.baseline_mm() / 1000.0 / 0.2;
-    let model = match (&a.model, a.engine.as_str()) {
+    let max_disp = out.f * stereo.baseline_mm() / 1000.0 / c.disparity.min_depth_m;
+    let model = match (&c.disparity.model, c.disparity.engine) {
         (Some(m), _) => Some(m.clone()),
-        (None, "onnx") => {
+        (None, EngineKind::Onnx) => {
             let variant = if w >= 640 { "hitnet-m" } else { "hitnet-s" };
             Some(shipped(&format!("models/hitnet/{variant}")))
         }
         _ => None,
     };
-    let engine = disparity::engine(&a.engine, model.as_deref(), (w, h), max_disp, a.threads)?;
+    let engine =
+        disparity::engine(c.disparity.engine.as_str(), model.as_deref(), (w, h), max_disp, c.disparity.threads)?;
     let mut sinks: Vec<Box<dyn Sink>> = Vec::new();
-    if let (true, Input::Replay(session, _)) = (a.truth_stride > 0, &input) {
-        if let Some(t) = TruthSink::for_session(session, a.truth_stride)? {
+    if let (true, Input::Replay(session, _)) = (c.sinks.truth_stride > 0, &input) {
+        if let Some(t) = TruthSink::for_session(session, c.sinks.truth_stride)? {
             sinks.push(Box::new(t));
         }
     }
-    if !a.no_publish {
-        let cfg =
-            abvs_runtime::bridges::iceoryx::BridgeConfig::for_resolution(w, h).with_prefix(a.service_prefix.clone());
+    if c.bridges.iceoryx.enabled {
+        let cfg = abvs_runtime::bridges::iceoryx::BridgeConfig::for_resolution(w, h)
+            .with_prefix(c.bridges.iceoryx.service_prefix.clone());
         sinks.push(Box::new(abvs_runtime::bridges::publish::PublishSink::new(cfg)?));
     }
-    if let Some(p) = &a.rerun {
+    if let Some(p) = &c.sinks.rerun {
         sinks.push(rerun_sink(p)?);
     }
-    if let Some(d) = &a.dump {
+    if let Some(d) = &c.sinks.dump {
         sinks.push(Box::new(abvs_runtime::sinks::dump::DumpSink { dir: d.clone(), every: 1 }));
     }
     let engine_name = engine.name().to_string();
@@ -190,22 +328,27 @@ pub fn run(a: RunArgs) -> anyhow::Result<ExitCode> {
             let source = ReplaySource::open(session)?;
             let cfg = PipelineConfig {
                 out,
-                lossless: a.lossless,
-                paced: !(a.no_pace || a.lossless),
-                frames: a.frames,
+                lossless: c.source.lossless,
+                paced: c.source.paced && !c.source.lossless,
+                frames: c.source.frames,
                 ..Default::default()
             };
             let stats = run_replay(source, kin, (stereo.left, stereo.right), engine, sinks, cfg)?;
             (stats, description, dir.display().to_string())
         }
         Input::Live => {
-            let d = &a.devices;
+            let d = &crate::record::DeviceArgs::from(&c.source.live);
             let (capture, encoders) = crate::record::open_devices(d)?;
             wait_for_homing(&encoders, d.homing_timeout)?;
             let source = abvs_runtime::sources::live::LiveSource::new(capture, encoders, d.width, d.height);
             // live frames come when the cameras deliver them: never paced
-            let cfg =
-                PipelineConfig { out, lossless: a.lossless, paced: false, frames: a.frames, ..Default::default() };
+            let cfg = PipelineConfig {
+                out,
+                lossless: c.source.lossless,
+                paced: false,
+                frames: c.source.frames,
+                ..Default::default()
+            };
             let stats = run_pipeline(source, kin, (stereo.left, stereo.right), engine, sinks, cfg)?;
             let what = format!("live: {} / {}, encoders {}", d.left.display(), d.right.display(), d.encoders);
             (stats, what.clone(), what)
@@ -213,15 +356,15 @@ pub fn run(a: RunArgs) -> anyhow::Result<ExitCode> {
     };
     stats.extra.insert("session".into(), serde_json::json!(source_name));
     stats.extra.insert("engine".into(), serde_json::json!(engine_name));
-    stats.extra.insert("fk".into(), serde_json::json!(a.fk));
+    stats.extra.insert("fk".into(), serde_json::json!(c.calibration.fk));
     stats.extra.insert("resolution".into(), serde_json::json!([w, h]));
     let elapsed = stats.extra.get("elapsed_s").and_then(|v| v.as_f64()).unwrap_or(0.0);
-    if !a.quiet {
+    if !c.sinks.quiet {
         println!("session {source_name} ({description})");
-        println!("engine {engine_name} at {w}x{h}, fk {}", a.fk);
+        println!("engine {engine_name} at {w}x{h}, fk {}", c.calibration.fk.as_str());
         print!("{}", stats.table(elapsed));
     }
-    if let Some(p) = &a.stats_json {
+    if let Some(p) = &c.sinks.stats_json {
         std::fs::write(p, serde_json::to_string_pretty(&stats.json(elapsed))? + "\n")
             .with_context(|| format!("writing {}", p.display()))?;
     }

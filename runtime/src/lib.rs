@@ -5,6 +5,7 @@
 //! truth scoring, dumps) and **bridges** (iceoryx2 publishing to other processes). [`pipeline`] wires the stages
 //! on threads joined by bounded channels; [`session`] is the on-disk format of recorded sessions, which [`record`] writes from live sources.
 pub mod bridges;
+pub mod config;
 pub mod error;
 pub mod pipeline;
 pub mod record;

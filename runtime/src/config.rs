@@ -1,0 +1,362 @@
+//! The runtime configuration file: what one deployment runs, in one versioned TOML file
+//! (`format = "abvs-runtime/1"`) to version, review and ship. `abvs run --config FILE` runs it,
+//! command-line flags override its fields, `abvs run --print-config` prints the effective
+//! configuration. Unknown fields are refused with the file and line. Relative paths in a file
+//! are relative to the file's directory. Field-by-field documentation: `config/fixture.toml`
+//! and `config/live.toml` (shipped examples).
+use crate::error::{Result, RuntimeError};
+use serde::{Deserialize, Serialize};
+use std::path::{Path, PathBuf};
+
+/// The format tag of this version of the file.
+pub const FORMAT: &str = "abvs-runtime/1";
+
+/// Where frames and encoder counts come from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
+#[serde(rename_all = "lowercase")]
+pub enum SourceKind {
+    /// A recorded session directory, replayed.
+    Session,
+    /// The eye cameras (V4L2) and the drive board's encoder stream (serial).
+    Live,
+}
+
+/// Which forward kinematics the eyes use.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
+#[serde(rename_all = "lowercase")]
+pub enum FkSource {
+    /// The calibrated FK models (the session's, or the calibration directory's).
+    Calibrated,
+    /// The ideal mechanism.
+    Nominal,
+    /// The true units of a synthetic session (the floor set by stereo matching alone).
+    Truth,
+}
+
+/// The disparity engine.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
+#[serde(rename_all = "lowercase")]
+pub enum EngineKind {
+    /// The shipped HITNet-style network through ONNX Runtime.
+    Onnx,
+    /// OpenCV semi-global block matching.
+    Sgbm,
+}
+
+impl EngineKind {
+    pub fn as_str(self) -> &'static str {
+        match self {
+            EngineKind::Onnx => "onnx",
+            EngineKind::Sgbm => "sgbm",
+        }
+    }
+}
+
+impl FkSource {
+    pub fn as_str(self) -> &'static str {
+        match self {
+            FkSource::Calibrated => "calibrated",
+            FkSource::Nominal => "nominal",
+            FkSource::Truth => "truth",
+        }
+    }
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RuntimeConfig {
+    pub format: String,
+    pub source: SourceConfig,
+    pub calibration: CalibrationConfig,
+    pub disparity: DisparityConfig,
+    #[serde(default)]
+    pub sinks: SinksConfig,
+    #[serde(default)]
+    pub bridges: BridgesConfig,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SourceConfig {
+    pub kind: SourceKind,
+    /// Session directory (kind = "session").
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub session: Option<PathBuf>,
+    /// Frames to process (a shorter session loops, timestamps kept increasing); absent: one pass
+    /// of a session, unlimited live.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub frames: Option<u64>,
+    /// Every frame processed (queues block instead of dropping the oldest), replayed as fast as
+    /// possible: offline and reproducible.
+    #[serde(default)]
+    pub lossless: bool,
+    /// Replay at the recorded frame rate (ignored live and with lossless).
+    #[serde(default = "yes")]
+    pub paced: bool,
+    #[serde(default)]
+    pub live: LiveConfig,
+}
+
+fn yes() -> bool {
+    true
+}
+
+/// The live devices (kind = "live").
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct LiveConfig {
+    pub left: PathBuf,
+    pub right: PathBuf,
+    /// Serial port of the drive board's encoder stream.
+    pub encoders: String,
+    pub baud: u32,
+    pub width: u32,
+    pub height: u32,
+    pub fps: u32,
+    /// V4L2 FourCC: pgAA (RAW10 MIPI-packed GRBG, the OV8856 default), BA10, YUYV, NV12, ...
+    pub fourcc: String,
+    /// Exposure (ms); absent: read once from the camera (exposure must be manual).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub exposure_ms: Option<f64>,
+    /// Rolling-shutter readout (ms), moves end-of-frame stamps to the start of exposure.
+    pub readout_ms: f64,
+    /// Largest left/right start-of-exposure difference of a pair (ms).
+    pub pair_tolerance_ms: f64,
+    /// Seconds both eyes have to home.
+    pub homing_timeout_s: f64,
+}
+
+impl Default for LiveConfig {
+    fn default() -> Self {
+        LiveConfig {
+            left: "/dev/video0".into(),
+            right: "/dev/video2".into(),
+            encoders: "/dev/ttyACM0".into(),
+            baud: 1_000_000,
+            width: 1600,
+            height: 1200,
+            fps: 25,
+            fourcc: "pgAA".into(),
+            exposure_ms: None,
+            readout_ms: 30.0,
+            pair_tolerance_ms: 2.0,
+            homing_timeout_s: 30.0,
+        }
+    }
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CalibrationConfig {
+    pub fk: FkSource,
+    /// Calibration directory (stereo.yaml, eye0, eye1) for live runs; a session brings its own.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub dir: Option<PathBuf>,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DisparityConfig {
+    pub engine: EngineKind,
+    /// Model directory or .onnx; absent: the shipped model for the resolution.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub model: Option<PathBuf>,
+    /// Rectified (network) resolution.
+    pub width: u32,
+    pub height: u32,
+    /// Horizontal field of view of the rectified images (deg).
+    pub rect_hfov_deg: f64,
+    /// Nearest depth to match (m): sets the disparity range, f B / min_depth.
+    pub min_depth_m: f64,
+    /// Threads of the ONNX engine.
+    pub threads: usize,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct SinksConfig {
+    /// Score depth against a synthetic session's ground truth every N-th point (0: off).
+    pub truth_stride: usize,
+    /// Statistics as JSON.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub stats_json: Option<PathBuf>,
+    /// Each frame's rectified pair and depth as PNG (slow; for looking).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub dump: Option<PathBuf>,
+    /// rerun recording (.rrd; needs the cargo feature `rerun`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub rerun: Option<PathBuf>,
+    /// No latency table on stdout.
+    pub quiet: bool,
+}
+
+impl Default for SinksConfig {
+    fn default() -> Self {
+        SinksConfig { truth_stride: 8, stats_json: None, dump: None, rerun: None, quiet: false }
+    }
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default)]
+#[serde(deny_unknown_fields, default)]
+pub struct BridgesConfig {
+    pub iceoryx: IceoryxConfig,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct IceoryxConfig {
+    pub enabled: bool,
+    /// Services `{prefix}/depth`, `{prefix}/cloud` and their events.
+    pub service_prefix: String,
+}
+
+impl Default for IceoryxConfig {
+    fn default() -> Self {
+        IceoryxConfig { enabled: true, service_prefix: "abvs".into() }
+    }
+}
+
+impl RuntimeConfig {
+    /// The default deployment: replay `session` with the shipped network at 320x240.
+    pub fn for_session(session: PathBuf) -> Self {
+        RuntimeConfig {
+            format: FORMAT.into(),
+            source: SourceConfig {
+                kind: SourceKind::Session,
+                session: Some(session),
+                frames: None,
+                lossless: false,
+                paced: true,
+                live: LiveConfig::default(),
+            },
+            calibration: CalibrationConfig { fk: FkSource::Calibrated, dir: None },
+            disparity: DisparityConfig {
+                engine: EngineKind::Onnx,
+                model: None,
+                width: 320,
+                height: 240,
+                rect_hfov_deg: 100.0,
+                min_depth_m: 0.2,
+                threads: 2,
+            },
+            sinks: SinksConfig::default(),
+            bridges: BridgesConfig::default(),
+        }
+    }
+
+    /// Parses a configuration; errors name `origin`, the line and the field.
+    pub fn from_toml_str(text: &str, origin: &Path) -> Result<Self> {
+        let file = |line: Option<u64>, msg: String| RuntimeError::File { path: origin.to_path_buf(), line, msg };
+        let mut c: RuntimeConfig = toml::from_str(text).map_err(|e| {
+            let line = e.span().map(|s| text[..s.start.min(text.len())].matches('\n').count() as u64 + 1);
+            file(line, e.message().to_string())
+        })?;
+        if c.format != FORMAT {
+            let line = text.lines().position(|l| l.trim_start().starts_with("format")).map(|l| l as u64 + 1);
+            return Err(file(line, format!("format: `{}`, this abvs reads `{FORMAT}`", c.format)));
+        }
+        // Relative paths are relative to the file.
+        if let Some(base) = origin.parent() {
+            let fix = |p: &mut PathBuf| {
+                if p.is_relative() {
+                    *p = base.join(&*p);
+                }
+            };
+            c.source.session.as_mut().map(fix);
+            c.calibration.dir.as_mut().map(fix);
+            c.disparity.model.as_mut().map(fix);
+            c.sinks.stats_json.as_mut().map(fix);
+            c.sinks.dump.as_mut().map(fix);
+            c.sinks.rerun.as_mut().map(fix);
+        }
+        c.check().map_err(|m| file(None, m))?;
+        Ok(c)
+    }
+
+    pub fn load(path: &Path) -> Result<Self> {
+        let text = std::fs::read_to_string(path).map_err(|e| RuntimeError::File {
+            path: path.to_path_buf(),
+            line: None,
+            msg: e.to_string(),
+        })?;
+        Self::from_toml_str(&text, path)
+    }
+
+    /// Values no deployment can run with.
+    pub fn check(&self) -> std::result::Result<(), String> {
+        let d = &self.disparity;
+        if !(16..=4096).contains(&d.width) || !(16..=4096).contains(&d.height) {
+            return Err(format!("disparity.width/height: {}x{} is not a usable resolution", d.width, d.height));
+        }
+        if !(d.rect_hfov_deg > 10.0 && d.rect_hfov_deg < 170.0) {
+            return Err(format!("disparity.rect_hfov_deg: {} must be in (10, 170)", d.rect_hfov_deg));
+        }
+        if !(d.min_depth_m > 0.01 && d.min_depth_m.is_finite()) {
+            return Err(format!("disparity.min_depth_m: {} must be > 0.01 m", d.min_depth_m));
+        }
+        if d.threads == 0 || d.threads > 256 {
+            return Err(format!("disparity.threads: {} must be in 1..=256", d.threads));
+        }
+        match self.source.kind {
+            SourceKind::Session if self.source.session.is_none() => {
+                Err("source.session: a session directory is needed for kind = \"session\"".into())
+            }
+            SourceKind::Live if self.calibration.dir.is_none() => {
+                Err("calibration.dir: live runs need a calibration directory".into())
+            }
+            SourceKind::Live if self.calibration.fk == FkSource::Truth => {
+                Err("calibration.fk: `truth` needs a synthetic session, not live devices".into())
+            }
+            _ => Ok(()),
+        }
+    }
+
+    /// The configuration as TOML (what `--print-config` prints).
+    pub fn to_toml_string(&self) -> String {
+        toml::to_string_pretty(self).expect("a runtime configuration serialises")
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn round_trip_and_refusals() {
+        let c = RuntimeConfig::for_session("/data/s".into());
+        let back = RuntimeConfig::from_toml_str(&c.to_toml_string(), Path::new("/etc/abvs/r.toml")).unwrap();
+        assert_eq!(back, c);
+        let bad = c.to_toml_string().replace("[disparity]", "[disparity]\nmax_disp = 3");
+        let e = RuntimeConfig::from_toml_str(&bad, Path::new("r.toml")).unwrap_err().to_string();
+        let line = bad.lines().position(|l| l.starts_with("max_disp")).unwrap() + 1;
+        assert!(e.contains(&format!("r.toml:{line}")) && e.contains("max_disp"), "{e}");
+        let e = RuntimeConfig::from_toml_str(
+            &c.to_toml_string().replace("abvs-runtime/1", "abvs-runtime/9"),
+            Path::new("r.toml"),
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(e.contains("abvs-runtime/9"), "{e}");
+        let e = RuntimeConfig::from_toml_str(
+            &c.to_toml_string().replace("threads = 2", "threads = \"two\""),
+            Path::new("r.toml"),
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(e.contains("r.toml:") && e.contains("invalid type"), "{e}");
+        let e = RuntimeConfig::from_toml_str(
+            &c.to_toml_string().replace("min_depth_m = 0.2", "min_depth_m = 0.0"),
+            Path::new("r.toml"),
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(e.contains("min_depth_m"), "{e}");
+        // Relative paths are the file's.
+        let rel = c.to_toml_string().replace("/data/s", "sessions/a");
+        let r = RuntimeConfig::from_toml_str(&rel, Path::new("/etc/abvs/r.toml")).unwrap();
+        assert_eq!(r.source.session.unwrap(), Path::new("/etc/abvs/sessions/a"));
+    }
+}
