@@ -24,6 +24,9 @@ pub enum CalibError {
     },
     #[error("invalid argument: {0}")]
     Invalid(String),
+    /// Calibrated IK refused a target: unreachable, near-singular, or no convergence.
+    #[error("target [{:.4}, {:.4}, {:.4}] deg refused: {why}", target_deg[0], target_deg[1], target_deg[2])]
+    Unreachable { target_deg: [f64; 3], why: String },
 }
 
 pub type Result<T> = std::result::Result<T, CalibError>;

@@ -8,6 +8,7 @@
 pub mod error;
 pub mod explain;
 pub mod identify;
+pub mod ik;
 pub mod methods;
 pub mod metrics;
 pub mod mlp;

@@ -11,7 +11,7 @@ use crate::mlp::Net;
 use crate::onnx_io::{export_onnx, import_onnx};
 use abvs_eye::dataset::Dataset;
 use abvs_eye::psc::{psc_at, psc_first_order, psc_map};
-use abvs_eye::unit::{UnitFk, UnitStream};
+use abvs_eye::unit::{Conditions, UnitFk, UnitStream};
 use abvs_eye::{SpmGeometry, UnitModel};
 use nalgebra::Matrix3;
 use serde::{Deserialize, Serialize};
@@ -219,6 +219,27 @@ pub struct FkState {
     nominal_warm: Matrix3<f64>,
 }
 
+/// Motion conditions frozen for a solver's candidate readings: see [`FkModel::freeze`].
+#[derive(Debug, Clone)]
+pub struct Frozen {
+    /// Physics-based models: link approach directions, platform motion direction, gravity.
+    cond: Option<Conditions>,
+    /// Warm start: the unit's platform orientation (physics) or the nominal orientation (m4f).
+    warm: Matrix3<f64>,
+}
+
+impl Frozen {
+    /// Direction each link approaches from (+1 / -1; physics-based models only).
+    pub fn link_dirs(&self) -> Option<[f64; 3]> {
+        self.cond.map(|c| c.dir)
+    }
+
+    /// The last orientation solved (a start for the next solve nearby).
+    pub fn warm(&self) -> Matrix3<f64> {
+        self.warm
+    }
+}
+
 /// Any calibrated forward kinematics, loaded from a model directory.
 pub struct FkModel {
     pub manifest: Manifest,
@@ -333,6 +354,99 @@ impl FkModel {
                     external.eval(theta_deg)
                 }
             }
+        }
+    }
+
+    /// Freezes the conditions of a move from the stream state `st` to the readings `theta_deg`
+    /// (deg): the direction each link approaches from and the direction of the platform's motion
+    /// (backlash), and gravity. [`FkModel::eval_frozen`] then evaluates candidate readings near
+    /// `theta_deg` as if each were that move's end, without advancing `st`: a smooth function
+    /// for solvers. Models without motion history ignore the conditions.
+    /// `near`: an orientation near the answer's (e.g. the nominal FK's), only to start the
+    /// mechanism's Newton from; the result does not depend on it.
+    pub fn freeze(
+        &self,
+        st: &FkState,
+        theta_deg: &[f64; 3],
+        gravity: [f64; 3],
+        near: Option<&Matrix3<f64>>,
+    ) -> Result<Frozen> {
+        match &self.kind {
+            Kind::Physics { fk, .. } => {
+                let (cond, warm) = match &st.unit {
+                    Some(s) => fk.peek(s, theta_deg, gravity, near)?,
+                    None => fk.peek(&fk.stream(), theta_deg, gravity, near)?,
+                };
+                Ok(Frozen { cond: Some(cond), warm })
+            }
+            _ => Ok(Frozen { cond: None, warm: near.copied().unwrap_or(st.nominal_warm) }),
+        }
+    }
+
+    /// As [`FkModel::eval`], with the Newton solves started from a frozen evaluation's last
+    /// orientation (near `theta_deg`); same result, fewer iterations after a large move.
+    pub fn eval_near(
+        &self,
+        st: &mut FkState,
+        theta_deg: &[f64; 3],
+        gravity: [f64; 3],
+        near: &Frozen,
+    ) -> Result<[f64; 6]> {
+        match &self.kind {
+            Kind::Physics { fk, residual } => {
+                let stream = st.unit.get_or_insert_with(|| fk.stream());
+                let mut out = fk.next_from(stream, theta_deg, gravity, &near.warm)?.to_p6();
+                if let Some(n) = residual {
+                    let d = n.eval(theta_deg)?;
+                    for k in 0..6 {
+                        out[k] += d[k];
+                    }
+                }
+                Ok(out)
+            }
+            Kind::Net(_) => self.eval(st, theta_deg, gravity),
+            Kind::Split { .. } => {
+                st.nominal_warm = near.warm;
+                self.eval(st, theta_deg, gravity)
+            }
+        }
+    }
+
+    /// The pose (deg, mm) at readings `theta_deg` under frozen conditions (see
+    /// [`FkModel::freeze`]); the warm start follows the calls. The working mode is checked,
+    /// the singularity margin is not: check the answer with [`FkModel::eval`].
+    pub fn eval_frozen(&self, fr: &mut Frozen, theta_deg: &[f64; 3]) -> Result<[f64; 6]> {
+        match &self.kind {
+            Kind::Physics { fk, residual } => {
+                let cond = fr.cond.unwrap_or_default();
+                let (pose, r) = fk.pose_unchecked(theta_deg, &cond, Some(&fr.warm))?;
+                fr.warm = r;
+                let mut out = pose.to_p6();
+                if let Some(n) = residual {
+                    let d = n.eval(theta_deg)?;
+                    for k in 0..6 {
+                        out[k] += d[k];
+                    }
+                }
+                Ok(out)
+            }
+            Kind::Net(n) => n.eval(theta_deg),
+            Kind::Split { .. } => {
+                let mut st = FkState { unit: None, nominal_warm: fr.warm };
+                let out = self.eval(&mut st, theta_deg, [0.0, 1.0, 0.0])?;
+                fr.warm = st.nominal_warm;
+                Ok(out)
+            }
+        }
+    }
+
+    /// Whether the network runs through ONNX Runtime (float32: solvers take coarser steps).
+    pub fn runs_in_float32(&self) -> bool {
+        let ort = |n: &NetRunner| matches!(n, NetRunner::Ort { .. });
+        match &self.kind {
+            Kind::Physics { residual, .. } => residual.as_ref().is_some_and(ort),
+            Kind::Net(n) => ort(n),
+            Kind::Split { internal, external, .. } => ort(internal) || ort(external),
         }
     }
 

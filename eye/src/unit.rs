@@ -731,19 +731,27 @@ impl UnitFk {
         cond: &Conditions,
         warm: Option<&Matrix3<f64>>,
     ) -> Result<(Pose, Matrix3<f64>)> {
-        let r = self.platform(reading_deg, &cond.dir, warm)?;
+        let r = self.platform(reading_deg, &cond.dir, warm, true)?;
         Ok((self.camera_from_platform(&r, cond), r))
     }
 
     /// Platform orientation of the mechanism (steps 1-3 of the module doc), before the platform
     /// lag and the sag: the state the next sample warm-starts from.
-    fn platform(&self, reading_deg: &[f64; 3], dir: &[f64; 3], warm: Option<&Matrix3<f64>>) -> Result<Matrix3<f64>> {
+    fn platform(
+        &self,
+        reading_deg: &[f64; 3],
+        dir: &[f64; 3],
+        warm: Option<&Matrix3<f64>>,
+        check: bool,
+    ) -> Result<Matrix3<f64>> {
         let th = self.link_angles(reading_deg, dir);
         let sol = match warm {
             Some(r0) => self.geom.fk_from(&th, r0).or_else(|_| self.geom.fk_cold(&th))?,
             None => self.geom.fk_cold(&th)?,
         };
-        self.geom.check_singularity(&sol.r, &th)?;
+        if check {
+            self.geom.check_singularity(&sol.r, &th)?;
+        }
         Ok(sol.r)
     }
 
@@ -775,6 +783,19 @@ impl UnitFk {
         Ok((self.home_inv.compose(&c), r))
     }
 
+    /// As [`UnitFk::pose`] without the singularity check (still the working mode): for a
+    /// solver's intermediate candidates; its answer is checked with [`UnitFk::pose`] or
+    /// [`UnitFk::next`].
+    pub fn pose_unchecked(
+        &self,
+        reading_deg: &[f64; 3],
+        cond: &Conditions,
+        warm: Option<&Matrix3<f64>>,
+    ) -> Result<(Pose, Matrix3<f64>)> {
+        let r = self.platform(reading_deg, &cond.dir, warm, false)?;
+        Ok((self.home_inv.compose(&self.camera_from_platform(&r, cond)), r))
+    }
+
     /// `P = [alpha, beta, gamma (deg), x, y, z (mm)]` for one reading.
     pub fn p6(&self, reading_deg: &[f64; 3], cond: &Conditions) -> Result<[f64; 6]> {
         Ok(self.pose(reading_deg, cond, Some(&self.home_r))?.0.to_p6())
@@ -789,8 +810,22 @@ impl UnitFk {
     /// motion history (backlash direction) even if the pose fails, as the links did move; the
     /// warm start advances only on success.
     pub fn next(&self, st: &mut UnitStream, reading_deg: &[f64; 3], gravity: [f64; 3]) -> Result<Pose> {
+        let warm = st.warm;
+        self.next_from(st, reading_deg, gravity, &warm)
+    }
+
+    /// As [`UnitFk::next`], with the mechanism's Newton started from `start` (a platform
+    /// orientation near the answer) instead of the stream's last one; same result, fewer
+    /// iterations after a large move.
+    pub fn next_from(
+        &self,
+        st: &mut UnitStream,
+        reading_deg: &[f64; 3],
+        gravity: [f64; 3],
+        start: &Matrix3<f64>,
+    ) -> Result<Pose> {
         let dir = st.hist.update(reading_deg);
-        let (cond, r) = self.step(st, reading_deg, dir, gravity)?;
+        let (cond, r) = self.step(st, reading_deg, dir, gravity, start, true)?;
         st.platform_dir = cond.platform_dir;
         st.warm = r;
         Ok(self.home_inv.compose(&self.camera_from_platform(&r, &cond)))
@@ -799,15 +834,18 @@ impl UnitFk {
     /// The conditions (link directions, platform motion direction, gravity) and the platform
     /// orientation that [`UnitFk::next`] would give the reading, without advancing the stream:
     /// for solvers that try candidate readings (calibrated IK) and then evaluate them with
-    /// [`UnitFk::pose`] under these conditions.
+    /// [`UnitFk::pose_unchecked`] under these conditions. `start`: where the mechanism's Newton
+    /// starts (a platform orientation near the answer; default the stream's last one). Like
+    /// `pose_unchecked`, it checks the working mode but not the singularity margin.
     pub fn peek(
         &self,
         st: &UnitStream,
         reading_deg: &[f64; 3],
         gravity: [f64; 3],
+        start: Option<&Matrix3<f64>>,
     ) -> Result<(Conditions, Matrix3<f64>)> {
         let dir = st.hist.clone().update(reading_deg);
-        self.step(st, reading_deg, dir, gravity)
+        self.step(st, reading_deg, dir, gravity, start.unwrap_or(&st.warm), false)
     }
 
     /// Platform orientation and conditions of the stream's next reading (shared by next and peek).
@@ -817,8 +855,10 @@ impl UnitFk {
         reading_deg: &[f64; 3],
         dir: [f64; 3],
         gravity: [f64; 3],
+        start: &Matrix3<f64>,
+        check: bool,
     ) -> Result<(Conditions, Matrix3<f64>)> {
-        let r = self.platform(reading_deg, &dir, Some(&st.warm))?;
+        let r = self.platform(reading_deg, &dir, Some(start), check)?;
         let w = crate::pose::rotation_vector(&(r * st.warm.transpose()));
         let platform_dir = if w.norm() > PLATFORM_MOTION_RAD { (w / w.norm()).into() } else { st.platform_dir };
         Ok((Conditions { dir, gravity, platform_dir }, r))
