@@ -267,6 +267,12 @@ impl<'m> CalibratedIk<'m> {
         Ok(f)
     }
 
+    /// As [`CalibratedIk::solve`], also returning the state advanced by the move (to commit it
+    /// later, e.g. once both eyes of a fixation are solved).
+    pub fn solve_with_next(&self, st: &FkState, target: [f64; 3], gravity: [f64; 3]) -> Result<(IkSolution, FkState)> {
+        self.solve_inner(st, target, gravity)
+    }
+
     fn solve_inner(&self, st: &FkState, target: [f64; 3], gravity: [f64; 3]) -> Result<(IkSolution, FkState)> {
         let refuse = |why: String| CalibError::Unreachable { target_deg: target, why };
         if !target.iter().all(|v| v.is_finite()) {

@@ -6,6 +6,7 @@
 #![allow(clippy::needless_range_loop)]
 
 pub mod error;
+pub mod gaze;
 pub mod explain;
 pub mod identify;
 pub mod ik;
