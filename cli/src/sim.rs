@@ -138,11 +138,11 @@ fn session_board(a: BoardArgs) -> anyhow::Result<ExitCode> {
     use std::io::Write;
     let dir = a.session.as_ref().expect("checked by the caller");
     let session = abvs_runtime::session::Session::open(dir).with_context(|| format!("opening {}", dir.display()))?;
-    let board = abvs_runtime::sources::encoder_link::SessionBoard {
+    let board = abvs_sim::board::SessionBoard {
         rate_hz: a.rate_hz,
         corrupt_every: a.corrupt_every,
         drop_every: a.drop_every,
-        ..abvs_runtime::sources::encoder_link::SessionBoard::from_seed(a.seed)
+        ..abvs_sim::board::SessionBoard::from_seed(a.seed)
     };
     let script = board.script(&session.encoders).map_err(anyhow::Error::msg)?;
     let t_first = session.encoders.iter().map(|r| r.t_ns).min().expect("a session has encoder samples");
@@ -174,7 +174,7 @@ pub fn run(cmd: SimCmd) -> anyhow::Result<ExitCode> {
         SimCmd::Board(a) if a.session.is_some() => session_board(a),
         SimCmd::Board(a) => {
             use std::io::Write;
-            let sim = abvs_runtime::sources::encoder_link::BoardSim {
+            let sim = abvs_sim::board::BoardSim {
                 frames: a.frames,
                 rate_hz: a.rate_hz,
                 corrupt_every: a.corrupt_every,
@@ -195,7 +195,7 @@ pub fn run(cmd: SimCmd) -> anyhow::Result<ExitCode> {
             Ok(ExitCode::SUCCESS)
         }
         SimCmd::Session(a) => {
-            let spec = abvs_runtime::synth::SessionSpec {
+            let spec = abvs_sim::synth::SessionSpec {
                 seed: a.seed,
                 frames: a.frames,
                 fps: a.fps,
@@ -207,7 +207,7 @@ pub fn run(cmd: SimCmd) -> anyhow::Result<ExitCode> {
                 ..Default::default()
             };
             let pb = crate::progress_bar(a.frames as u64, "render");
-            abvs_runtime::synth::generate(&spec, &a.out, &mut |stage, done, total| {
+            abvs_sim::synth::generate(&spec, &a.out, &mut |stage, done, total| {
                 pb.set_message(stage.to_string());
                 pb.set_length(total as u64);
                 pb.set_position(done as u64);

@@ -33,7 +33,7 @@ fn rendered_pair(dir: &Path, (w, h): (u32, u32)) -> (usize, usize, Vec<f32>) {
     use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
     let f = (w as f64 / 2.0) / 50f64.to_radians().tan();
     let cam = abvs_camera::Camera::pinhole(w, h, f);
-    let scene = abvs_runtime::synth::scene(7).unwrap();
+    let scene = abvs_sim::synth::scene(7).unwrap();
     let look = UnitQuaternion::from_euler_angles(0.1, -0.15, 0.0);
     let opts = abvs_render::RenderOptions { supersample: 2, noise_sigma: 1.5, seed: 3, ..Default::default() };
     let left = Isometry3::from_parts(Translation3::identity(), look);

@@ -13,11 +13,11 @@ use abvs_runtime::record::{record, RecordConfig};
 use abvs_runtime::session::{EncoderRecord, Session};
 use abvs_runtime::sinks::session_writer::{CalibFiles, SessionWriter};
 use abvs_runtime::sinks::stats::monotonic_ns;
-use abvs_runtime::sources::encoder_link::SessionBoard;
 use abvs_runtime::sources::encoder_stream::EncoderStream;
 use abvs_runtime::sources::pairing::PairerConfig;
 use abvs_runtime::sources::v4l_capture::{CaptureError, FrameSource, StereoCapture};
 use abvs_runtime::sources::Frame;
+use abvs_sim::board::SessionBoard;
 
 fn fixture() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../fixtures/session")
@@ -203,10 +203,10 @@ fn records_the_fixture_from_a_board_process_and_stand_in_cameras() {
 fn live_pipeline_on_the_rig_gives_depth_as_good_as_the_replay() {
     use abvs_camera::StereoCalibration;
     use abvs_runtime::pipeline::{run, PipelineConfig, Sink};
-    use abvs_runtime::sinks::truth::TruthSink;
     use abvs_runtime::sources::live::LiveSource;
     use abvs_runtime::tasks::kinematics::{EyeFk, StereoKinematics};
     use abvs_runtime::tasks::rectify::RectifiedCamera;
+    use abvs_sim::truth::TruthSink;
     let Rig { fx, capture, encoders, mut board, _slave, .. } = rig(0);
     let (w, h) = (fx.meta.width, fx.meta.height);
     let stereo = StereoCalibration::read_yaml(fx.path(&fx.meta.stereo)).unwrap();

@@ -12,7 +12,6 @@ pub mod record;
 pub mod session;
 pub mod sinks;
 pub mod sources;
-pub mod synth;
 pub mod tasks;
 
 pub use error::{Result, RuntimeError};

@@ -29,8 +29,8 @@ use nalgebra::{Isometry3, Matrix3, Point3, Rotation3, Translation3, UnitQuaterni
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
-use crate::error::{Result, RuntimeError};
-use crate::session::{EncoderRecord, FrameRecord, Session, SessionMeta, Truth, SESSION_FORMAT};
+use abvs_runtime::error::{Result, RuntimeError};
+use abvs_runtime::session::{EncoderRecord, FrameRecord, Session, SessionMeta, Truth, SESSION_FORMAT};
 
 pub const SCENE_GENERATOR: &str = "abvs-scene/1";
 

@@ -12,10 +12,10 @@ use abvs_eye::{Pose, UnitModel};
 use abvs_render::Scene;
 use nalgebra::{Point3, Vector2, Vector3};
 
-use crate::error::{Result, RuntimeError};
-use crate::pipeline::{Published, Sink};
-use crate::session::Session;
-use crate::sinks::stats::{DepthError, RunStats};
+use abvs_runtime::error::{Result, RuntimeError};
+use abvs_runtime::pipeline::{Published, Sink};
+use abvs_runtime::session::Session;
+use abvs_runtime::sinks::stats::{DepthError, RunStats};
 
 pub struct TruthSink {
     scene: Scene,
@@ -68,7 +68,7 @@ impl TruthSink {
             let p = fk.next(&mut stream, &[v[0], v[1], v[2]], session.meta.gravity).map_err(|e| model(&up, &e))?;
             poses.push((seq, Pose::new(p.r, p.t * 1e-3)));
         }
-        let camera = crate::pipeline::camera_for_frames(&stereo.left, session.meta.width, session.meta.height)?;
+        let camera = abvs_runtime::pipeline::camera_for_frames(&stereo.left, session.meta.width, session.meta.height)?;
         Ok(Some(TruthSink { scene, camera, poses, stride: stride.max(1), err: DepthError::default(), unscored: 0 }))
     }
 

@@ -9,10 +9,10 @@ use abvs_camera::StereoCalibration;
 use abvs_runtime::pipeline::{run_replay, PipelineConfig, Published, Sink};
 use abvs_runtime::session::Session;
 use abvs_runtime::sinks::stats::{DepthError, RunStats};
-use abvs_runtime::sinks::truth::TruthSink;
 use abvs_runtime::sources::replay::ReplaySource;
 use abvs_runtime::tasks::disparity;
 use abvs_runtime::tasks::kinematics::{EyeFk, StereoKinematics};
+use abvs_sim::truth::TruthSink;
 
 fn fixture() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../fixtures/session")

@@ -1,5 +1,6 @@
 //! The encoder protocol: framing round trip, resync after garbage, clock mapping under jitter.
-use abvs_runtime::sources::encoder_link::{BoardFrame, BoardSim, ClockMap, Decoder, LinkEvent, FRAME_LEN};
+use abvs_runtime::sources::encoder_link::{BoardFrame, ClockMap, Decoder, LinkEvent, FRAME_LEN};
+use abvs_sim::board::BoardSim;
 
 #[test]
 fn frames_round_trip_and_garbage_is_skipped_and_counted() {
@@ -74,8 +75,8 @@ fn clock_map_recovers_board_time_under_latency_jitter() {
 #[test]
 fn tracker_homes_maps_and_rehomes_after_a_board_reset() {
     use abvs_runtime::session::Session;
-    use abvs_runtime::sources::encoder_link::SessionBoard;
     use abvs_runtime::sources::encoder_stream::EncoderTracker;
+    use abvs_sim::board::SessionBoard;
     let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../fixtures/session");
     let session = Session::open(&dir).unwrap();
     let board = SessionBoard { corrupt_every: 301, ..SessionBoard::from_seed(3) };
