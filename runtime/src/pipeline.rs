@@ -250,7 +250,10 @@ impl PairSource for ReplaySource {
         ReplaySource::next_frame(self, limit)
     }
     fn finish(&mut self, stats: &mut RunStats) {
-        stats.extra.insert("bad_frame_files".into(), serde_json::json!(self.bad_frames.len()));
+        stats.extra.insert("bad_frame_files".into(), serde_json::json!(self.bad_frames().len()));
+        if let Some(e) = &self.ended {
+            stats.extra.insert("source_ended".into(), serde_json::json!(e));
+        }
         // frames the replay reached but could not read: in, and failed with their reason
         for (reason, n) in self.frames_failed() {
             stats.frames_in += n;
@@ -274,9 +277,7 @@ pub fn run_replay(
     sinks: Vec<Box<dyn Sink>>,
     cfg: PipelineConfig,
 ) -> Result<RunStats> {
-    for (p, e) in &source.bad_frames {
-        eprintln!("warning: skipped unreadable frame {}: {e}", p.display());
-    }
+    // (unusable frame files are reported on stderr as the replay reaches them)
     run(source, kin, cams, engine, sinks, cfg)
 }
 
