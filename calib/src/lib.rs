@@ -17,5 +17,6 @@ pub mod model;
 pub mod mpe;
 pub mod onnx_io;
 pub mod paper;
+pub mod repeatability;
 
 pub use error::{CalibError, Result};

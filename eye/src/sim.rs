@@ -226,6 +226,164 @@ pub fn simulate_dataset(
     Ok((Dataset { samples, extra_columns: vec![] }, stats))
 }
 
+/// The repeatability protocol of ISO 9283 as the paper ran it: every target is approached
+/// `approaches` times (30), each time from a random start drawn over the workspace; at the
+/// target the links stand still while the camera is measured `images` times.
+#[derive(Debug, Clone)]
+pub struct RepeatSpec {
+    /// Commanded target orientations (Fick, deg); [`iso9283_targets`] by default.
+    pub targets: Vec<[f64; 3]>,
+    /// Approaches per target, each from its own random start.
+    pub approaches: usize,
+    /// Measurements (images) per approach, the links standing still: their scatter is the
+    /// measurement noise alone, which lets the repeatability tool remove it.
+    pub images: usize,
+    /// The motor servo stops within this many counts of each commanded count (uniform
+    /// integer error per link and approach; 2 counts = 0.0078 deg, the paper's "encoder
+    /// readings within +-0.01 deg").
+    pub settle_counts: i64,
+    /// Measurement noise (1-sigma rotation deg, translation mm) instead of the unit's own,
+    /// e.g. for a laser tracker: ISO 9283 asks for a measurement well below the repeatability.
+    pub measurement: Option<(f64, f64)>,
+    pub seed: u64,
+    pub gravity: [f64; 3],
+    /// Half-ranges (deg) of the random starts.
+    pub range_deg: [f64; 3],
+}
+
+/// ISO 9283's five test poses mapped to the eye's Fick workspace: P1 at the centre, P2..P5 at
+/// 80% of each half-range on the diagonal plane alpha/30 = gamma/30 (corners (+,+,+), (+,-,+),
+/// (-,+,-), (-,-,-)).
+pub fn iso9283_targets(range_deg: [f64; 3]) -> Vec<[f64; 3]> {
+    let r = range_deg.map(|v| 0.8 * v);
+    vec![[0.0, 0.0, 0.0], [r[0], r[1], r[2]], [r[0], -r[1], r[2]], [-r[0], r[1], -r[2]], [-r[0], -r[1], -r[2]]]
+}
+
+impl Default for RepeatSpec {
+    fn default() -> Self {
+        RepeatSpec {
+            targets: iso9283_targets(crate::WORKSPACE_DEG),
+            approaches: 30,
+            images: 10,
+            settle_counts: 2,
+            measurement: None,
+            seed: 0,
+            gravity: [0.0, 1.0, 0.0],
+            range_deg: crate::WORKSPACE_DEG,
+        }
+    }
+}
+
+/// Extra columns of a repeatability session: 1-based target, approach and image indices.
+pub const REPEAT_COLUMNS: [&str; 3] = ["target", "approach", "image"];
+
+/// A simulated repeatability session: the measured dataset (one row per image, with the
+/// [`REPEAT_COLUMNS`]) and the same rows with the true, noise-free poses.
+#[derive(Debug, Clone, PartialEq)]
+pub struct RepeatSession {
+    pub measured: Dataset,
+    pub truth: Dataset,
+}
+
+/// Simulates an ISO 9283 repeatability session ([`RepeatSpec`]): for each target, `approaches`
+/// times: drive to a random start (nominal IK, servo), then to the target (nominal IK, the servo
+/// stopping within `settle_counts`), the true pose from the unit's physics with the motion
+/// history of that path (backlash: each link's approach direction), measured `images` times.
+/// Same seed, same session.
+pub fn simulate_repeatability(unit: &UnitModel, spec: &RepeatSpec) -> Result<RepeatSession> {
+    if spec.approaches < 2 || spec.images < 1 || spec.targets.is_empty() {
+        return Err(EyeError::Invalid(format!(
+            "repeatability needs targets, at least 2 approaches and 1 image (got {} targets, {} approaches, {} images)",
+            spec.targets.len(),
+            spec.approaches,
+            spec.images
+        )));
+    }
+    if spec.settle_counts < 0 {
+        return Err(EyeError::Invalid(format!("settle_counts {} must be >= 0", spec.settle_counts)));
+    }
+    let mut rng = ChaCha8Rng::seed_from_u64(spec.seed);
+    let nominal = SpmGeometry::nominal();
+    let fk = unit.compile()?;
+    let (nr, nt) = match spec.measurement {
+        Some(m) => m,
+        None => {
+            let n = &unit.effects.measurement_noise;
+            if n.enabled {
+                (n.rot_deg, n.trans_mm)
+            } else {
+                (0.0, 0.0)
+            }
+        }
+    };
+    let bad = |e: rand_distr::NormalError| EyeError::Invalid(format!("measurement noise: {e}"));
+    let (n_rot, n_tr) = (Normal::new(0.0, nr.to_radians()).map_err(bad)?, Normal::new(0.0, nt).map_err(bad)?);
+    let count = 360.0 / crate::encoder::COUNTS_PER_REV as f64;
+    let mut stream = fk.stream();
+    let (mut measured, mut truth) = (Dataset::default(), Dataset::default());
+    for d in [&mut measured, &mut truth] {
+        d.extra_columns = REPEAT_COLUMNS.map(String::from).to_vec();
+    }
+    let (mut t, mut seq, mut last) = (0.0f64, 0u64, [0.0f64; 3]);
+    let mut travel = |to: &[f64; 3], t: &mut f64| {
+        let d = (0..3).map(|i| (to[i] - last[i]).abs()).fold(0.0, f64::max);
+        *t += d / 200.0 + 0.25;
+        last = *to;
+    };
+    for (ti, target) in spec.targets.iter().enumerate() {
+        let th_cmd = nominal
+            .ik_checked(&Fick::from_deg(*target).to_matrix())
+            .map_err(|e| EyeError::Invalid(format!("target {} {target:?} deg: no nominal IK: {e}", ti + 1)))?;
+        let cmd = th_cmd.map(|x| quantize_deg(x.to_degrees()));
+        for a in 0..spec.approaches {
+            // A random start the unit reaches (drawn again when it does not).
+            let mut tries = 0;
+            loop {
+                tries += 1;
+                let f = [0, 1, 2].map(|k| rng.gen_range(-spec.range_deg[k]..=spec.range_deg[k]));
+                let Ok(th) = nominal.ik_checked(&Fick::from_deg(f).to_matrix()) else { continue };
+                let start = th.map(|x| quantize_deg(x.to_degrees()));
+                let mut probe = stream.clone();
+                if fk.next(&mut probe, &start, spec.gravity).is_ok() {
+                    stream = probe;
+                    travel(&start, &mut t);
+                    break;
+                }
+                if tries > 1000 {
+                    return Err(EyeError::Invalid("no reachable random start in 1000 draws".into()));
+                }
+            }
+            let reading: [f64; 3] = std::array::from_fn(|i| {
+                cmd[i] + rng.gen_range(-spec.settle_counts..=spec.settle_counts) as f64 * count
+            });
+            travel(&reading, &mut t);
+            let pose = fk.next(&mut stream, &reading, spec.gravity).map_err(|e| {
+                EyeError::Invalid(format!("target {} {target:?} deg unreachable for the unit: {e}", ti + 1))
+            })?;
+            for im in 0..spec.images {
+                let nrv = Vector3::new(n_rot.sample(&mut rng), n_rot.sample(&mut rng), n_rot.sample(&mut rng));
+                let ntv = Vector3::new(n_tr.sample(&mut rng), n_tr.sample(&mut rng), n_tr.sample(&mut rng));
+                let meas = Pose::new(exp_so3(&nrv) * pose.r, pose.t + ntv);
+                let extra = vec![(ti + 1).to_string(), (a + 1).to_string(), (im + 1).to_string()];
+                let row = |p: &Pose| Sample {
+                    seq,
+                    t_s: (t * 1e6).round() / 1e6,
+                    theta_deg: reading,
+                    pose: p.to_p6(),
+                    cmd_deg: Some(*target),
+                    gravity: Some(spec.gravity),
+                    extra: extra.clone(),
+                };
+                measured.samples.push(row(&meas));
+                truth.samples.push(row(&pose));
+                seq += 1;
+                t += 0.04;
+            }
+        }
+    }
+    Ok(RepeatSession { measured, truth })
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
