@@ -6,9 +6,9 @@
 //! (conventions.md): T_l^r = T_rel,r^-1 . T_lH^rH . T_rel,l. Runtime poses are in metres.
 use std::path::Path;
 
-use abvs_calib::model::{FkModel, FkState};
 use abvs_eye::unit::{UnitFk, UnitStream};
 use abvs_eye::{Pose, UnitModel};
+use abvs_fk::model::{FkModel, FkState};
 use nalgebra::{Matrix3, Vector3};
 
 use crate::error::{Result, RuntimeError};
