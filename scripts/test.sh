@@ -1,10 +1,11 @@
 #!/usr/bin/env bash
-# Installs what abvs needs (scripts/setup.sh), then builds everything (benches included) and
-# runs every test of the workspace, then the rerun logging test once with its cargo feature.
+# Installs what abvs needs (scripts/setup.sh), checks formatting, then builds and runs every test
+# of the workspace (tests and examples; benches are built only by `cargo bench`), then the rerun
+# logging test once with its cargo feature.
 set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
 ./scripts/setup.sh
-cargo build --workspace --all-targets
+cargo fmt --all -- --check
 cargo test --workspace
 # rerun (a 400-crate dependency) is behind the `rerun` feature: built and tested once here.
 cargo test -p abvs --features rerun --test rerun
