@@ -20,6 +20,10 @@ pub enum CalibCmd {
     Eval(EvalArgs),
     /// Predicted poses for the theta columns of a CSV.
     Predict(PredictArgs),
+    /// Calibrated IK: link angles and encoder counts that reach target orientations (model's FK).
+    Ik(IkArgs),
+    /// Repeatability after ISO 9283 per target (the paper's Table I) from repeated approaches.
+    Repeatability(crate::repeat::RepeatArgs),
     /// Regenerate the paper's experiments on simulated units (report.md + PNG).
     Paper(crate::paper::PaperArgs),
     /// Find where the model and the measurements disagree, name the missing effect, add it.
@@ -82,6 +86,17 @@ pub struct EvalArgs {
 pub struct PredictArgs {
     #[arg(long)]
     model: PathBuf,
+    #[arg(long = "in")]
+    input: PathBuf,
+    #[arg(long)]
+    out: PathBuf,
+}
+
+#[derive(Args)]
+pub struct IkArgs {
+    #[arg(long)]
+    model: PathBuf,
+    /// CSV with alpha_deg, beta_deg, gamma_deg (optional gx, gy, gz; other columns kept), visited in order.
     #[arg(long = "in")]
     input: PathBuf,
     #[arg(long)]
@@ -182,6 +197,8 @@ pub fn run(cmd: CalibCmd) -> anyhow::Result<ExitCode> {
         CalibCmd::Intrinsics(a) => crate::camcal::intrinsics(a),
         CalibCmd::Measure(a) => crate::camcal::measure(a),
         CalibCmd::Stereo(a) => crate::camcal::stereo(a),
+        CalibCmd::Ik(a) => ik(a),
+        CalibCmd::Repeatability(a) => crate::repeat::stats(a),
         CalibCmd::Predict(a) => {
             let model = FkModel::load(&a.model)?;
             let mut st = model.state();
@@ -200,4 +217,57 @@ pub fn run(cmd: CalibCmd) -> anyhow::Result<ExitCode> {
             )
         }
     }
+}
+
+/// `abvs calib ik`: rows in order (each move starts where the previous one ended, so the
+/// model's motion history is that of the sequence); a refused row keeps the links where they
+/// were, is reported by its line and left with empty outputs.
+fn ik(a: IkArgs) -> anyhow::Result<ExitCode> {
+    let model = FkModel::load(&a.model)?;
+    let solver = abvs_calib::ik::CalibratedIk::new(&model);
+    let mut st = model.state();
+    let t = Table::read(&a.input)?;
+    let g = GravityCols::find(&t);
+    let (mut worst, mut evals, mut solved) = (0.0f64, 0usize, 0usize);
+    let code = map_rows(
+        t,
+        &a.input,
+        &a.out,
+        &["alpha_deg", "beta_deg", "gamma_deg"],
+        &[
+            "theta1_deg",
+            "theta2_deg",
+            "theta3_deg",
+            "pred_alpha_deg",
+            "pred_beta_deg",
+            "pred_gamma_deg",
+            "pred_x_mm",
+            "pred_y_mm",
+            "pred_z_mm",
+            "residual_deg",
+            "count1",
+            "count2",
+            "count3",
+        ],
+        |v, line, row| {
+            let gr = g.of(&a.input, line, row)?;
+            let s = solver.solve_and_move(&mut st, [v[0], v[1], v[2]], gr).map_err(|e| e.to_string())?;
+            worst = worst.max(s.residual_deg);
+            evals += s.evaluations;
+            solved += 1;
+            let mut out: Vec<f64> = s.theta_deg.to_vec();
+            out.extend(s.pose);
+            out.push(s.residual_deg);
+            out.extend(s.counts().map(|c| c as f64));
+            Ok(out)
+        },
+    )?;
+    if solved > 0 {
+        eprintln!(
+            "calibrated IK ({}): {solved} targets, largest residual {worst:.1e} deg, {:.1} model evaluations per target",
+            model.method(),
+            evals as f64 / solved as f64
+        );
+    }
+    Ok(code)
 }

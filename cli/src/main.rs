@@ -7,10 +7,12 @@ mod disparity;
 mod echo;
 mod explain;
 mod explain_plots;
+mod gaze;
 mod kin;
 mod paper;
 mod plot;
 mod record;
+mod repeat;
 mod run;
 mod sim;
 mod table;
@@ -36,6 +38,9 @@ enum Cmd {
     /// Calibrate forward kinematics: fit, fine-tune, evaluate, predict.
     #[command(subcommand)]
     Calib(calib::CalibCmd),
+    /// Point both eyes: fixate a 3D point with the calibrated models (calibrated IK of each eye).
+    #[command(subcommand)]
+    Gaze(gaze::GazeCmd),
     /// The main job on the embedded default unit: simulate, measure, compare, map.
     Demo(demo::DemoArgs),
     /// The runtime: replay a session (default: the embedded fixture) through the whole pipeline.
@@ -60,6 +65,7 @@ fn main() -> ExitCode {
         Cmd::Sim(c) => sim::run(c),
         Cmd::Kin(c) => kin::run(c),
         Cmd::Calib(c) => calib::run(c),
+        Cmd::Gaze(c) => gaze::run(c),
         Cmd::Demo(a) => demo::run(a),
         Cmd::Run(a) => run::run(a, matches.subcommand_matches("run").expect("the run subcommand")),
         Cmd::Record(a) => record::run(a),

@@ -19,6 +19,8 @@ pub enum SimCmd {
     Board(BoardArgs),
     /// Render a stereo session with ground truth (textured scene, two units, saccades and pursuit).
     Session(SessionArgs),
+    /// ISO 9283 repeatability protocol: 30 approaches from random starts to each target.
+    Repeatability(crate::repeat::SimRepeatArgs),
 }
 
 #[derive(Args)]
@@ -171,6 +173,7 @@ fn session_board(a: BoardArgs) -> anyhow::Result<ExitCode> {
 pub fn run(cmd: SimCmd) -> anyhow::Result<ExitCode> {
     match cmd {
         SimCmd::AprilgridSession(a) => crate::camcal::sim_session(a),
+        SimCmd::Repeatability(a) => crate::repeat::sim(a),
         SimCmd::Board(a) if a.session.is_some() => session_board(a),
         SimCmd::Board(a) => {
             use std::io::Write;

@@ -1,0 +1,124 @@
+//! `abvs gaze`: pointing both eyes. `fixate` solves both eyes' calibrated IK so that a 3D point
+//! lies on each camera's principal point (abvs_calib::gaze).
+use abvs_calib::gaze::{optical_axis, Binocular, EyeAim, Fixation, Torsion};
+use abvs_calib::ik::CalibratedIk;
+use abvs_calib::model::FkModel;
+use abvs_camera::{Camera, StereoCalibration};
+use abvs_eye::pose::{Fick, Pose};
+use anyhow::Context;
+use clap::{Args, Subcommand};
+use nalgebra::{Vector2, Vector3};
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+#[derive(Subcommand)]
+pub enum GazeCmd {
+    /// Both eyes' link angles and counts that fixate a 3D point (left home camera frame, metres).
+    Fixate(FixateArgs),
+}
+
+#[derive(Args)]
+pub struct FixateArgs {
+    /// Calibration directory: stereo.yaml (intrinsics, T_lH^rH) and eye0, eye1 (FK models).
+    #[arg(long)]
+    calib: PathBuf,
+    /// x,y,z in metres, in the left home camera frame (x right, y down, z forward).
+    #[arg(long, value_parser = crate::parse3, allow_hyphen_values = true)]
+    point: [f64; 3],
+    /// Torsion about the line of sight: listing (Listing's law) or zero-fick (Fick roll 0).
+    #[arg(long, default_value = "listing")]
+    torsion: String,
+    /// Gravity in both eyes' base frames (unit vector; default: head upright).
+    #[arg(long, value_parser = crate::parse3, allow_hyphen_values = true, default_value = "0,1,0")]
+    gravity: [f64; 3],
+    /// Print JSON instead of the table.
+    #[arg(long)]
+    json: bool,
+}
+
+pub fn run(cmd: GazeCmd) -> anyhow::Result<ExitCode> {
+    match cmd {
+        GazeCmd::Fixate(a) => fixate(a),
+    }
+}
+
+/// Pixel of a point (mm, home frame) in the camera at the aim's predicted pose.
+fn pixel(cam: &Camera, aim: &EyeAim) -> Option<Vector2<f64>> {
+    let p = &aim.ik.pose;
+    let r = Fick::from_deg([p[0], p[1], p[2]]).to_matrix();
+    let x = r.transpose() * (Vector3::from(aim.point_mm) - Vector3::new(p[3], p[4], p[5]));
+    cam.project(&x)
+}
+
+fn fixate(a: FixateArgs) -> anyhow::Result<ExitCode> {
+    let torsion = Torsion::parse(&a.torsion)?;
+    let sp = a.calib.join("stereo.yaml");
+    let stereo = StereoCalibration::read_yaml(&sp)?;
+    let load = |e: &str| FkModel::load(&a.calib.join(e)).with_context(|| format!("{}: FK model", a.calib.display()));
+    let (ml, mr) = (load("eye0")?, load("eye1")?);
+    let bino = Binocular {
+        left: CalibratedIk::new(&ml),
+        right: CalibratedIk::new(&mr),
+        left_to_right: Pose::new(stereo.rotation, stereo.translation_mm),
+        torsion,
+    };
+    let point_mm = a.point.map(|v| v * 1000.0);
+    let f: Fixation = bino.fixate_from_home(point_mm, a.gravity)?;
+    let eyes = [("left (eye0)", &f.left, &stereo.left), ("right (eye1)", &f.right, &stereo.right)];
+    if a.json {
+        let eye = |aim: &EyeAim, cam: &Camera| {
+            serde_json::json!({
+                "target_deg": aim.ik.target_deg,
+                "theta_deg": aim.ik.theta_deg,
+                "counts": aim.ik.counts(),
+                "pose": aim.ik.pose,
+                "residual_deg": aim.ik.residual_deg,
+                "point_mm": aim.point_mm,
+                "range_mm": aim.range_mm,
+                "predicted_miss_mm": aim.predicted_miss_mm,
+                "pixel": pixel(cam, aim).map(|p| [p.x, p.y]),
+                "principal_point": [cam.cx, cam.cy],
+            })
+        };
+        let v = serde_json::json!({
+            "point_m": a.point,
+            "torsion": torsion.name(),
+            "vergence_deg": f.vergence_deg,
+            "left": eye(&f.left, &stereo.left),
+            "right": eye(&f.right, &stereo.right),
+        });
+        println!("{}", serde_json::to_string_pretty(&v)?);
+        return Ok(ExitCode::SUCCESS);
+    }
+    println!(
+        "fixating [{:.3}, {:.3}, {:.3}] m (left home camera frame), torsion {}, models {} / {}",
+        a.point[0],
+        a.point[1],
+        a.point[2],
+        torsion.name(),
+        ml.method(),
+        mr.method()
+    );
+    println!("| eye | orientation alpha, beta, gamma (deg) | theta1..3 (deg) | counts | optical centre (mm) | range (mm) | point's pixel / principal point |");
+    println!("| --- | --- | --- | --- | --- | --- | --- |");
+    for (name, aim, cam) in eyes {
+        let t = &aim.ik.target_deg;
+        let th = &aim.ik.theta_deg;
+        let c = aim.ik.counts();
+        let centre = optical_axis(&aim.ik.pose).0;
+        let px = pixel(cam, aim).map(|p| format!("{:.3}, {:.3}", p.x, p.y)).unwrap_or_else(|| "-".into());
+        println!(
+            "| {name} | {:.4}, {:.4}, {:.4} | {:.4}, {:.4}, {:.4} | {}, {}, {} | {:.3}, {:.3}, {:.3} | {:.1} | {px} / {:.3}, {:.3} |",
+            t[0], t[1], t[2], th[0], th[1], th[2], c[0], c[1], c[2], centre.x, centre.y, centre.z, aim.range_mm, cam.cx, cam.cy
+        );
+    }
+    println!(
+        "vergence {:.4} deg; IK residual {:.1e} / {:.1e} deg; predicted miss {:.1e} / {:.1e} mm",
+        f.vergence_deg,
+        f.left.ik.residual_deg,
+        f.right.ik.residual_deg,
+        f.left.predicted_miss_mm,
+        f.right.predicted_miss_mm
+    );
+    Ok(ExitCode::SUCCESS)
+}
