@@ -3,5 +3,6 @@
 pub mod dump;
 #[cfg(feature = "rerun")]
 pub mod rerun_log;
+pub mod self_check;
 pub mod session_writer;
 pub mod stats;
