@@ -18,8 +18,10 @@ fn fixture() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../fixtures/session")
 }
 
-/// Replays a session (lossless, SGBM) with the self-check on every frame; its stats JSON and log.
-fn replay(dir: &Path, log: &Path) -> Value {
+/// Replays a session through the whole pipeline with `engine` (lossless: every frame, as fast as possible;
+/// otherwise paced at the recorded rate and looped to `frames`), with the self-check when `check` is given;
+/// the stats JSON.
+fn run(dir: &Path, engine: &str, lossless: bool, frames: Option<u64>, check: Option<SelfCheckConfig>) -> Value {
     let session = Session::open(dir).unwrap();
     let stereo = StereoCalibration::read_yaml(session.path(&session.meta.stereo)).unwrap();
     let mut kin = StereoKinematics::new(
@@ -29,16 +31,25 @@ fn replay(dir: &Path, log: &Path) -> Value {
         stereo.translation_mm / 1000.0,
     );
     kin.gravity = session.meta.gravity;
-    let cfg = PipelineConfig { lossless: true, paced: false, ..Default::default() };
-    let eng = disparity::engine("sgbm", None, (cfg.out.width, cfg.out.height), 48.0, 2).unwrap();
-    let check = SelfCheckSink::new(
-        SelfCheckConfig { blocking: true, log: Some(log.to_path_buf()), ..Default::default() },
-        &cfg.out,
-    )
-    .unwrap();
+    let cfg = PipelineConfig { lossless, paced: !lossless, frames, ..Default::default() };
+    let (w, h) = (cfg.out.width, cfg.out.height);
+    let model = Path::new(env!("CARGO_MANIFEST_DIR")).join("../models/hitnet/hitnet-s");
+    let max_disp = cfg.out.f * stereo.baseline_mm() / 1000.0 / 0.2;
+    let eng = disparity::engine(engine, (engine == "onnx").then_some(model.as_path()), (w, h), max_disp, 2).unwrap();
+    let mut sinks: Vec<Box<dyn abvs_runtime::pipeline::Sink>> = Vec::new();
+    if let Some(c) = check {
+        sinks.push(Box::new(SelfCheckSink::new(c, &cfg.out).unwrap()));
+    }
     let source = ReplaySource::open(session).unwrap();
-    let stats = run_replay(source, kin, (stereo.left, stereo.right), eng, vec![Box::new(check)], cfg).unwrap();
-    let v = stats.json(1.0);
+    let stats = run_replay(source, kin, (stereo.left, stereo.right), eng, sinks, cfg).unwrap();
+    let elapsed = stats.extra.get("elapsed_s").and_then(|v| v.as_f64()).unwrap_or(1.0);
+    stats.json(elapsed)
+}
+
+/// Replays a session (lossless, SGBM) with the self-check on every frame; its `self_check` stats.
+fn replay(dir: &Path, log: &Path) -> Value {
+    let check = SelfCheckConfig { blocking: true, log: Some(log.to_path_buf()), ..Default::default() };
+    let v = run(dir, "sgbm", true, None, Some(check));
     assert_eq!(v["frames_published"], 50, "{v:#}");
     v["self_check"].clone()
 }
@@ -132,4 +143,50 @@ fn truth_vs_log(dir: &Path, log: &Path) -> Vec<(u64, [f64; 3], [f64; 3])> {
         out.push((seq, [w.x, w.y, w.z], [c[11], c[12], c[13]]));
     }
     out
+}
+
+/// The critical path with and without the self-check: replays of the fixture paced at its 25 fps, looped to
+/// SELF_CHECK_BENCH_FRAMES (250) frames, with SELF_CHECK_BENCH_ENGINE (onnx), interleaved without / with,
+/// SELF_CHECK_BENCH_PAIRS (3) times; prints each run's end-to-end latency p50 / p99 and output-stage p50 and
+/// compares the medians of the p50s. A measurement, not a gate (the machine's load decides the numbers):
+/// `cargo test --release -p abvs-runtime --test self_check -- --ignored --nocapture critical_path`
+#[test]
+#[ignore]
+fn critical_path_with_and_without_the_self_check() {
+    let env = |k: &str, d: &str| std::env::var(k).unwrap_or_else(|_| d.to_string());
+    let frames: u64 = env("SELF_CHECK_BENCH_FRAMES", "250").parse().unwrap();
+    let pairs: usize = env("SELF_CHECK_BENCH_PAIRS", "3").parse().unwrap();
+    let engine = env("SELF_CHECK_BENCH_ENGINE", "onnx");
+    let ms = |v: &Value, k: &str| v[k]["p50"].as_f64().unwrap();
+    let (mut off, mut on) = (Vec::new(), Vec::new());
+    for i in 0..pairs {
+        for check in [false, true] {
+            let v = run(&fixture(), &engine, false, Some(frames), check.then(SelfCheckConfig::default));
+            let sc = &v["self_check"];
+            println!(
+                "run {i} self-check {:<5} e2e p50 {:6.2} p99 {:6.2} ms  output p50 {:5.2} ms  published {} dropped {}{}",
+                check,
+                ms(&v, "latency_ms"),
+                v["latency_ms"]["p99"].as_f64().unwrap(),
+                v["stages"]["output"]["p50"].as_f64().unwrap(),
+                v["frames_published"],
+                v["frames_dropped"],
+                if check {
+                    format!(
+                        "  checked {} skipped {} check p50 {} ms",
+                        sc["frames"], sc["frames_skipped"], sc["check_ms"]["p50"]
+                    )
+                } else {
+                    String::new()
+                }
+            );
+            if check { &mut on } else { &mut off }.push(ms(&v, "latency_ms"));
+        }
+    }
+    let median = |v: &mut Vec<f64>| {
+        v.sort_by(f64::total_cmp);
+        v[v.len() / 2]
+    };
+    let (a, b) = (median(&mut off), median(&mut on));
+    println!("{engine}: end-to-end p50 without {a:.2} ms, with {b:.2} ms ({:+.1} %)", 100.0 * (b - a) / a);
 }

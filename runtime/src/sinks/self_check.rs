@@ -58,7 +58,7 @@ use serde_json::{json, Value};
 
 use crate::error::{Result, RuntimeError};
 use crate::pipeline::{Published, Sink};
-use crate::sinks::stats::RunStats;
+use crate::sinks::stats::{Latency, RunStats};
 use crate::tasks::rectify::RectifiedCamera;
 
 /// How the self-check runs.
@@ -503,6 +503,8 @@ pub struct Summary {
     /// |vertical disparity| histogram of all matches (BIN_PX bins, the last one open).
     vertical: Vec<u64>,
     fits: Vec<(Vector3<f64>, Matrix3<f64>)>,
+    /// Time the worker spent on each checked frame.
+    pub check_time: Latency,
     /// The last `warn_frames` frames' rotation errors.
     recent: std::collections::VecDeque<Vector3<f64>>,
     warned: bool,
@@ -519,6 +521,7 @@ impl Default for Summary {
             matches: Vec::new(),
             vertical: vec![0; BINS],
             fits: Vec::new(),
+            check_time: Latency::default(),
             recent: std::collections::VecDeque::new(),
             warned: false,
             failed: 0,
@@ -657,6 +660,7 @@ impl Summary {
             "rotation_sigma_deg": sigma,
             "rotation_sigma_axes_deg": axes,
             "warnings": self.warnings,
+            "check_ms": { "p50": num(self.check_time.ms(0.5)), "p99": num(self.check_time.ms(0.99)) },
         })
     }
 }
@@ -757,7 +761,10 @@ impl SelfCheckSink {
                 let mut sum = Summary::default();
                 let mut matches = Vec::new();
                 for job in rx.iter() {
-                    match check_frame(&mut matcher, &job, &mut matches) {
+                    let t0 = std::time::Instant::now();
+                    let r = check_frame(&mut matcher, &job, &mut matches);
+                    sum.check_time.record_ns(t0.elapsed().as_nanos() as i64);
+                    match r {
                         Ok(c) => {
                             sum.add(&c, &matches, &wcfg);
                             if let Some((w, p)) = &mut log {
