@@ -64,7 +64,10 @@ pub fn run(a: ExplainArgs) -> anyhow::Result<ExitCode> {
         println!("ambiguous between {}: {}", a.effects.join(" and "), a.evidence);
     }
     for b in &r.at_bounds {
-        println!("at a plausibility bound: {} = {:.4} (bound {:.4}); probably absorbing {}", b.param, b.value, b.bound, b.absorbing);
+        println!(
+            "at a plausibility bound: {} = {:.4} (bound {:.4}); probably absorbing {}",
+            b.param, b.value, b.bound, b.absorbing
+        );
     }
     println!(
         "final held-out {:.4} deg ({:.2}x the floor) / {:.4} mm ({:.2}x)",
