@@ -1,7 +1,7 @@
 //! Self-check of the stereo calibration from the images (issue 16), off the critical path.
 //!
 //! A correctly rectified pair has no vertical disparity: a scene point lies on the same row in both images.
-//! The sink hands every `every`-th rectified pair to a worker thread of its own (lower priority; when it is
+//! The sink hands every `every`-th rectified pair to a worker thread of its own (idle CPU time only; when it is
 //! still busy the pair is skipped, counted), which
 //! 1. detects ORB features in both images and matches them in a band of rows (`band_px`) over the
 //!    disparity range (Hamming distance, ratio test, one right feature per left one),
@@ -80,8 +80,9 @@ pub struct SelfCheckConfig {
     pub log: Option<PathBuf>,
     /// Wait for the worker instead of skipping frames (offline, reproducible; costs the output stage the wait).
     pub blocking: bool,
-    /// Nice value of the worker thread (Linux; 0 keeps the pipeline's priority).
-    pub nice: i32,
+    /// Run the worker only on otherwise idle CPU time (Linux SCHED_IDLE; nice 19 where refused), so it never
+    /// takes a core from the pipeline's stages; false keeps the pipeline's priority.
+    pub background: bool,
 }
 
 impl Default for SelfCheckConfig {
@@ -95,7 +96,7 @@ impl Default for SelfCheckConfig {
             warn_frames: 25,
             log: None,
             blocking: false,
-            nice: 10,
+            background: true,
         }
     }
 }
@@ -752,11 +753,8 @@ impl SelfCheckSink {
         let worker = std::thread::Builder::new()
             .name("self-check".into())
             .spawn(move || {
-                if wcfg.nice != 0 {
-                    // Linux: nice is per thread
-                    unsafe {
-                        libc::setpriority(libc::PRIO_PROCESS, libc::gettid() as libc::id_t, wcfg.nice);
-                    }
+                if wcfg.background {
+                    background_priority();
                 }
                 let mut sum = Summary::default();
                 let mut matches = Vec::new();
@@ -790,6 +788,18 @@ impl SelfCheckSink {
             })
             .map_err(|e| RuntimeError::Invalid(format!("self-check: starting its thread: {e}")))?;
         Ok(SelfCheckSink { cfg, tx: Some(tx), free: free_rx, worker: Some(worker), skipped: 0 })
+    }
+}
+
+/// This thread runs only on idle CPU time: SCHED_IDLE, or nice 19 where that is refused (Linux applies
+/// both per thread).
+fn background_priority() {
+    // SAFETY: plain system calls on the calling thread with a valid, initialised parameter.
+    unsafe {
+        let param = libc::sched_param { sched_priority: 0 };
+        if libc::sched_setscheduler(0, libc::SCHED_IDLE, &param) != 0 {
+            libc::setpriority(libc::PRIO_PROCESS, libc::gettid() as libc::id_t, 19);
+        }
     }
 }
 
