@@ -41,6 +41,16 @@ pub struct RunArgs {
     /// Number of frames (the session loops when shorter, timestamps kept increasing); default one pass.
     #[arg(long)]
     pub frames: Option<u64>,
+    /// Loop the session without end: until --seconds (or --frames), or until stopped.
+    #[arg(long = "loop")]
+    pub looping: bool,
+    /// Stop taking frames this many seconds after the start (with --loop: a soak test).
+    #[arg(long)]
+    pub seconds: Option<f64>,
+    /// Length of a statistics window in seconds: latency p50/p99, counts and resident memory (RSS) per
+    /// window, in the table and the stats JSON (`windows`, `rss`).
+    #[arg(long, default_value_t = 60.0)]
+    pub stats_window: f64,
     /// Write the statistics as JSON.
     #[arg(long)]
     pub stats_json: Option<PathBuf>,
@@ -192,6 +202,15 @@ pub fn effective_config(a: &RunArgs, m: &ArgMatches) -> anyhow::Result<RuntimeCo
     if given("frames") {
         c.source.frames = a.frames;
     }
+    if a.looping {
+        c.source.looping = true;
+    }
+    if given("seconds") {
+        c.source.seconds = a.seconds;
+    }
+    if given("stats_window") {
+        c.sinks.stats_window_s = a.stats_window;
+    }
     if a.lossless {
         c.source.lossless = true;
     }
@@ -322,6 +341,8 @@ pub fn run_config(c: &RuntimeConfig) -> anyhow::Result<ExitCode> {
         sinks.push(Box::new(abvs_runtime::sinks::dump::DumpSink { dir: d.clone(), every: 1 }));
     }
     let engine_name = engine.name().to_string();
+    let duration = c.source.seconds.map(std::time::Duration::from_secs_f64);
+    let window = std::time::Duration::from_secs_f64(c.sinks.stats_window_s);
     let (mut stats, description, source_name) = match input {
         Input::Replay(session, dir) => {
             let description = session.meta.description.clone();
@@ -330,7 +351,10 @@ pub fn run_config(c: &RuntimeConfig) -> anyhow::Result<ExitCode> {
                 out,
                 lossless: c.source.lossless,
                 paced: c.source.paced && !c.source.lossless,
-                frames: c.source.frames,
+                // loop without end: as many frames as a u64 counts (with --seconds, until then)
+                frames: if c.source.looping { c.source.frames.or(Some(u64::MAX)) } else { c.source.frames },
+                duration,
+                window,
                 ..Default::default()
             };
             let stats = run_replay(source, kin, (stereo.left, stereo.right), engine, sinks, cfg)?;
@@ -347,6 +371,8 @@ pub fn run_config(c: &RuntimeConfig) -> anyhow::Result<ExitCode> {
                 lossless: c.source.lossless,
                 paced: false,
                 frames: c.source.frames,
+                duration,
+                window,
                 ..Default::default()
             };
             let stats = run_pipeline(source, kin, (stereo.left, stereo.right), engine, sinks, cfg)?;

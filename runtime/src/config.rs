@@ -89,6 +89,12 @@ pub struct SourceConfig {
     /// of a session, unlimited live.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub frames: Option<u64>,
+    /// Loop a session without end (until `seconds`, or `frames`, or the process is stopped).
+    #[serde(default, rename = "loop")]
+    pub looping: bool,
+    /// Stop taking frames this many seconds after the start (a soak test: `loop = true, seconds = 1800`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub seconds: Option<f64>,
     /// Every frame processed (queues block instead of dropping the oldest), replayed as fast as
     /// possible: offline and reproducible.
     #[serde(default)]
@@ -191,11 +197,13 @@ pub struct SinksConfig {
     pub rerun: Option<PathBuf>,
     /// No latency table on stdout.
     pub quiet: bool,
+    /// Length of a statistics window (s): latency p50/p99, counts and resident memory per window.
+    pub stats_window_s: f64,
 }
 
 impl Default for SinksConfig {
     fn default() -> Self {
-        SinksConfig { truth_stride: 8, stats_json: None, dump: None, rerun: None, quiet: false }
+        SinksConfig { truth_stride: 8, stats_json: None, dump: None, rerun: None, quiet: false, stats_window_s: 60.0 }
     }
 }
 
@@ -228,6 +236,8 @@ impl RuntimeConfig {
                 kind: SourceKind::Session,
                 session: Some(session),
                 frames: None,
+                looping: false,
+                seconds: None,
                 lossless: false,
                 paced: true,
                 live: LiveConfig::default(),
@@ -299,6 +309,15 @@ impl RuntimeConfig {
         }
         if d.threads == 0 || d.threads > 256 {
             return Err(format!("disparity.threads: {} must be in 1..=256", d.threads));
+        }
+        if let Some(t) = self.source.seconds {
+            if !(t > 0.0 && t <= 1e7) {
+                return Err(format!("source.seconds: {t} must be in (0, 1e7]"));
+            }
+        }
+        let w = self.sinks.stats_window_s;
+        if !(w >= 0.01 && w <= 86400.0) {
+            return Err(format!("sinks.stats_window_s: {w} must be in [0.01, 86400]"));
         }
         match self.source.kind {
             SourceKind::Session if self.source.session.is_none() => {

@@ -14,10 +14,10 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use abvs_camera::Camera;
-use crossbeam_channel::{bounded, Receiver, Select, Sender, TrySendError};
+use crossbeam_channel::{bounded, Receiver, RecvTimeoutError, Select, Sender, TrySendError};
 
 use crate::error::{Result, RuntimeError};
-use crate::sinks::stats::{monotonic_ns, Latency, RunStats};
+use crate::sinks::stats::{monotonic_ns, rss_bytes, Latency, RunStats, Window};
 use crate::sources::replay::{ReplayFrame, ReplaySource};
 use crate::tasks::align::EncoderTrack;
 use crate::tasks::depth::{DepthConfig, DepthFrame};
@@ -112,6 +112,11 @@ pub struct PipelineConfig {
     pub paced: bool,
     /// Number of frames (looping the session); `None` plays it once.
     pub frames: Option<u64>,
+    /// Stop taking frames from the source this long after the start (the frames in flight finish).
+    pub duration: Option<Duration>,
+    /// Length of a statistics window: latency percentiles, counts and resident memory per window
+    /// ([`RunStats::windows`]).
+    pub window: Duration,
 }
 
 impl Default for PipelineConfig {
@@ -124,6 +129,8 @@ impl Default for PipelineConfig {
             lossless: false,
             paced: true,
             frames: None,
+            duration: None,
+            window: Duration::from_secs(60),
         }
     }
 }
@@ -337,7 +344,12 @@ pub fn run<S: PairSource>(
             s.spawn(move || -> Latency {
                 prewarm_thread();
                 let mut lat = Latency::default();
-                while let Some(f) = source.next_frame(cfg.frames) {
+                let end_ns = cfg.duration.map(|d| started.saturating_add(d.as_nanos().min(i64::MAX as u128) as i64));
+                loop {
+                    if end_ns.is_some_and(|end| monotonic_ns() >= end) {
+                        break;
+                    }
+                    let Some(f) = source.next_frame(cfg.frames) else { break };
                     frames_in.fetch_add(1, Ordering::Relaxed);
                     let ready = f.t_start_ns + f.exposure_ns; // a frame exists once its exposure ended
                     if cfg.paced {
@@ -448,9 +460,22 @@ pub fn run<S: PairSource>(
             })
         };
         drop(q3_tx);
-        // ---- output: depth, cloud, sinks (this thread)
+        // ---- output: depth, cloud, sinks (this thread), and the statistics windows
         let mut depth = DepthFrame::new(out.0, out.1);
-        for w in q3_rx.iter() {
+        let window_ns = (cfg.window.as_nanos().clamp(1_000_000, i64::MAX as u128)) as i64;
+        let mut win = WindowCounter::new(started, window_ns);
+        win.prepare(&mut stats, cfg.duration);
+        loop {
+            let now = monotonic_ns();
+            if now >= win.end_ns {
+                win.close(now, &mut stats, &frames_in, &dropped);
+                continue;
+            }
+            let w = match q3_rx.recv_timeout(Duration::from_nanos((win.end_ns - now) as u64)) {
+                Ok(w) => w,
+                Err(RecvTimeoutError::Timeout) => continue,
+                Err(RecvTimeoutError::Disconnected) => break,
+            };
             let t0 = monotonic_ns();
             let (Some(pose), Some(rect)) = (w.pose.as_ref(), w.rect.as_ref()) else {
                 let _ = free_tx.send(w);
@@ -485,10 +510,12 @@ pub fn run<S: PairSource>(
                 stats.frames_published += 1;
                 stats.points_total += depth.n_points as u64;
                 stats.end_to_end.record_ns(t1 - w.t_frame_ns);
+                win.latency.record_ns(t1 - w.t_frame_ns);
                 stats.digest(&depth.depth);
             }
             let _ = free_tx.send(w);
         }
+        win.close(monotonic_ns(), &mut stats, &frames_in, &dropped);
         let src_lat = src.join().map_err(|_| RuntimeError::Invalid("source thread panicked".into()))?;
         for (name, h) in [("rectify", rect_stage), ("disparity", disp_stage)] {
             let (lat, failed) = h.join().map_err(|_| RuntimeError::Invalid(format!("{name} thread panicked")))?;
@@ -514,6 +541,55 @@ pub fn run<S: PairSource>(
         sink.finish(&mut stats);
     }
     Ok(stats)
+}
+
+/// The statistics window being filled (see [`PipelineConfig::window`]): closing one reads the counters and the
+/// resident memory; neither allocates (the list of windows is reserved up front for an hour, or for the run's
+/// duration).
+struct WindowCounter {
+    started: i64,
+    len_ns: i64,
+    end_ns: i64,
+    latency: Latency,
+    /// Counters at the window's start: frames in, published, dropped.
+    at_start: [u64; 3],
+}
+
+impl WindowCounter {
+    fn new(started: i64, len_ns: i64) -> Self {
+        WindowCounter { started, len_ns, end_ns: started + len_ns, latency: Latency::default(), at_start: [0; 3] }
+    }
+
+    /// Sets the run's window length and reserves its list: the run's windows, or an hour's (a longer run
+    /// without a duration grows the list, doubling, about once an hour and then ever more rarely).
+    fn prepare(&self, stats: &mut RunStats, duration: Option<Duration>) {
+        stats.window_s = self.len_ns as f64 * 1e-9;
+        let n = match duration {
+            Some(d) => (d.as_nanos() / self.len_ns as u128) as usize + 2,
+            None => (3600_000_000_000 / self.len_ns) as usize + 2,
+        };
+        stats.windows.reserve(n.min(1 << 16));
+    }
+
+    fn close(&mut self, now: i64, stats: &mut RunStats, frames_in: &AtomicU64, dropped: &AtomicU64) {
+        let counts = [frames_in.load(Ordering::Relaxed), stats.frames_published, dropped.load(Ordering::Relaxed)];
+        let l = &self.latency;
+        stats.windows.push(Window {
+            t_s: (now - self.started) as f64 * 1e-9,
+            frames_in: counts[0] - self.at_start[0],
+            frames_published: counts[1] - self.at_start[1],
+            frames_dropped: counts[2] - self.at_start[2],
+            p50_ms: l.ms(0.5),
+            p99_ms: l.ms(0.99),
+            max_ms: l.max_ms(),
+            rss_bytes: rss_bytes().unwrap_or(0),
+        });
+        self.at_start = counts;
+        self.latency.reset();
+        while self.end_ns <= now {
+            self.end_ns += self.len_ns;
+        }
+    }
 }
 
 /// Failure reason of a frame, for the counters (static: counting must not allocate).

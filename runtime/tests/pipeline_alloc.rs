@@ -74,7 +74,14 @@ fn per_frame_allocations(engine: &str) -> Vec<(u64, u64)> {
         stereo.rotation,
         stereo.translation_mm / 1000.0,
     );
-    let cfg = PipelineConfig { lossless: true, paced: false, frames: Some(FRAMES), ..Default::default() };
+    // statistics windows of 100 ms: closing one (percentiles, counters, resident memory) is part of steady state
+    let cfg = PipelineConfig {
+        lossless: true,
+        paced: false,
+        frames: Some(FRAMES),
+        window: std::time::Duration::from_millis(100),
+        ..Default::default()
+    };
     let model = dir.join("../../models/hitnet/hitnet-s");
     let eng = disparity::engine(engine, Some(&model), (cfg.out.width, cfg.out.height), 48.0, 2).unwrap();
     let marks = Arc::new(Mutex::new(Vec::with_capacity(FRAMES as usize + 10)));
@@ -82,6 +89,8 @@ fn per_frame_allocations(engine: &str) -> Vec<(u64, u64)> {
     let stats =
         run_replay(source, kin, (stereo.left, stereo.right), eng, vec![Box::new(Probe(marks.clone()))], cfg).unwrap();
     assert_eq!(stats.frames_published, FRAMES);
+    assert!(stats.windows.len() >= 10, "{} statistics windows", stats.windows.len());
+    assert!(stats.windows.iter().all(|w| w.rss_bytes > 0));
     let m = marks.lock().unwrap();
     m.windows(2).map(|w| (w[1].0 - w[0].0, w[1].1 - w[0].1)).collect()
 }

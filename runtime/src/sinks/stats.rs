@@ -35,6 +35,18 @@ impl Latency {
             self.0.value_at_quantile(q) as f64 / 1000.0
         }
     }
+    /// Largest value in milliseconds (NaN when empty).
+    pub fn max_ms(&self) -> f64 {
+        if self.0.is_empty() {
+            f64::NAN
+        } else {
+            self.0.max() as f64 / 1000.0
+        }
+    }
+    /// Empties the histogram (keeps its buffers: does not allocate).
+    pub fn reset(&mut self) {
+        self.0.reset();
+    }
     pub fn merge(&mut self, other: &Latency) {
         let _ = self.0.add(&other.0);
     }
@@ -44,11 +56,81 @@ impl Latency {
     }
 }
 
+fn finite(x: f64) -> Value {
+    if x.is_finite() {
+        json!(x)
+    } else {
+        Value::Null
+    }
+}
+
 fn round3(x: f64) -> Value {
     if x.is_finite() {
         json!((x * 1000.0).round() / 1000.0)
     } else {
         Value::Null
+    }
+}
+
+/// Resident set size of this process (bytes), from /proc/self/statm; `None` where there is none. Reads into a
+/// stack buffer: it does not allocate (the output stage calls it once per statistics window).
+pub fn rss_bytes() -> Option<u64> {
+    use std::io::Read;
+    let mut buf = [0u8; 128];
+    let n = std::fs::File::open("/proc/self/statm").and_then(|mut f| f.read(&mut buf)).ok()?;
+    // "size resident shared text lib data dt", in pages
+    let text = std::str::from_utf8(&buf[..n]).ok()?;
+    let pages: u64 = text.split_ascii_whitespace().nth(1)?.parse().ok()?;
+    // SAFETY: sysconf has no preconditions.
+    let page = unsafe { libc::sysconf(libc::_SC_PAGESIZE) };
+    Some(pages * if page > 0 { page as u64 } else { 4096 })
+}
+
+/// One statistics window of a run (a minute by default): what a soak test looks at.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Window {
+    /// End of the window, seconds since the run started.
+    pub t_s: f64,
+    /// Frames the source delivered, published, dropped under overload in the window.
+    pub frames_in: u64,
+    pub frames_published: u64,
+    pub frames_dropped: u64,
+    /// End-to-end latency of the window's published frames (ms; NaN without frames).
+    pub p50_ms: f64,
+    pub p99_ms: f64,
+    pub max_ms: f64,
+    /// Resident set size at the end of the window (bytes; 0 where unknown).
+    pub rss_bytes: u64,
+}
+
+impl Window {
+    fn json(&self) -> Value {
+        json!({
+            "t_s": round3(self.t_s),
+            "frames_in": self.frames_in,
+            "frames_published": self.frames_published,
+            "frames_dropped": self.frames_dropped,
+            "p50_ms": round3(self.p50_ms),
+            "p99_ms": round3(self.p99_ms),
+            "max_ms": round3(self.max_ms),
+            "rss_mb": round3(self.rss_bytes as f64 / 1048576.0),
+        })
+    }
+}
+
+/// Least-squares slope of y over x (NaN with fewer than two points).
+fn slope(pts: &[(f64, f64)]) -> f64 {
+    let n = pts.len() as f64;
+    if pts.len() < 2 {
+        return f64::NAN;
+    }
+    let (mx, my) = (pts.iter().map(|p| p.0).sum::<f64>() / n, pts.iter().map(|p| p.1).sum::<f64>() / n);
+    let sxy: f64 = pts.iter().map(|p| (p.0 - mx) * (p.1 - my)).sum();
+    let sxx: f64 = pts.iter().map(|p| (p.0 - mx).powi(2)).sum();
+    if sxx > 0.0 {
+        sxy / sxx
+    } else {
+        f64::NAN
     }
 }
 
@@ -90,6 +172,9 @@ pub struct RunStats {
     pub points_total: u64,
     /// FNV-1a over every published depth map: equal across runs of the same input in lossless mode.
     pub output_digest: u64,
+    /// Length of a statistics window (s) and the run's windows, in order (the last one may be shorter).
+    pub window_s: f64,
+    pub windows: Vec<Window>,
     pub extra: BTreeMap<String, Value>,
 }
 
@@ -106,6 +191,8 @@ impl RunStats {
             depth_error: None,
             points_total: 0,
             output_digest: 0xcbf29ce484222325,
+            window_s: 60.0,
+            windows: Vec::new(),
             extra: BTreeMap::new(),
         }
     }
@@ -149,10 +236,41 @@ impl RunStats {
         if let Some(e) = &self.depth_error {
             v["depth_error"] = e.json();
         }
+        v["window_s"] = json!(self.window_s);
+        v["windows"] = Value::Array(self.windows.iter().map(Window::json).collect());
+        v["rss"] = self.rss_summary();
         for (k, x) in &self.extra {
             v[k] = x.clone();
         }
         v
+    }
+
+    /// Resident memory over the run's windows: first, last and highest (MB), and the least-squares slope (MB
+    /// per minute) and relative spread ((max - min) / min) over every complete window after the first (the
+    /// first holds start-up: loading models, first-touch of buffers).
+    pub fn rss_summary(&self) -> Value {
+        let mb = |w: &Window| w.rss_bytes as f64 / 1048576.0;
+        let full: Vec<&Window> = self.windows.iter().filter(|w| w.rss_bytes > 0).collect();
+        let (Some(first), Some(last)) = (full.first(), full.last()) else { return Value::Null };
+        // complete windows after the first (the last one of a run is usually cut short)
+        let n = full.len();
+        let steady: Vec<&Window> = full
+            .iter()
+            .copied()
+            .enumerate()
+            .filter(|(i, _)| *i > 0 && (*i + 1 < n || n <= 2))
+            .map(|(_, w)| w)
+            .collect();
+        let pts: Vec<(f64, f64)> = steady.iter().map(|w| (w.t_s / 60.0, mb(w))).collect();
+        let (lo, hi) = pts.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), p| (lo.min(p.1), hi.max(p.1)));
+        json!({
+            "first_mb": round3(mb(first)),
+            "last_mb": round3(mb(last)),
+            "max_mb": round3(full.iter().map(|w| mb(w)).fold(0.0, f64::max)),
+            "steady_windows": pts.len(),
+            "steady_slope_mb_per_min": finite(slope(&pts)),
+            "steady_spread": if pts.is_empty() { Value::Null } else { finite((hi - lo) / lo) },
+        })
     }
 
     /// The latency table printed at exit.
@@ -181,6 +299,25 @@ impl RunStats {
                 l.0.max() as f64 / 1000.0,
                 l.count()
             );
+        }
+        if self.windows.len() > 1 {
+            s += &format!(
+                "{:<10} {:>7} {:>7} {:>9} {:>7} {:>9} {:>9} {:>9}\n",
+                "window", "end (s)", "in", "published", "dropped", "p50 (ms)", "p99 (ms)", "rss (MB)"
+            );
+            for (i, w) in self.windows.iter().enumerate() {
+                s += &format!(
+                    "{:<10} {:>7.1} {:>7} {:>9} {:>7} {:>9.2} {:>9.2} {:>9.1}\n",
+                    i + 1,
+                    w.t_s,
+                    w.frames_in,
+                    w.frames_published,
+                    w.frames_dropped,
+                    w.p50_ms,
+                    w.p99_ms,
+                    w.rss_bytes as f64 / 1048576.0
+                );
+            }
         }
         if let Some(e) = &self.depth_error {
             let j = e.json();
