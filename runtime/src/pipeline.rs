@@ -563,7 +563,7 @@ impl WindowCounter {
     /// Sets the run's window length and reserves its list: the run's windows, or an hour's (a longer run
     /// without a duration grows the list, doubling, about once an hour and then ever more rarely).
     fn prepare(&self, stats: &mut RunStats, duration: Option<Duration>) {
-        stats.window_s = self.len_ns as f64 * 1e-9;
+        stats.window_s = self.len_ns as f64 / 1e9;
         let n = match duration {
             Some(d) => (d.as_nanos() / self.len_ns as u128) as usize + 2,
             None => (3600_000_000_000 / self.len_ns) as usize + 2,
