@@ -101,6 +101,17 @@ pub struct RunArgs {
     /// Do not print the latency table.
     #[arg(long)]
     pub quiet: bool,
+    /// Check the stereo calibration from the rectified images off the critical path: vertical disparity of
+    /// matched features and the relative rotation error (stats JSON `self_check`, a warning when it persists).
+    #[arg(long)]
+    pub self_check: bool,
+    /// Self-check every N-th frame (implies --self-check).
+    #[arg(long)]
+    pub self_check_every: Option<u64>,
+    /// Per-frame self-check log as CSV: seq, time, both eyes' link angles, vertical px, rotation error
+    /// (implies --self-check).
+    #[arg(long)]
+    pub self_check_log: Option<PathBuf>,
 }
 
 /// The checkout's directory of a shipped resource (fixtures/, models/), found next to the executable's
@@ -253,6 +264,16 @@ pub fn effective_config(a: &RunArgs, m: &ArgMatches) -> anyhow::Result<RuntimeCo
     if a.quiet {
         c.sinks.quiet = true;
     }
+    let sc = &mut c.sinks.self_check;
+    if a.self_check || a.self_check_every.is_some() || a.self_check_log.is_some() {
+        sc.enabled = true;
+    }
+    if let Some(n) = a.self_check_every {
+        sc.every = n;
+    }
+    if given("self_check_log") {
+        sc.log = a.self_check_log.as_ref().map(abs);
+    }
     if a.no_publish {
         c.bridges.iceoryx.enabled = false;
     }
@@ -340,6 +361,19 @@ pub fn run_config(c: &RuntimeConfig) -> anyhow::Result<ExitCode> {
     if let Some(d) = &c.sinks.dump {
         sinks.push(Box::new(abvs_runtime::sinks::dump::DumpSink { dir: d.clone(), every: 1 }));
     }
+    let sc = &c.sinks.self_check;
+    if sc.enabled {
+        let cfg = abvs_runtime::sinks::self_check::SelfCheckConfig {
+            every: sc.every,
+            log: sc.log.clone(),
+            threshold_deg: sc.threshold_deg,
+            warn_frames: sc.warn_frames,
+            // offline and reproducible: every checked frame waits for the worker
+            blocking: c.source.lossless,
+            ..Default::default()
+        };
+        sinks.push(Box::new(abvs_runtime::sinks::self_check::SelfCheckSink::new(cfg, &out)?));
+    }
     let engine_name = engine.name().to_string();
     let duration = c.source.seconds.map(std::time::Duration::from_secs_f64);
     let window = std::time::Duration::from_secs_f64(c.sinks.stats_window_s);
@@ -389,6 +423,9 @@ pub fn run_config(c: &RuntimeConfig) -> anyhow::Result<ExitCode> {
         println!("session {source_name} ({description})");
         println!("engine {engine_name} at {w}x{h}, fk {}", c.calibration.fk.as_str());
         print!("{}", stats.table(elapsed));
+        if let Some(v) = stats.extra.get("self_check") {
+            println!("{}", abvs_runtime::sinks::self_check::summary_line(v));
+        }
     }
     if let Some(p) = &c.sinks.stats_json {
         std::fs::write(p, serde_json::to_string_pretty(&stats.json(elapsed))? + "\n")

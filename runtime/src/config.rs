@@ -199,11 +199,50 @@ pub struct SinksConfig {
     pub quiet: bool,
     /// Length of a statistics window (s): latency p50/p99, counts and resident memory per window.
     pub stats_window_s: f64,
+    /// The self-check of the stereo calibration from the rectified images (`sinks::self_check`).
+    pub self_check: SelfCheckSettings,
 }
 
 impl Default for SinksConfig {
     fn default() -> Self {
-        SinksConfig { truth_stride: 8, stats_json: None, dump: None, rerun: None, quiet: false, stats_window_s: 60.0 }
+        SinksConfig {
+            truth_stride: 8,
+            stats_json: None,
+            dump: None,
+            rerun: None,
+            quiet: false,
+            stats_window_s: 60.0,
+            self_check: SelfCheckSettings::default(),
+        }
+    }
+}
+
+/// `[sinks.self_check]`: vertical disparity and relative rotation error measured from the rectified pairs
+/// off the critical path (see `sinks::self_check`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct SelfCheckSettings {
+    pub enabled: bool,
+    /// Check every n-th frame.
+    pub every: u64,
+    /// Per-frame CSV log (seq, time, both eyes' link angles, vertical px, rotation error).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub log: Option<PathBuf>,
+    /// Warn when the rotation error (median over `warn_frames` checked frames) exceeds this (deg).
+    pub threshold_deg: f64,
+    pub warn_frames: u32,
+}
+
+impl Default for SelfCheckSettings {
+    fn default() -> Self {
+        let d = crate::sinks::self_check::SelfCheckConfig::default();
+        SelfCheckSettings {
+            enabled: false,
+            every: d.every,
+            log: None,
+            threshold_deg: d.threshold_deg,
+            warn_frames: d.warn_frames,
+        }
     }
 }
 
@@ -281,6 +320,7 @@ impl RuntimeConfig {
             c.sinks.stats_json.as_mut().map(fix);
             c.sinks.dump.as_mut().map(fix);
             c.sinks.rerun.as_mut().map(fix);
+            c.sinks.self_check.log.as_mut().map(fix);
         }
         c.check().map_err(|m| file(None, m))?;
         Ok(c)
@@ -314,6 +354,10 @@ impl RuntimeConfig {
             if !(t > 0.0 && t <= 1e7) {
                 return Err(format!("source.seconds: {t} must be in (0, 1e7]"));
             }
+        }
+        let sc = &self.sinks.self_check;
+        if sc.every == 0 || sc.warn_frames == 0 || !(sc.threshold_deg > 0.0) {
+            return Err("sinks.self_check: every and warn_frames must be at least 1, threshold_deg positive".into());
         }
         let w = self.sinks.stats_window_s;
         if !(w >= 0.01 && w <= 86400.0) {

@@ -666,6 +666,26 @@ impl Summary {
     }
 }
 
+/// One line for the table `abvs run` prints, from the stats' `self_check` object.
+pub fn summary_line(v: &Value) -> String {
+    let f = |x: &Value| x.as_f64().map(|x| format!("{x:.3}")).unwrap_or_else(|| "-".into());
+    let r = |k: usize| f(&v["rotation_error_deg"][k]);
+    format!(
+        "self-check: {} frames ({} skipped), matches p50 {}, |vertical| p50 {} p95 {} px, rotation error [{}, {}, {}] \
+         deg (sigma {} deg), warnings {}",
+        v["frames"],
+        v["frames_skipped"],
+        v["matches_p50"],
+        f(&v["vertical_px"]["p50"]),
+        f(&v["vertical_px"]["p95"]),
+        r(0),
+        r(1),
+        r(2),
+        f(&v["rotation_sigma_deg"]),
+        v["warnings"]
+    )
+}
+
 /// The CSV log's header.
 pub const LOG_HEADER: &str = "seq,t_ns,l1_deg,l2_deg,l3_deg,r1_deg,r2_deg,r3_deg,matches,vertical_p50_px,\
                               vertical_p95_px,rot_x_deg,rot_y_deg,rot_z_deg,rot_sigma_x_deg,rot_sigma_y_deg,\
