@@ -12,7 +12,10 @@
 //! 3. Newton on `Fick(model(theta)) - target` (deg): the nominal eye's analytic Jacobian at the
 //!    start, Broyden updates after each step, step halving when the residual does not fall,
 //!    steps of at most 5 deg; when a step fails the Jacobian is recomputed by forward
-//!    differences of the model.
+//!    differences of the model. Where that stalls (a ReLU network's kinks can make Newton
+//!    cycle between linear pieces), Levenberg-Marquardt with forward-difference Jacobians
+//!    takes over; if that stalls too (a local minimum of |residual|: a poorly trained network
+//!    can fold), Newton restarts from points 1-2 deg around the nominal IK, nearest first.
 //! 4. Evaluate the model exactly as the move will happen (the stream state advanced by the
 //!    solution); if the conditions changed (another approach direction, another platform motion
 //!    direction) and the residual is above the tolerance, freeze them at the solution and go
@@ -43,7 +46,7 @@ pub struct IkConfig {
     /// Converged when every Fick-angle residual is below this (deg; float32 networks: at least
     /// 2e-4). One encoder count is 0.0039 deg.
     pub tol_deg: f64,
-    /// Model evaluations per Newton round at most.
+    /// Model evaluations per Newton run at most (the Levenberg-Marquardt fallback: 4x).
     pub max_iter: usize,
     /// Refuse when the residual stays above this (deg).
     pub max_residual_deg: f64,
@@ -51,7 +54,7 @@ pub struct IkConfig {
     /// would be extrapolating far outside its data, or the solver left the working mode.
     pub max_from_nominal_deg: f64,
     /// Refuse when the model's Jacobian d(Fick)/d(theta) has sigma_min / sigma_max below this.
-    /// Over the paper's workspace the nominal eye stays above 0.25.
+    /// Over the paper's workspace the nominal eye stays above 0.15.
     pub min_conditioning: f64,
     /// Largest Newton step on any link (deg).
     pub max_step_deg: f64,
@@ -84,7 +87,8 @@ pub struct IkSolution {
     pub residual_deg: f64,
     /// Where Newton started: the nominal IK of the target (deg).
     pub nominal_theta_deg: [f64; 3],
-    /// sigma_min / sigma_max of the model's d(Fick)/d(theta) at the solution.
+    /// sigma_min / sigma_max of the model's d(Fick)/d(theta) at the solution (from the solver's
+    /// Broyden estimate; from forward differences when that is below the refusal limit).
     pub conditioning: f64,
     /// Model evaluations spent.
     pub evaluations: usize,
@@ -105,6 +109,32 @@ pub struct CalibratedIk<'m> {
     /// Forward-difference step (deg).
     h: f64,
     tol: f64,
+}
+
+/// Offsets (deg) of the restarts around the nominal IK, nearest first: 1 and 2 deg along each
+/// link, then the corners of the 1 deg cube.
+fn restarts() -> impl Iterator<Item = Vector3<f64>> {
+    let axial = [1.0, 2.0].into_iter().flat_map(|m| {
+        (0..3).flat_map(move |k| {
+            [-m, m].map(|v| {
+                let mut d = Vector3::zeros();
+                d[k] = v;
+                d
+            })
+        })
+    });
+    let corners = (0..8).map(|c| Vector3::new(sgn(c & 1), sgn(c & 2), sgn(c & 4)));
+    let mut all: Vec<Vector3<f64>> = axial.chain(corners).collect();
+    all.sort_by(|a, b| a.norm().total_cmp(&b.norm()));
+    all.into_iter()
+}
+
+fn sgn(bit: usize) -> f64 {
+    if bit != 0 {
+        1.0
+    } else {
+        -1.0
+    }
 }
 
 fn wrap180(d: f64) -> f64 {
@@ -263,8 +293,56 @@ impl<'m> CalibratedIk<'m> {
                 None => break,
             }
         }
+        if f.amax() >= self.tol {
+            self.levenberg(fr, th, t, evals, &mut f, &mut j)?;
+        }
         *jac = Some(j);
         Ok(f)
+    }
+
+    /// Levenberg-Marquardt with forward-difference Jacobians: the fallback where Newton-Broyden
+    /// stalls (at the kinks of a ReLU network it can cycle between linear pieces).
+    fn levenberg(
+        &self,
+        fr: &mut Frozen,
+        th: &mut Vector3<f64>,
+        t: &[f64; 3],
+        evals: &mut usize,
+        f: &mut Vector3<f64>,
+        j: &mut Matrix3<f64>,
+    ) -> Result<()> {
+        let mut lambda = 1e-3;
+        let start = *evals;
+        while f.amax() >= self.tol && *evals - start < 4 * self.cfg.max_iter {
+            *f = self.residual(fr, th, t, evals)?;
+            *j = self.jacobian(fr, th, f, t, evals)?;
+            let (jtj, g) = (j.transpose() * *j, j.transpose() * *f);
+            let mut improved = false;
+            for _ in 0..12 {
+                let a = jtj + Matrix3::from_diagonal(&jtj.diagonal()) * lambda + Matrix3::identity() * 1e-12;
+                if let Some(mut s) = a.lu().solve(&(-g)).filter(|s| s.iter().all(|x| x.is_finite())) {
+                    let m = s.amax();
+                    if m > self.cfg.max_step_deg {
+                        s *= self.cfg.max_step_deg / m;
+                    }
+                    let tn = *th + s;
+                    if let Ok(fnew) = self.residual(fr, &tn, t, evals) {
+                        if fnew.norm() < f.norm() {
+                            *th = tn;
+                            *f = fnew;
+                            lambda = (lambda / 3.0).max(1e-9);
+                            improved = true;
+                            break;
+                        }
+                    }
+                }
+                lambda *= 4.0;
+            }
+            if !improved {
+                break;
+            }
+        }
+        Ok(())
     }
 
     /// As [`CalibratedIk::solve`], also returning the state advanced by the move (to commit it
@@ -297,9 +375,26 @@ impl<'m> CalibratedIk<'m> {
                 .freeze(st, &arr(&th), gravity, Some(&near))
                 .map_err(|e| refuse(format!("the model cannot evaluate theta {:?} deg: {e}", arr(&th))))?;
             evals += 1;
-            let f = self
+            let mut f = self
                 .newton(&mut fr, &mut th, &target, &mut jac, &mut evals)
                 .map_err(|e| refuse(format!("the model cannot evaluate theta {:?} deg on the way: {e}", arr(&th))))?;
+            if round == 0 && f.amax() >= self.tol {
+                // Stuck in a local minimum of |residual| (a poorly trained network folds):
+                // restart from starts around the nominal IK, nearest first, and keep the first
+                // that converges (the solution nearest the working-mode start).
+                for d in restarts() {
+                    let mut th2 = Vector3::from(th_nom) + d;
+                    let mut jac2 = self.nominal_jacobian(&r_t, &th_nom);
+                    if let Ok(f2) = self.newton(&mut fr, &mut th2, &target, &mut jac2, &mut evals) {
+                        if f2.amax() < f.amax() {
+                            (th, f, jac) = (th2, f2, jac2);
+                        }
+                        if f.amax() < self.tol {
+                            break;
+                        }
+                    }
+                }
+            }
             // The move as it will happen: the state advanced by the solution.
             let mut next = st.clone();
             evals += 1;
@@ -310,13 +405,13 @@ impl<'m> CalibratedIk<'m> {
             let exact =
                 Vector3::new(wrap180(pose[0] - target[0]), wrap180(pose[1] - target[1]), wrap180(pose[2] - target[2]));
             let done = exact.amax() < self.tol || round == 2 || (exact - f).amax() < 0.5 * self.tol;
-            out = Some((pose, exact, next));
+            out = Some((pose, exact, next, fr.clone()));
             near = fr.warm();
             if done {
                 break;
             }
         }
-        let (pose, exact, next) = out.expect("at least one round");
+        let (pose, exact, next, mut fr) = out.expect("at least one round");
         let theta_deg = arr(&th);
         if exact.amax() > self.cfg.max_residual_deg {
             return Err(refuse(format!(
@@ -334,8 +429,23 @@ impl<'m> CalibratedIk<'m> {
                 self.cfg.max_from_nominal_deg
             )));
         }
-        let sv = jac.expect("Jacobian").singular_values();
-        let conditioning = if sv.max() > 0.0 { sv.min() / sv.max() } else { 0.0 };
+        let cond = |j: &Matrix3<f64>| {
+            let sv = j.singular_values();
+            if sv.max() > 0.0 {
+                sv.min() / sv.max()
+            } else {
+                0.0
+            }
+        };
+        // The Broyden Jacobian is an estimate: below the limit, differentiate the model itself.
+        let mut conditioning = cond(&jac.expect("Jacobian"));
+        if conditioning < self.cfg.min_conditioning {
+            let th = Vector3::from(theta_deg);
+            let fd = self
+                .residual(&mut fr, &th, &target, &mut evals)
+                .and_then(|f| self.jacobian(&mut fr, &th, &f, &target, &mut evals));
+            conditioning = fd.map(|j| cond(&j)).unwrap_or(0.0);
+        }
         if conditioning < self.cfg.min_conditioning {
             return Err(refuse(format!(
                 "near-singular: the model's d(orientation)/d(theta) has inverse condition number {conditioning:.4} \
@@ -372,6 +482,30 @@ impl<'m> CalibratedIk<'m> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn nominal_conditioning_over_the_workspace() {
+        // The refusal limit sits well below what the nominal eye shows over the paper's workspace.
+        let m = crate::model::FkModel::load(std::path::Path::new(concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/../fixtures/session/calib/eye0"
+        )))
+        .unwrap();
+        let ik = CalibratedIk::new(&m);
+        let mut worst: f64 = 1.0;
+        for a in abvs_eye::psc::grid(-30.0, 30.0, 5.0) {
+            for b in abvs_eye::psc::grid(-15.0, 15.0, 5.0) {
+                for c in abvs_eye::psc::grid(-30.0, 30.0, 5.0) {
+                    let r = Fick::from_deg([a, b, c]).to_matrix();
+                    let th = ik.nominal.ik(&r).unwrap().map(f64::to_degrees);
+                    let sv = ik.nominal_jacobian(&r, &th).unwrap().singular_values();
+                    worst = worst.min(sv.min() / sv.max());
+                }
+            }
+        }
+        println!("nominal d(Fick)/d(theta) conditioning over the workspace >= {worst:.3}");
+        assert!(worst > 3.0 * IkConfig::default().min_conditioning, "{worst}");
+    }
 
     #[test]
     fn wrap180_range() {
