@@ -19,8 +19,9 @@ pub struct EchoArgs {
     /// Exit after this many samples.
     #[arg(long)]
     count: Option<u64>,
-    /// Print one JSON object at the end (received, fps, latency_ms {p50, p99}, points_mean) instead of the
-    /// periodic lines (those go to stderr then).
+    /// Print one JSON object at the end (received, fps, latency_ms {p50, p99}, points_mean, and the
+    /// subscriber's counts: seq_gaps, seq_restarts, dead_nodes_cleaned, malformed) instead of the periodic
+    /// lines (those go to stderr then).
     #[arg(long)]
     json: bool,
     /// Fail if no sample arrives for this long (seconds).
@@ -32,6 +33,10 @@ pub struct EchoArgs {
     /// Testing: abort the process right after receiving K samples, still holding the last one.
     #[arg(long, hide = true)]
     abort_after: Option<u64>,
+    /// Testing: after K samples, keep the last two borrowed (the most a subscriber may hold), say
+    /// "holding" on stderr and sleep until killed.
+    #[arg(long, hide = true)]
+    hold_after: Option<u64>,
 }
 
 pub fn run(a: EchoArgs) -> anyhow::Result<ExitCode> {
@@ -70,6 +75,7 @@ fn echo<T: BridgePayload>(a: &EchoArgs) -> anyhow::Result<ExitCode> {
     let (mut first_rx, mut last_rx) = (None::<Instant>, None::<Instant>);
     let mut win = Window { t0: Instant::now(), lat: Vec::new(), points: 0 };
     let mut failure = None;
+    let mut held = Vec::new();
 
     loop {
         if a.count.is_some_and(|n| received >= n) {
@@ -97,6 +103,19 @@ fn echo<T: BridgePayload>(a: &EchoArgs) -> anyhow::Result<ExitCode> {
             // simulate a crashing subscriber: die while the sample is still borrowed
             let _held = r;
             std::process::abort();
+        }
+        if a.hold_after.is_some_and(|k| received + 1 >= k) {
+            held.push(r);
+            if held.len() == 2 {
+                use std::io::Write;
+                let mut e = std::io::stderr();
+                let _ = writeln!(e, "holding {} samples", held.len());
+                let _ = e.flush();
+                loop {
+                    std::thread::sleep(Duration::from_secs(3600));
+                }
+            }
+            continue;
         }
         drop(r);
         let dt = now.duration_since(win.t0).as_secs_f64();
@@ -128,11 +147,16 @@ fn echo<T: BridgePayload>(a: &EchoArgs) -> anyhow::Result<ExitCode> {
     let (p50, p99) = (percentile(&all_lat, 0.5), percentile(&all_lat, 0.99));
     if a.json {
         let num = |v: f64| if v.is_finite() { serde_json::json!(v) } else { serde_json::Value::Null };
+        let st = sub.stats();
         let o = serde_json::json!({
             "received": received,
             "fps": num(fps),
             "latency_ms": { "p50": num(p50), "p99": num(p99) },
             "points_mean": num(points_mean),
+            "seq_gaps": st.seq_gaps,
+            "seq_restarts": st.seq_restarts,
+            "dead_nodes_cleaned": st.dead_nodes_cleaned,
+            "malformed": st.malformed,
         });
         println!("{o}");
     } else {

@@ -299,7 +299,12 @@ fn node(cfg: &BridgeConfig, role: &str) -> Result<(Node<Ipc>, u64), BridgeError>
     LOG_LEVEL.call_once(|| set_log_level_from_env_or(LogLevel::Error));
     let service = cfg.service_name(role);
     let name = NodeName::new(&format!("abvs-{role}")).map_err(iox(&service, "naming the node"))?;
+    // iceoryx2 would remove dead nodes inside `create` without saying how many: that is done below instead,
+    // counted (the counts are in PublishStats and SubscribeStats)
+    let mut config = Config::global_config().clone();
+    config.global.node.cleanup_dead_nodes_on_creation = false;
     let node = NodeBuilder::new()
+        .config(&config)
         .name(&name)
         // a library must not take over SIGINT/SIGTERM from the program it runs in
         .signal_handling_mode(SignalHandlingMode::Disabled)
@@ -434,7 +439,7 @@ fn publisher_holders<T: BridgePayload>(pubsub: &PubSubFactory<T>) -> String {
 }
 
 /// What a publisher saw that was not a plain delivery. None of it makes a publish fail.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, serde::Serialize)]
 pub struct PublishStats {
     /// Samples sent.
     pub published: u64,
@@ -713,6 +718,9 @@ pub struct SubscribeStats {
     pub received: u64,
     /// Gaps in `seq` between consecutive samples (dropped by safe overflow or not published).
     pub seq_gaps: u64,
+    /// Samples whose `seq` is not after the previous one's: a publisher that restarted (its sequence starts
+    /// again) while this subscriber stayed up.
+    pub seq_restarts: u64,
     /// Dead nodes whose resources were removed when this subscriber started.
     pub dead_nodes_cleaned: u64,
     /// Samples dropped because the payload did not fit the header (not `width x height` depth values, a
@@ -815,6 +823,8 @@ impl<T: BridgePayload> Subscriber<T> {
             if let Some(last) = self.last_seq {
                 if seq > last.saturating_add(1) {
                     self.stats.seq_gaps += 1;
+                } else if seq <= last {
+                    self.stats.seq_restarts += 1;
                 }
             }
             self.last_seq = Some(seq);

@@ -63,8 +63,6 @@ impl Sink for PublishSink {
 
     fn finish(&mut self, stats: &mut RunStats) {
         let (d, c) = (self.depth.stats(), self.cloud.stats());
-        stats
-            .extra
-            .insert("publish".into(), serde_json::json!({ "depth": format!("{d:?}"), "cloud": format!("{c:?}") }));
+        stats.extra.insert("publish".into(), serde_json::json!({ "depth": d, "cloud": c }));
     }
 }
