@@ -100,7 +100,7 @@ fn the_self_check_reads_the_fixture_as_calibrated_and_finds_a_rotated_extrinsic(
     let per_frame = truth_vs_log(&fixture(), &tmp.path().join("ok.csv"));
     let worst = |k: usize| per_frame.iter().map(|(_, t, m)| (m[k] - t[k]).abs()).fold(0.0, f64::max);
     eprintln!("per frame, worst |measured - true| (deg): x {:.4} y {:.4} z {:.4}", worst(0), worst(1), worst(2));
-    assert!(worst(0) < 0.03 && worst(2) < 0.1 && worst(1) < 0.3, "{per_frame:?}");
+    assert!(worst(0) < 0.01 && worst(1) < 0.04 && worst(2) < 0.015, "{per_frame:?}");
 }
 
 /// (seq, true error, measured error) in degrees for each row of a self-check log of the fixture.

@@ -3,8 +3,11 @@
 //! A correctly rectified pair has no vertical disparity: a scene point lies on the same row in both images.
 //! The sink hands every `every`-th rectified pair to a worker thread of its own (idle CPU time only; when it is
 //! still busy the pair is skipped, counted), which
-//! 1. detects ORB features in both images and matches them in a band of rows (`band_px`) over the
-//!    disparity range (Hamming distance, ratio test, one right feature per left one),
+//! 1. picks corners of the left image (Shi-Tomasi, the strongest per 10 x 10 px cell, so they cover the image)
+//!    and finds each in the right image by a search over a band of rows (`band_px`) and the disparity range
+//!    (zero-mean SAD on 7 x 7 patches; the best must beat any runner-up away from it by 20 %). Plain Rust on
+//!    the worker: OpenCV's detectors (ORB, FAST) parallelise on OpenCV's process-wide TBB pool, the workers
+//!    of the pipeline's remap and SGBM, and so delayed the critical path (measured: +45 % end-to-end p50),
 //! 2. refines each match to sub-pixel precision with Lucas-Kanade on a 13 x 13 patch (vertical shift,
 //!    horizontal shift varying linearly across the patch as on a slanted surface, intensity offset;
 //!    normalised cross-correlation at least 0.9),
@@ -42,18 +45,15 @@
 //!
 //! **Limits.** Rotation about the rectified vertical axis (toe-in) moves features mostly horizontally, which
 //! is indistinguishable from depth; its vertical signature (`x_r y`) is weak, so per frame that component is
-//! the least certain and the first to pick up small systematic matching errors (on the fixture, single
-//! fixations read up to 0.2 deg about y where the truth is under 0.003 deg, while x and z stay within
-//! 0.02 deg; over the run it averages out to 0.003 deg).
+//! the least certain (on the fixture, per frame against the truth: x within 0.003 deg, z 0.005, y 0.01). The
+//! corners matter: ORB keypoints (clustered on object corners and depth edges) read single fixations up to
+//! 0.2 deg off about y.
 use std::io::Write;
 use std::path::PathBuf;
 use std::thread::JoinHandle;
 
 use crossbeam_channel::{bounded, Receiver, Sender};
 use nalgebra::{Matrix3, Vector3};
-use opencv::core::{KeyPoint, Mat, Ptr, Vector};
-use opencv::features2d::{ORB_ScoreType, ORB};
-use opencv::prelude::*;
 use serde_json::{json, Value};
 
 use crate::error::{Result, RuntimeError};
@@ -70,8 +70,8 @@ pub struct SelfCheckConfig {
     pub band_px: f32,
     /// Nearest depth matched (m): the disparity range is f B / min_depth.
     pub min_depth_m: f64,
-    /// ORB features per image.
-    pub features: i32,
+    /// Corners searched per frame (at most).
+    pub features: usize,
     /// Warn when the rotation error (median of the last `warn_frames` checked frames) exceeds this (deg).
     pub threshold_deg: f64,
     /// Window of the warning (checked frames).
@@ -91,7 +91,7 @@ impl Default for SelfCheckConfig {
             every: 1,
             band_px: 4.0,
             min_depth_m: 0.15,
-            features: 800,
+            features: 400,
             threshold_deg: 0.1,
             warn_frames: 25,
             log: None,
@@ -119,28 +119,88 @@ impl Match {
     }
 }
 
-/// Sparse band matcher: ORB + ratio test + Lucas-Kanade refinement.
+/// Sparse band matcher: corners of the left image (Shi-Tomasi, one per grid cell), each searched for in the
+/// right image over the band of rows and the disparity range (zero-mean SAD, distinctive best), then refined
+/// by Lucas-Kanade ([`refine`]). Plain Rust on the calling thread: OpenCV's feature detectors would run on its
+/// process-wide thread pool (TBB), the same workers as the pipeline's remap and SGBM.
 pub struct Matcher {
-    orb: Ptr<ORB>,
     band_px: f32,
-    kl: Vector<KeyPoint>,
-    kr: Vector<KeyPoint>,
-    dl: Mat,
-    dr: Mat,
+    features: usize,
+    /// Scratch: gradient products and their window sums, corner response, integral image of the right image.
+    gxx: Vec<f32>,
+    gxy: Vec<f32>,
+    gyy: Vec<f32>,
+    tmp: Vec<f32>,
+    resp: Vec<f32>,
+    integral: Vec<u32>,
+    corners: Vec<(f32, u32, u32)>,
 }
 
-const DESC: usize = 32;
+/// Half-size of the matching patch (px) and of the structure tensor's window.
+const MATCH_R: i32 = 3;
+const TENSOR_R: usize = 2;
+/// Grid cell for spreading the corners over the image (px).
+const CELL: usize = 10;
 const PATCH_R: i32 = 6;
 
-fn cv(e: opencv::Error) -> RuntimeError {
-    RuntimeError::Invalid(format!("self-check: {}", e.message))
-}
-
 impl Matcher {
-    pub fn new(features: i32, band_px: f32) -> Result<Matcher> {
-        // small patches: the rectified images are small (320 x 240 by default)
-        let orb = ORB::create(features, 1.2, 4, 19, 0, 2, ORB_ScoreType::HARRIS_SCORE, 19, 10).map_err(cv)?;
-        Ok(Matcher { orb, band_px, kl: Vector::new(), kr: Vector::new(), dl: Mat::default(), dr: Mat::default() })
+    /// At most `features` corners per frame, searched over +-`band_px` rows.
+    pub fn new(features: usize, band_px: f32) -> Result<Matcher> {
+        Ok(Matcher {
+            band_px,
+            features,
+            gxx: Vec::new(),
+            gxy: Vec::new(),
+            gyy: Vec::new(),
+            tmp: Vec::new(),
+            resp: Vec::new(),
+            integral: Vec::new(),
+            corners: Vec::new(),
+        })
+    }
+
+    /// Shi-Tomasi response (smaller eigenvalue of the structure tensor over a 5 x 5 window, per pixel) of
+    /// `img`; 0 where the window touches an unseen (black) pixel.
+    fn response(&mut self, img: &[u8], w: usize, h: usize) {
+        let n = w * h;
+        for v in [&mut self.gxx, &mut self.gxy, &mut self.gyy, &mut self.tmp, &mut self.resp] {
+            v.clear();
+            v.resize(n, 0.0);
+        }
+        for y in 1..h - 1 {
+            for x in 1..w - 1 {
+                let i = y * w + x;
+                let gx = 0.5 * (img[i + 1] as f32 - img[i - 1] as f32);
+                let gy = 0.5 * (img[i + w] as f32 - img[i - w] as f32);
+                let dark = img[i] == 0 || img[i + 1] == 0 || img[i - 1] == 0 || img[i + w] == 0 || img[i - w] == 0;
+                // an unseen pixel poisons its window (NaN propagates through the sums)
+                let k = if dark { f32::NAN } else { 1.0 };
+                self.gxx[i] = gx * gx * k;
+                self.gxy[i] = gx * gy * k;
+                self.gyy[i] = gy * gy * k;
+            }
+        }
+        let r = TENSOR_R;
+        let tmp = &mut self.tmp;
+        for g in [&mut self.gxx, &mut self.gxy, &mut self.gyy] {
+            // separable box sums, rows then columns
+            for y in 0..h {
+                for x in r..w - r {
+                    tmp[y * w + x] = (x - r..=x + r).map(|k| g[y * w + k]).sum();
+                }
+            }
+            g.iter_mut().for_each(|v| *v = 0.0);
+            for y in r..h - r {
+                for x in r..w - r {
+                    g[y * w + x] = (y - r..=y + r).map(|k| tmp[k * w + x]).sum();
+                }
+            }
+        }
+        for i in 0..n {
+            let (a, b, c) = (self.gxx[i], self.gxy[i], self.gyy[i]);
+            let l = 0.5 * (a + c) - (0.25 * (a - c) * (a - c) + b * b).sqrt();
+            self.resp[i] = if l.is_finite() { l } else { 0.0 };
+        }
     }
 
     /// Matches of the rectified pair `left`, `right` (`w` x `h`, 8-bit) with horizontal disparity in
@@ -158,69 +218,122 @@ impl Matcher {
         if left.len() != w * h || right.len() != w * h {
             return Err(RuntimeError::Invalid(format!("self-check: images are not {w}x{h}")));
         }
-        let l = Mat::new_rows_cols_with_data(h as i32, w as i32, left).map_err(cv)?;
-        let r = Mat::new_rows_cols_with_data(h as i32, w as i32, right).map_err(cv)?;
-        self.orb.detect_and_compute(&l, &opencv::core::no_array(), &mut self.kl, &mut self.dl, false).map_err(cv)?;
-        self.orb.detect_and_compute(&r, &opencv::core::no_array(), &mut self.kr, &mut self.dr, false).map_err(cv)?;
-        if self.kl.is_empty() || self.kr.is_empty() {
+        let margin = (PATCH_R + 2) as usize;
+        if w < 4 * margin || h < 4 * margin {
             return Ok(());
         }
-        let dl = self.dl.data_typed::<u8>().map_err(cv)?;
-        let dr = self.dr.data_typed::<u8>().map_err(cv)?;
-        // right features by row
-        let mut rights: Vec<(f32, f32, usize)> =
-            self.kr.iter().enumerate().map(|(i, k)| (k.pt().y, k.pt().x, i)).collect();
-        rights.sort_by(|a, b| a.0.total_cmp(&b.0));
-        // best right feature of each left one: (left, right, distance)
-        let mut cand: Vec<(usize, usize, u32)> = Vec::new();
-        for (i, k) in self.kl.iter().enumerate() {
-            let p = k.pt();
-            let lo = rights.partition_point(|r| r.0 < p.y - self.band_px);
-            let da = &dl[i * DESC..(i + 1) * DESC];
-            let (mut best, mut second, mut bj) = (u32::MAX, u32::MAX, usize::MAX);
-            for &(ry, rx, j) in &rights[lo..] {
-                if ry > p.y + self.band_px {
-                    break;
+        // corners of the left image: the strongest local maximum of each grid cell, over a floor
+        self.response(left, w, h);
+        self.corners.clear();
+        let floor = 6.0 * ((2 * TENSOR_R + 1) * (2 * TENSOR_R + 1)) as f32; // gradients of ~2.5 grey levels
+        for cy in (margin..h - margin).step_by(CELL) {
+            for cx in (margin..w - margin).step_by(CELL) {
+                let mut best = (floor, 0, 0);
+                for y in cy..(cy + CELL).min(h - margin) {
+                    for x in cx..(cx + CELL).min(w - margin) {
+                        let v = self.resp[y * w + x];
+                        if v > best.0 {
+                            best = (v, x, y);
+                        }
+                    }
                 }
-                let d = p.x - rx;
-                if !(-1.0..=max_disp).contains(&d) {
-                    continue;
+                if best.0 > floor {
+                    let (v, x, y) = best;
+                    let local_max = (y - 1..=y + 1)
+                        .all(|yy| (x - 1..=x + 1).all(|xx| (xx == x && yy == y) || self.resp[yy * w + xx] <= v));
+                    if local_max {
+                        self.corners.push((v, x as u32, y as u32));
+                    }
                 }
-                let dist = hamming(da, &dr[j * DESC..(j + 1) * DESC]);
-                if dist < best {
-                    (second, best, bj) = (best, dist, j);
-                } else if dist < second {
-                    second = dist;
-                }
-            }
-            if best <= 64 && (second == u32::MAX || (best as f32) < 0.8 * second as f32) {
-                cand.push((i, bj, best));
             }
         }
-        // one left feature per right feature: the closest
-        cand.sort_by_key(|c| (c.1, c.2));
-        cand.dedup_by_key(|c| c.1);
-        for (i, j, _) in cand {
-            let (pl, pr) = (self.kl.get(i).map_err(cv)?.pt(), self.kr.get(j).map_err(cv)?.pt());
-            let (xl, yl) = (pl.x.round() as i32, pl.y.round() as i32);
-            let init = (pr.x + (xl as f32 - pl.x), pr.y + (yl as f32 - pl.y));
-            if let Some(m) = refine(left, right, w, h, (xl, yl), init) {
+        if self.corners.len() > self.features {
+            self.corners.sort_by(|a, b| b.0.total_cmp(&a.0));
+            self.corners.truncate(self.features);
+        }
+        // integral image of the right image (patch means in O(1))
+        let iw = w + 1;
+        self.integral.clear();
+        self.integral.resize(iw * (h + 1), 0);
+        for y in 0..h {
+            let mut row = 0u32;
+            for x in 0..w {
+                row += right[y * w + x] as u32;
+                self.integral[(y + 1) * iw + x + 1] = self.integral[y * iw + x + 1] + row;
+            }
+        }
+        let integral = &self.integral;
+        let r = MATCH_R;
+        let np = (2 * r + 1) * (2 * r + 1);
+        let box_sum = |x: i32, y: i32| -> i32 {
+            let (x0, y0, x1, y1) = ((x - r) as usize, (y - r) as usize, (x + r + 1) as usize, (y + r + 1) as usize);
+            (integral[y1 * iw + x1] + integral[y0 * iw + x0]) as i32
+                - (integral[y0 * iw + x1] + integral[y1 * iw + x0]) as i32
+        };
+        let band = self.band_px.ceil() as i32;
+        let max_d = max_disp.ceil() as i32;
+        let mut tpl = [0i32; ((2 * MATCH_R + 1) * (2 * MATCH_R + 1)) as usize];
+        for &(_, xl, yl) in &self.corners {
+            let (xl, yl) = (xl as i32, yl as i32);
+            // zero-mean template, scaled by the patch size to stay in integers
+            let mut sum = 0;
+            let mut k = 0;
+            for j in -r..=r {
+                for i in -r..=r {
+                    let v = left[((yl + j) as usize) * w + (xl + i) as usize] as i32;
+                    tpl[k] = v * np;
+                    sum += v;
+                    k += 1;
+                }
+            }
+            tpl.iter_mut().for_each(|t| *t -= sum);
+            // the best and the runner-up (zero-mean SAD) over the band of rows and the disparity range
+            let mut top: [(i32, i32, i32); 2] = [(i32::MAX, 0, 0); 2];
+            for dy in -band..=band {
+                let y = yl + dy;
+                if y - r < 0 || y + r >= h as i32 {
+                    continue;
+                }
+                for d in -1..=max_d {
+                    let x = xl - d;
+                    if x - r < 0 || x + r >= w as i32 {
+                        continue;
+                    }
+                    let mean = box_sum(x, y);
+                    let mut c = 0;
+                    let mut k = 0;
+                    for j in -r..=r {
+                        let row = &right[((y + j) as usize) * w..];
+                        for i in -r..=r {
+                            c += (row[(x + i) as usize] as i32 * np - mean - tpl[k]).abs();
+                            k += 1;
+                        }
+                        if c >= top[1].0 {
+                            break;
+                        }
+                    }
+                    if c < top[1].0 {
+                        top[1] = (c, x, y);
+                        if top[1].0 < top[0].0 {
+                            top.swap(0, 1);
+                        }
+                    }
+                }
+            }
+            let [(best, bx, by), (c2, x2, y2)] = top;
+            if best == i32::MAX {
+                continue;
+            }
+            // distinctive: a runner-up away from the best (not its neighbour) must cost clearly more
+            if c2 != i32::MAX && ((x2 - bx).abs() > 1 || (y2 - by).abs() > 1) && best as f32 > 0.8 * c2 as f32 {
+                continue;
+            }
+            if let Some(m) = refine(left, right, w, h, (xl, yl), (bx as f32, by as f32)) {
                 out.push(m);
             }
         }
         Ok(())
     }
-}
-
-fn hamming(a: &[u8], b: &[u8]) -> u32 {
-    a.chunks_exact(8)
-        .zip(b.chunks_exact(8))
-        .map(|(x, y)| {
-            let x = u64::from_le_bytes(x.try_into().expect("8 bytes"));
-            let y = u64::from_le_bytes(y.try_into().expect("8 bytes"));
-            (x ^ y).count_ones()
-        })
-        .sum()
 }
 
 /// Bilinear sample; `None` outside the image or next to a black (unseen) pixel.
