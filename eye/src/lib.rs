@@ -8,6 +8,7 @@
 //!   IK, Newton FK (warm and cold start), Jacobians and the singularity measure.
 //! - [`psc`]: the pose sensitivity coefficient of the paper and its workspace map.
 //! - [`encoder`]: counts <-> angles and start-up homing on the shared code wheel.
+//! - [`saccade`]: minimum-jerk link-space moves at a peak speed (saccades).
 //! - [`unit`]: a real unit = nominal geometry + named physical effects (effects.md); its true FK.
 //! - [`dataset`]: calibration dataset files (dataset.md).
 //! - [`sim`]: draws plausible units and reproduces the paper's data collection.
@@ -22,6 +23,7 @@ pub mod encoder;
 pub mod error;
 pub mod pose;
 pub mod psc;
+pub mod saccade;
 pub mod sim;
 pub mod spm;
 pub mod unit;

@@ -15,6 +15,23 @@
 //! The decoder resynchronises on the sync word after garbage, counts CRC failures, sequence gaps
 //! (frames lost on the wire) and board resets (sequence and board time jump back), and never
 //! stops: a long run survives a bad byte and says how many it saw.
+//!
+//! ## Command frame (host -> board, little endian, 25 bytes; [`CommandFrame`])
+//! | bytes | field |
+//! | --- | --- |
+//! | 0-1 | sync `A5 5C` |
+//! | 2 | command protocol version ([`COMMAND_VERSION`] = 1; a board ignores and counts others) |
+//! | 3-4 | sequence number (u16, +1 per command) |
+//! | 5 | eye (0 left, 1 right) |
+//! | 6 | kind (1: move) |
+//! | 7-18 | target raw counts of links 1..3 (i32 each, the encoder frames' count origin) |
+//! | 19-22 | duration (u32, microseconds) |
+//! | 23-24 | CRC-16/CCITT-FALSE over bytes 2..=22 |
+//!
+//! A move starts when the board receives it, from wherever the links are (a move under way is
+//! replaced), and follows the minimum-jerk profile of `abvs_eye::saccade` in link space to the
+//! target counts over the duration; the encoder frames report the motion as it happens. The host
+//! converts homed targets to raw counts with the home counts its homing found.
 use crc::{Crc, CRC_16_IBM_3740};
 use std::collections::VecDeque;
 
@@ -58,6 +75,100 @@ impl BoardFrame {
             counts: [i32_at(14), i32_at(18), i32_at(22)],
             index: b[26],
         }
+    }
+}
+
+pub const COMMAND_SYNC: [u8; 2] = [0xA5, 0x5C];
+pub const COMMAND_VERSION: u8 = 1;
+pub const COMMAND_LEN: usize = 25;
+/// Command kind: move to target counts over a duration (minimum jerk).
+pub const COMMAND_MOVE: u8 = 1;
+
+/// A command to the drive board (see the module doc).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct CommandFrame {
+    pub seq: u16,
+    pub eye: u8,
+    pub kind: u8,
+    /// Raw counts (the encoder frames' origin) of links 1..3 at the end of the move.
+    pub target_counts: [i32; 3],
+    pub duration_us: u32,
+}
+
+impl CommandFrame {
+    pub fn encode(&self) -> [u8; COMMAND_LEN] {
+        let mut b = [0u8; COMMAND_LEN];
+        b[0..2].copy_from_slice(&COMMAND_SYNC);
+        b[2] = COMMAND_VERSION;
+        b[3..5].copy_from_slice(&self.seq.to_le_bytes());
+        b[5] = self.eye;
+        b[6] = self.kind;
+        for i in 0..3 {
+            b[7 + 4 * i..11 + 4 * i].copy_from_slice(&self.target_counts[i].to_le_bytes());
+        }
+        b[19..23].copy_from_slice(&self.duration_us.to_le_bytes());
+        let crc = CRC16.checksum(&b[2..23]);
+        b[23..25].copy_from_slice(&crc.to_le_bytes());
+        b
+    }
+}
+
+/// What a board's command decoder saw.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, serde::Serialize)]
+pub struct CommandStats {
+    pub commands: u64,
+    pub crc_errors: u64,
+    /// Commands of another protocol version or an unknown kind (ignored).
+    pub unsupported: u64,
+    pub skipped_bytes: u64,
+}
+
+/// Byte stream -> commands (the board's side), resynchronising like [`Decoder`].
+#[derive(Debug, Default)]
+pub struct CommandDecoder {
+    buf: VecDeque<u8>,
+    pub stats: CommandStats,
+}
+
+impl CommandDecoder {
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    pub fn feed(&mut self, bytes: &[u8]) -> Vec<CommandFrame> {
+        self.buf.extend(bytes);
+        let mut out = vec![];
+        loop {
+            while self.buf.len() >= 2 && (self.buf[0], self.buf[1]) != (COMMAND_SYNC[0], COMMAND_SYNC[1]) {
+                self.buf.pop_front();
+                self.stats.skipped_bytes += 1;
+            }
+            if self.buf.len() < COMMAND_LEN {
+                break;
+            }
+            let b: Vec<u8> = self.buf.iter().take(COMMAND_LEN).copied().collect();
+            if CRC16.checksum(&b[2..23]) != u16::from_le_bytes([b[23], b[24]]) {
+                self.stats.crc_errors += 1;
+                self.buf.pop_front();
+                self.stats.skipped_bytes += 1;
+                continue;
+            }
+            self.buf.drain(..COMMAND_LEN);
+            if b[2] != COMMAND_VERSION || b[6] != COMMAND_MOVE {
+                self.stats.unsupported += 1;
+                continue;
+            }
+            let i32_at = |k: usize| i32::from_le_bytes(b[k..k + 4].try_into().expect("4 bytes"));
+            self.stats.commands += 1;
+            out.push(CommandFrame {
+                seq: u16::from_le_bytes([b[3], b[4]]),
+                eye: b[5],
+                kind: b[6],
+                target_counts: [i32_at(7), i32_at(11), i32_at(15)],
+                duration_us: u32::from_le_bytes(b[19..23].try_into().expect("4 bytes")),
+            });
+        }
+        out
     }
 }
 
@@ -214,4 +325,38 @@ pub fn open_port(path: &str, baud: u32) -> Result<Box<dyn serialport::SerialPort
         .timeout(std::time::Duration::from_millis(200))
         .open()
         .map_err(|e| format!("encoder port {path}: {e}"))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn command_frames_round_trip_through_garbage_and_errors() {
+        let c = CommandFrame {
+            seq: 7,
+            eye: 1,
+            kind: COMMAND_MOVE,
+            target_counts: [-123_456, 7, 2_000_000_000],
+            duration_us: 36_028,
+        };
+        let mut bytes = vec![0x00, 0xA5, 0x13];
+        bytes.extend(c.encode());
+        let mut bad = c.encode();
+        bad[10] ^= 0x01; // corrupt
+        bytes.extend(bad);
+        let mut other = CommandFrame { seq: 8, ..c }.encode();
+        other[2] = 2; // a future version: CRC recomputed, still ignored
+        let crc = CRC16.checksum(&other[2..23]);
+        other[23..25].copy_from_slice(&crc.to_le_bytes());
+        bytes.extend(other);
+        // An encoder frame on the same wire is skipped as garbage.
+        bytes.extend(BoardFrame { seq: 1, board_time_us: 5, eye: 0, counts: [1, 2, 3], index: 0 }.encode());
+        bytes.extend(CommandFrame { seq: 9, ..c }.encode());
+        let mut d = CommandDecoder::new();
+        // Fed in small pieces, as a port delivers them.
+        let got: Vec<CommandFrame> = bytes.chunks(5).flat_map(|b| d.feed(b)).collect();
+        assert_eq!(got, vec![c, CommandFrame { seq: 9, ..c }]);
+        assert_eq!((d.stats.commands, d.stats.crc_errors, d.stats.unsupported), (2, 1, 1));
+    }
 }
