@@ -1,0 +1,63 @@
+//! `abvs run --self-check`: the flags reach the runtime (stats JSON `self_check`, the CSV log, the
+//! printed line), the configuration carries them, and the run's depth is unchanged by the check.
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+use serde_json::Value;
+
+fn abvs() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_abvs"))
+}
+
+fn fixture() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../fixtures/session")
+}
+
+/// `abvs run` (SGBM, lossless, no publishing) with `extra`; the stats JSON and stdout.
+fn run(dir: &Path, extra: &[&str]) -> (Value, String) {
+    let stats = dir.join(format!("stats-{}.json", extra.len()));
+    let out = abvs()
+        .args(["run", "--no-publish", "--engine", "sgbm", "--lossless", "--truth-stride", "0", "--session"])
+        .arg(fixture())
+        .arg("--stats-json")
+        .arg(&stats)
+        .args(extra)
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let v = serde_json::from_str(&std::fs::read_to_string(&stats).unwrap()).unwrap();
+    (v, String::from_utf8_lossy(&out.stdout).into_owned())
+}
+
+#[test]
+fn self_check_flags_log_and_stats() {
+    let tmp = tempfile::tempdir().unwrap();
+    let log = tmp.path().join("check.csv");
+    let (plain, _) = run(tmp.path(), &[]);
+    assert!(plain.get("self_check").is_none(), "off by default");
+    let (v, stdout) = run(tmp.path(), &["--self-check-log", log.to_str().unwrap(), "--self-check-every", "2"]);
+    let sc = &v["self_check"];
+    assert_eq!(sc["frames"], 25, "every 2nd of 50 frames: {sc:#}");
+    assert_eq!(sc["frames_skipped"], 0, "lossless waits for the worker: {sc:#}");
+    let r: Vec<f64> = sc["rotation_error_deg"].as_array().unwrap().iter().map(|x| x.as_f64().unwrap()).collect();
+    assert!(r.iter().map(|x| x * x).sum::<f64>().sqrt() < 0.05, "{sc:#}");
+    assert!(sc["vertical_px"]["p50"].as_f64().unwrap() < 0.1 && sc["matches_p50"].as_u64().unwrap() > 100, "{sc:#}");
+    assert!(stdout.contains("self-check: 25 frames"), "{stdout}");
+    // the check reads the pipeline's output and changes none of it
+    assert_eq!(v["output_digest"], plain["output_digest"]);
+    let text = std::fs::read_to_string(&log).unwrap();
+    let rows: Vec<&str> = text.lines().collect();
+    assert_eq!(rows.len(), 26, "{text}");
+    assert!(rows[0].starts_with("seq,t_ns,l1_deg,l2_deg,l3_deg,r1_deg,r2_deg,r3_deg,matches,vertical_p50_px"));
+    assert!(rows[1].starts_with("0,") && rows[2].starts_with("2,"), "{text}");
+
+    // the configuration carries it (and refuses nonsense)
+    let out = abvs().args(["run", "--self-check", "--print-config"]).output().unwrap();
+    let cfg = String::from_utf8_lossy(&out.stdout);
+    assert!(cfg.contains("[sinks.self_check]") && cfg.contains("enabled = true"), "{cfg}");
+    let bad = tmp.path().join("bad.toml");
+    std::fs::write(&bad, cfg.replace("every = 1", "every = 0")).unwrap();
+    let out = abvs().args(["run", "--config"]).arg(&bad).output().unwrap();
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("sinks.self_check"), "{out:?}");
+}
