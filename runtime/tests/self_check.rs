@@ -103,6 +103,47 @@ fn the_self_check_reads_the_fixture_as_calibrated_and_finds_a_rotated_extrinsic(
     assert!(worst(0) < 0.01 && worst(1) < 0.04 && worst(2) < 0.015, "{per_frame:?}");
 }
 
+/// An FK error that grows over the workspace shows in the log where it is: the right eye runs on its true unit
+/// model with a 1 % encoder scale error on every link (zero at home, growing with the link angles); frame by
+/// frame the self-check reads the relative rotation error this model makes against the truth (0 to 0.27 deg
+/// over the fixture's fixations).
+#[test]
+fn a_right_eye_model_wrong_away_from_home_shows_frame_by_frame() {
+    let tmp = tempfile::tempdir().unwrap();
+    let copy = tmp.path().join("s");
+    assert!(Command::new("cp").arg("-r").arg(fixture()).arg(&copy).status().unwrap().success());
+    let mut unit = abvs_eye::UnitModel::load(&copy.join("truth/unit1.toml")).unwrap();
+    unit.effects.encoder_scale.enabled = true;
+    for e in unit.effects.encoder_scale.relative_error.iter_mut() {
+        *e += 0.01;
+    }
+    unit.save(&copy.join("calib/eye1.toml")).unwrap();
+    let toml = std::fs::read_to_string(copy.join("session.toml")).unwrap();
+    assert!(toml.contains("\"calib/eye1\""));
+    std::fs::write(copy.join("session.toml"), toml.replace("\"calib/eye1\"", "\"calib/eye1.toml\"")).unwrap();
+    let log = tmp.path().join("wrong.csv");
+    let sc = replay(&copy, &log);
+    let per_frame = truth_vs_log(&copy, &log);
+    let (mut sq_err, mut sq_true, mut biggest) = (0.0, 0.0, 0.0f64);
+    for (seq, t, m) in &per_frame {
+        let d: f64 = (0..3).map(|k| (m[k] - t[k]).powi(2)).sum();
+        let n: f64 = t.iter().map(|x| x * x).sum();
+        sq_err += d;
+        sq_true += n;
+        biggest = biggest.max(n.sqrt());
+        eprintln!(
+            "{seq:>3} true [{:7.4} {:7.4} {:7.4}] measured [{:7.4} {:7.4} {:7.4}]",
+            t[0], t[1], t[2], m[0], m[1], m[2]
+        );
+    }
+    let n = per_frame.len() as f64;
+    let (rms_err, rms_true) = ((sq_err / n).sqrt(), (sq_true / n).sqrt());
+    eprintln!("{sc:#}\nrms |true| {rms_true:.4} deg, rms |measured - true| {rms_err:.4} deg, largest {biggest:.4} deg");
+    assert!(biggest > 0.2, "the model error should reach 0.2 deg somewhere: {biggest}");
+    // measured: rms 0.171 deg of true error read within rms 0.011 deg
+    assert!(rms_err < 0.2 * rms_true, "rms true {rms_true}, rms measured - true {rms_err}");
+}
+
 /// (seq, true error, measured error) in degrees for each row of a self-check log of the fixture.
 fn truth_vs_log(dir: &Path, log: &Path) -> Vec<(u64, [f64; 3], [f64; 3])> {
     let s = Session::open(dir).unwrap();
