@@ -276,3 +276,93 @@ fn record_refuses_missing_devices_and_bad_targets_clearly() {
     let e = run(&["--calib", calib_s, "--out", out_s]);
     assert!(e.contains("not empty"), "{e}");
 }
+
+/// Unmounts a test's tmpfs when dropped (also when the test fails).
+struct Unmount(Option<PathBuf>);
+
+impl Drop for Unmount {
+    fn drop(&mut self) {
+        if let Some(p) = &self.0 {
+            let _ = Command::new("umount").arg(p).status();
+        }
+    }
+}
+
+/// A full disk while recording: the recording goes on (the cameras are never stalled), every pair the
+/// disk refused is counted with the error, and what fit is a session that opens and replays. The disk is a
+/// real 1.5 MB tmpfs (mounting needs root, as `scripts/test.sh` runs). Where mounting is refused, every
+/// frame file from the 4th pair on starts as a link to /dev/full, whose writes fail with the same ENOSPC: the
+/// writer removes what it could not write, so a retry of that file name succeeds, a disk that fills and
+/// frees again (about two pairs refused of every three).
+#[test]
+fn a_full_disk_while_recording_is_counted_and_what_fit_replays() {
+    let Rig { fx, mut capture, encoders, mut board, _slave: slave, .. } = rig(0);
+    let tmp = tempfile::tempdir().unwrap();
+    let disk = tmp.path().join("disk");
+    std::fs::create_dir(&disk).unwrap();
+    let mounted = Command::new("mount")
+        .args(["-t", "tmpfs", "-o", "size=1536k", "tmpfs"])
+        .arg(&disk)
+        .stderr(std::process::Stdio::null())
+        .status()
+        .is_ok_and(|s| s.success());
+    let _unmount = Unmount(mounted.then(|| disk.clone()));
+    let out = disk.join("recorded");
+    let writer =
+        SessionWriter::create(&out, &CalibFiles::from_dir(&fixture().join("calib")), 25.0, "full disk".into()).unwrap();
+    if mounted {
+        eprintln!("recording onto a 1.5 MB tmpfs");
+    } else {
+        eprintln!("mounting a tmpfs was refused: frame files from the 4th pair on link to /dev/full");
+        for k in 3..fx.frames.len() {
+            for side in ["left", "right"] {
+                std::os::unix::fs::symlink("/dev/full", out.join(format!("frames/{side}_{k:06}.png"))).unwrap();
+            }
+        }
+    }
+    let n = fx.frames.len() as u64;
+    let cfg = RecordConfig { frames: Some(n), homing_timeout: Duration::from_secs(20), ..Default::default() };
+    let stop = AtomicBool::new(false);
+    let t0 = std::time::Instant::now();
+    let (session, stats) = record(&mut capture, encoders, writer, &cfg, &stop, &mut |_| {});
+    let took = t0.elapsed();
+    assert!(board.wait().unwrap().success());
+    drop(slave);
+    eprintln!("{stats:#?}");
+    // the recording ran its course at the cameras' pace, every pair accounted for
+    assert!(took < Duration::from_secs(20), "{took:?}");
+    assert_eq!(stats.pairs_in, n, "{stats:#?}");
+    assert_eq!(stats.pairs_written + stats.pairs_write_failed + stats.pairs_dropped_writer, n, "{stats:#?}");
+    assert!(stats.pairs_written >= 3, "{stats:#?}");
+    if mounted {
+        assert!(stats.pairs_written <= 5, "{stats:#?}");
+    }
+    assert!(stats.pairs_write_failed >= 20, "{stats:#?}");
+    assert!(stats.write_errors >= stats.pairs_write_failed, "{stats:#?}");
+    let e = stats.last_write_error.as_deref().unwrap_or_default();
+    assert!(e.contains("No space left on device"), "{e}");
+    // what fit is a valid session: its pairs, whole index rows, no partial frame files
+    let rec = session.unwrap_or_else(|e| panic!("the recording does not open: {e}"));
+    assert_eq!(rec.frames.len() as u64, stats.pairs_written);
+    let files: Vec<String> =
+        std::fs::read_dir(out.join("frames")).unwrap().map(|e| e.unwrap().file_name().into_string().unwrap()).collect();
+    let orphans: Vec<&String> = files
+        .iter()
+        .filter(|f| !rec.frames.iter().any(|r| r.left == format!("frames/{f}") || r.right == format!("frames/{f}")))
+        .filter(|f| !(f.ends_with(".png") && std::fs::read_link(out.join("frames").join(f)).is_ok()))
+        .collect();
+    assert!(orphans.is_empty(), "files of pairs that were not written remain: {orphans:?}");
+    let json = tmp.path().join("run.json");
+    let o = Command::new(env!("CARGO_BIN_EXE_abvs"))
+        .args(["run", "--engine", "sgbm", "--no-publish", "--lossless", "--quiet", "--session"])
+        .arg(&out)
+        .arg("--stats-json")
+        .arg(&json)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let v: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    let failed: u64 = v["frames_failed"].as_object().unwrap().values().map(|x| x.as_u64().unwrap()).sum();
+    assert_eq!(v["frames_in"].as_u64(), Some(stats.pairs_written), "{v}");
+    assert_eq!(v["frames_published"].as_u64().unwrap() + failed, stats.pairs_written, "{v}");
+}

@@ -57,7 +57,9 @@ pub struct RecordStats {
     pub pairs_before_homing: u64,
     /// Pairs dropped because the writer was behind.
     pub pairs_dropped_writer: u64,
-    /// Pairs the writer failed on (disk full, ...); the last error is kept.
+    /// Pairs the writer failed on (disk full, ...): not in the session.
+    pub pairs_write_failed: u64,
+    /// Writes that failed (pairs and batches of encoder rows; disk full, ...); the last error is kept.
     pub write_errors: u64,
     pub last_write_error: Option<String>,
     pub encoder_rows: u64,
@@ -150,6 +152,7 @@ pub fn record(
         }
         for (pair, ok) in done_rx.try_iter() {
             stats.pairs_written += u64::from(ok);
+            stats.pairs_write_failed += u64::from(!ok);
             capture.recycle(pair);
         }
         forward_encoders(&tx, &mut stats);
@@ -237,6 +240,7 @@ pub fn record(
     };
     for (pair, ok) in done_rx.try_iter() {
         stats.pairs_written += u64::from(ok);
+        stats.pairs_write_failed += u64::from(!ok);
         capture.recycle(pair);
     }
     stats.write_errors = end.errors;

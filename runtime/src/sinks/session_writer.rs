@@ -1,7 +1,13 @@
 //! Writes a recorded session (the format of [`crate::session`]) as it is captured: frame PNGs and
 //! rows of frames.csv and encoders.csv appended and flushed as they come, so that a recording cut
 //! short (power, Ctrl-C) keeps everything up to its last second and still opens as a session.
+//!
+//! A write that fails (a full disk) leaves nothing half-written: a frame file that could not be written
+//! is removed and its pair gets no frames.csv row; index rows are appended whole or not at all (a failed
+//! append cuts the file back to its last complete row). The error is returned for the caller to count,
+//! and later writes are tried again (space may come back); what was written stays a valid session.
 use std::fs::File;
+use std::io::{Seek, SeekFrom, Write};
 use std::path::{Path, PathBuf};
 
 use abvs_camera::StereoCalibration;
@@ -67,13 +73,49 @@ fn write_png(p: &Path, f: &crate::sources::Frame) -> Result<()> {
         .map_err(|e| io_err(p, e))
 }
 
+/// An index file (frames.csv, encoders.csv) appended a batch of rows at a time, whole or not at all.
+struct IndexFile {
+    path: PathBuf,
+    file: File,
+    /// Length of the file up to its last complete row (0: not even the header yet).
+    committed: u64,
+}
+
+impl IndexFile {
+    fn create(path: PathBuf) -> Result<IndexFile> {
+        let file = File::create(&path).map_err(|e| io_err(&path, e))?;
+        Ok(IndexFile { path, file, committed: 0 })
+    }
+
+    fn append<T: serde::Serialize>(&mut self, rows: &[T]) -> Result<()> {
+        // the rows (and the header, with the first ones) in memory first, then to the file in one piece
+        let mut w = csv::WriterBuilder::new().has_headers(self.committed == 0).from_writer(Vec::new());
+        for r in rows {
+            w.serialize(r).map_err(|e| io_err(&self.path, e))?;
+        }
+        let bytes = w.into_inner().map_err(|e| io_err(&self.path, e.error()))?;
+        match self.file.write_all(&bytes).and_then(|()| self.file.flush()) {
+            Ok(()) => {
+                self.committed += bytes.len() as u64;
+                Ok(())
+            }
+            Err(e) => {
+                // cut back to the last complete row: the file stays readable, these rows are not written
+                let _ = self.file.set_len(self.committed);
+                let _ = self.file.seek(SeekFrom::Start(self.committed));
+                Err(io_err(&self.path, e))
+            }
+        }
+    }
+}
+
 /// An open recording.
 pub struct SessionWriter {
     dir: PathBuf,
     meta: SessionMeta,
     meta_written: bool,
-    frames_csv: csv::Writer<File>,
-    encoders_csv: csv::Writer<File>,
+    frames_csv: IndexFile,
+    encoders_csv: IndexFile,
     last_frame_t: Option<i64>,
     pub frames_written: u64,
     pub encoder_rows: u64,
@@ -99,10 +141,7 @@ impl SessionWriter {
             copy_tree(src, &dir.join(&rel)).map_err(|e| io_err(src, e))?;
             fk[eye] = rel;
         }
-        let csv_at = |name: &str| {
-            let p = dir.join(name);
-            csv::Writer::from_path(&p).map_err(|e| io_err(&p, e))
-        };
+        let csv_at = |name: &str| IndexFile::create(dir.join(name));
         let meta = SessionMeta {
             format: SESSION_FORMAT.into(),
             description,
@@ -172,34 +211,35 @@ impl SessionWriter {
         for (k, (f, side)) in [(l, "left"), (r, "right")].into_iter().enumerate() {
             let name = format!("frames/{side}_{:06}.png", self.frames_written);
             let p = self.dir.join(&name);
-            write_png(&p, f)?;
+            if let Err(e) = write_png(&p, f) {
+                // no partial file left behind, nor the other eye's of this pair (they would hold space, and
+                // look like frames)
+                let _ = std::fs::remove_file(&p);
+                if k == 1 {
+                    let _ = std::fs::remove_file(self.dir.join(&names[0]));
+                }
+                return Err(e);
+            }
             names[k] = name;
         }
         let [left, right] = names;
         let row =
             FrameRecord { seq: self.frames_written, t_start_ns: l.t_start_ns, exposure_ns: l.exposure_ns, left, right };
-        let fp = self.dir.join("frames.csv");
-        self.frames_csv.serialize(&row).map_err(|e| io_err(&fp, e))?;
-        self.frames_csv.flush().map_err(|e| io_err(&fp, e))?;
+        self.frames_csv.append(std::slice::from_ref(&row))?;
         self.last_frame_t = Some(l.t_start_ns);
         self.frames_written += 1;
         Ok(())
     }
 
     pub fn write_encoders(&mut self, rows: &[EncoderRecord]) -> Result<()> {
-        let ep = self.dir.join("encoders.csv");
-        for r in rows {
-            self.encoders_csv.serialize(r).map_err(|e| io_err(&ep, e))?;
-        }
-        self.encoders_csv.flush().map_err(|e| io_err(&ep, e))?;
+        self.encoders_csv.append(rows)?;
         self.encoder_rows += rows.len() as u64;
         Ok(())
     }
 
     /// Flushes and checks that the result opens as a session.
-    pub fn finish(mut self) -> Result<Session> {
-        let ep = self.dir.join("encoders.csv");
-        self.encoders_csv.flush().map_err(|e| io_err(&ep, e))?;
+    pub fn finish(self) -> Result<Session> {
+        // (the index files hold only complete rows: nothing is buffered)
         if !self.meta_written {
             return Err(io_err(&self.dir, "no frame pair was recorded"));
         }
