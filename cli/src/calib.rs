@@ -34,6 +34,9 @@ pub enum CalibCmd {
     Measure(crate::camcal::MeasureArgs),
     /// Stereo calibration at home: both intrinsics and T_lH^rH (OpenCV YAML).
     Stereo(crate::camcal::StereoArgs),
+    /// Where a runtime self-check log (`abvs run --self-check-log`) puts the stereo error, and which eye's
+    /// model it follows (report.md, summary.json, PNGs).
+    SelfCheck(crate::self_check_report::SelfCheckArgs),
 }
 
 #[derive(Args)]
@@ -197,6 +200,7 @@ pub fn run(cmd: CalibCmd) -> anyhow::Result<ExitCode> {
         CalibCmd::Intrinsics(a) => crate::camcal::intrinsics(a),
         CalibCmd::Measure(a) => crate::camcal::measure(a),
         CalibCmd::Stereo(a) => crate::camcal::stereo(a),
+        CalibCmd::SelfCheck(a) => crate::self_check_report::run(a),
         CalibCmd::Ik(a) => ik(a),
         CalibCmd::Repeatability(a) => crate::repeat::stats(a),
         CalibCmd::Predict(a) => {

@@ -61,3 +61,67 @@ fn self_check_flags_log_and_stats() {
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("sinks.self_check"), "{out:?}");
 }
+
+/// A fixture copy whose eye `eye` (0 left, 1 right) runs on its true unit model with +1 % encoder scale on
+/// every link: an FK error zero at home and growing away from it.
+fn wrong_eye_copy(tmp: &Path, eye: usize) -> PathBuf {
+    let copy = tmp.join(format!("wrong{eye}"));
+    assert!(Command::new("cp").arg("-r").arg(fixture()).arg(&copy).status().unwrap().success());
+    let mut unit = abvs_eye::UnitModel::load(&copy.join(format!("truth/unit{eye}.toml"))).unwrap();
+    unit.effects.encoder_scale.enabled = true;
+    unit.effects.encoder_scale.relative_error.iter_mut().for_each(|e| *e += 0.01);
+    unit.save(&copy.join(format!("calib/eye{eye}.toml"))).unwrap();
+    let toml = std::fs::read_to_string(copy.join("session.toml")).unwrap();
+    let (from, to) = (format!("\"calib/eye{eye}\""), format!("\"calib/eye{eye}.toml\""));
+    assert!(toml.contains(&from));
+    std::fs::write(copy.join("session.toml"), toml.replace(&from, &to)).unwrap();
+    copy
+}
+
+/// `abvs calib self-check` on logs of the fixture: as calibrated nothing to report; with one eye's model
+/// wrong away from home it names that eye and puts the largest error far from home.
+#[test]
+fn the_offline_report_names_the_wrong_eye_and_where() {
+    let tmp = tempfile::tempdir().unwrap();
+    let report = |log: &Path, name: &str| -> Value {
+        let out = tmp.path().join(name);
+        let o = abvs().args(["calib", "self-check", "--log"]).arg(log).arg("--out").arg(&out).output().unwrap();
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        for f in ["report.md", "error_by_frame.png", "error_over_gaze.png"] {
+            assert!(out.join(f).metadata().unwrap().len() > 100, "{f}");
+        }
+        serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap()
+    };
+    let log = tmp.path().join("ok.csv");
+    let out = abvs()
+        .args(["run", "--no-publish", "--engine", "sgbm", "--lossless", "--quiet", "--truth-stride", "0"])
+        .arg("--self-check-log")
+        .arg(&log)
+        .output()
+        .unwrap();
+    assert!(out.status.success());
+    let ok = report(&log, "ok");
+    assert!(ok["verdict"].as_str().unwrap().starts_with("no significant error"), "{ok:#}");
+    for (eye, name) in [(1, "right"), (0, "left")] {
+        let copy = wrong_eye_copy(tmp.path(), eye);
+        let log = tmp.path().join(format!("wrong{eye}.csv"));
+        let out = abvs()
+            .args(["run", "--no-publish", "--engine", "sgbm", "--lossless", "--quiet", "--truth-stride", "0"])
+            .arg("--session")
+            .arg(&copy)
+            .arg("--self-check-log")
+            .arg(&log)
+            .output()
+            .unwrap();
+        assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+        // the runtime warned while it ran
+        assert!(String::from_utf8_lossy(&out.stderr).contains("warning: self-check"), "{out:?}");
+        let v = report(&log, &format!("wrong{eye}"));
+        let verdict = v["verdict"].as_str().unwrap();
+        assert!(verdict.starts_with(&format!("the {name} eye's model")), "{v:#}");
+        // the error is largest far from home: that fixation's gaze is more than 10 deg off in yaw or pitch
+        let g = &v["worst_fixation"][format!("{name}_gaze_deg")];
+        let off = g[0].as_f64().unwrap().abs().max(g[1].as_f64().unwrap().abs());
+        assert!(off > 10.0 && v["worst_fixation"]["mean_error_norm_deg"].as_f64().unwrap() > 0.2, "{v:#}");
+    }
+}
