@@ -415,3 +415,18 @@ fn subscribers_drop_payloads_that_do_not_fit_their_header() {
     h.valid = 9;
     assert!(!payload_fits::<f32>(&h, 8));
 }
+
+#[test]
+fn a_publisher_that_does_not_fit_in_dev_shm_is_refused_up_front() {
+    // 65535 x 65535 points: terabytes of samples, more than any /dev/shm holds. Its segment would be created
+    // (sparse) and the process killed by SIGBUS at the first write that finds no free page; instead:
+    let cfg = unique_config(65535, 65535);
+    let e = CloudPublisher::new(&cfg).err().expect("refused").to_string();
+    assert!(e.contains(&cfg.service_name("cloud")) && e.contains("/dev/shm") && e.contains("MB free"), "{e}");
+    // the real sizes fit
+    let small = unique_config(320, 240);
+    let needed = small.publisher_bytes::<CloudPoint>() + small.publisher_bytes::<f32>();
+    let free = abvs_runtime::bridges::iceoryx::free_bytes(std::path::Path::new("/dev/shm")).unwrap();
+    assert!(needed < free, "{needed} B needed at 320x240, {free} B free in /dev/shm");
+    assert!(CloudPublisher::new(&small).is_ok());
+}

@@ -30,7 +30,9 @@
 //! The publisher preallocates `max_subscribers * (subscriber_buffer + subscriber_max_borrowed) + history + 1`
 //! samples (34 with the defaults: ~42 MB of shared memory for depth, ~167 MB for the cloud at 640 x 480,
 //! pages touched only as used), so a loan never fails however the subscribers behave, including a
-//! subscriber killed while it holds samples. Stale resources of crashed processes are removed when a node
+//! subscriber killed while it holds samples. Because the pages are taken when first written, a publisher
+//! checks at creation that /dev/shm has room for all of them ([`check_shm_space`]): on a full /dev/shm a
+//! later write would kill the process with SIGBUS. Stale resources of crashed processes are removed when a node
 //! is created ([`Publisher::new`], [`Subscriber::new`]) and by [`Publisher::cleanup_dead_nodes`].
 //!
 //! # Publishing
@@ -220,6 +222,20 @@ impl BridgeConfig {
         self.max_width as usize * self.max_height as usize
     }
 
+    /// Samples a publisher preallocates: `max_subscribers * (subscriber_buffer + subscriber_max_borrowed) +
+    /// history + 1`, so a loan never fails whatever the subscribers do.
+    pub fn publisher_samples(&self) -> usize {
+        self.max_subscribers * (self.subscriber_buffer + self.subscriber_max_borrowed) + self.history + 1
+    }
+
+    /// Shared memory a publisher of `T` takes once every sample was written: each preallocated sample at
+    /// the largest size with its header, plus 1 MiB for iceoryx2's management (an estimate from above).
+    pub fn publisher_bytes<T: BridgePayload>(&self) -> u64 {
+        let sample =
+            self.max_elements() as u64 * std::mem::size_of::<T>() as u64 + std::mem::size_of::<FrameHeader>() as u64;
+        self.publisher_samples() as u64 * sample + (1 << 20)
+    }
+
     /// Name of the publish-subscribe service of a topic ("depth" or "cloud").
     pub fn service_name(&self, topic: &str) -> String {
         format!("{}/{}", self.prefix, topic)
@@ -272,6 +288,13 @@ pub enum BridgeError {
          another process created it; stop that process or use another service prefix"
     )]
     Foreign { service: String, diffs: String },
+    /// The publisher's shared memory would not fit in /dev/shm (too small, or filled by others).
+    #[error(
+        "{service}: needs {needed_mb:.1} MB of shared memory in {dir}, {free_mb:.1} MB free: make room there \
+         (its pages are taken when first written, so a publisher that does not fit would be killed by SIGBUS \
+         at a later publish) or lower the network resolution"
+    )]
+    SharedMemory { service: String, dir: String, needed_mb: f64, free_mb: f64 },
     /// Another publisher holds the service's one publisher slot.
     #[error(
         "{service}: another publisher holds the service's only publisher slot ({holders}); \
@@ -313,6 +336,37 @@ fn node(cfg: &BridgeConfig, role: &str) -> Result<(Node<Ipc>, u64), BridgeError>
     // resources of processes that died (killed, crashed) are removed here, so a restart works
     let cleaned = node.try_cleanup_dead_nodes().cleanups;
     Ok((node, cleaned))
+}
+
+/// Where POSIX shared memory, and so iceoryx2's data segments, lives on Linux.
+pub const SHM_DIR: &str = "/dev/shm";
+
+/// Bytes free for this user in the filesystem at `dir` (statvfs), `None` where it cannot be read.
+pub fn free_bytes(dir: &std::path::Path) -> Option<u64> {
+    use std::os::unix::ffi::OsStrExt;
+    let c = std::ffi::CString::new(dir.as_os_str().as_bytes()).ok()?;
+    let mut st: libc::statvfs = unsafe { std::mem::zeroed() };
+    // SAFETY: a NUL-terminated path and a statvfs we own.
+    if unsafe { libc::statvfs(c.as_ptr(), &mut st) } != 0 {
+        return None;
+    }
+    Some(st.f_bavail as u64 * st.f_frsize as u64)
+}
+
+/// Refuses `needed` bytes of publisher shared memory for `service` when /dev/shm has less free. A segment is
+/// created sparse and takes its pages when first written, so a publisher that does not fit would start fine
+/// and be killed by SIGBUS at a later publish. (/dev/shm filled by others after the check is not covered.)
+pub fn check_shm_space(service: &str, needed: u64) -> Result<(), BridgeError> {
+    let dir = std::path::Path::new(SHM_DIR);
+    match free_bytes(dir) {
+        Some(free) if free < needed => Err(BridgeError::SharedMemory {
+            service: service.to_string(),
+            dir: SHM_DIR.to_string(),
+            needed_mb: needed as f64 / 1048576.0,
+            free_mb: free as f64 / 1048576.0,
+        }),
+        _ => Ok(()),
+    }
 }
 
 /// Process ids of iceoryx2 nodes on this machine whose process died without cleaning up (a crash, a kill).
@@ -479,6 +533,7 @@ impl<T: BridgePayload> Publisher<T> {
     pub fn new(config: &BridgeConfig) -> Result<Self, BridgeError> {
         config.check()?;
         let service = config.service_name(T::TOPIC);
+        check_shm_space(&service, config.publisher_bytes::<T>())?;
         let (node, cleaned) = node(config, T::TOPIC)?;
         let (pubsub, event) = open_services::<T>(&node, config, &service)?;
         let max = config.max_elements();

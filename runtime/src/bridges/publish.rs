@@ -2,7 +2,7 @@
 //! iceoryx2 services of [`crate::bridges::iceoryx`], written straight into the loaned shared memory.
 use abvs_eye::Pose;
 
-use crate::bridges::iceoryx::{BridgeConfig, CloudPoint, FrameHeader, Publisher};
+use crate::bridges::iceoryx::{check_shm_space, BridgeConfig, CloudPoint, FrameHeader, Publisher};
 use crate::error::{Result, RuntimeError};
 use crate::pipeline::{Published, Sink};
 use crate::sinks::stats::RunStats;
@@ -16,6 +16,10 @@ pub struct PublishSink {
 impl PublishSink {
     pub fn new(config: BridgeConfig) -> Result<PublishSink> {
         let err = |e: crate::bridges::iceoryx::BridgeError| RuntimeError::Invalid(e.to_string());
+        // both topics' shared memory at once (each publisher checks its own as it is created)
+        let both = config.publisher_bytes::<f32>() + config.publisher_bytes::<CloudPoint>();
+        check_shm_space(&format!("{} and {}", config.service_name("depth"), config.service_name("cloud")), both)
+            .map_err(err)?;
         Ok(PublishSink {
             depth: Publisher::new(&config).map_err(err)?,
             cloud: Publisher::new(&config).map_err(err)?,
