@@ -99,6 +99,11 @@ struct Rig {
 }
 
 fn rig(early: i64) -> Rig {
+    rig_with(early, None)
+}
+
+/// The rig, with the left camera delivering only its first `left_frames` frames (then nothing) if given.
+fn rig_with(early: i64, left_frames: Option<usize>) -> Rig {
     let fx = Session::open(&fixture()).unwrap();
     let (w, h) = (fx.meta.width, fx.meta.height);
     let mut cams: [Vec<(i64, i64, Vec<u8>)>; 2] = [vec![], vec![]];
@@ -127,7 +132,10 @@ fn rig(early: i64) -> Rig {
     let mut master = master;
     serialport::SerialPort::set_timeout(&mut master, Duration::from_millis(100)).unwrap();
     let encoders = EncoderStream::spawn(master, name.clone(), 16_384);
-    let [l, r] = cams;
+    let [mut l, r] = cams;
+    if let Some(n) = left_frames {
+        l.truncate(early as usize + n);
+    }
     let cam = |frames| ReplayCamera { frames, width: w, height: h, shift, next: 0 };
     let capture = StereoCapture::from_sources(cam(l), cam(r), PairerConfig::default());
     Rig { fx, capture, encoders, board, _slave: slave, shift }
@@ -365,4 +373,51 @@ fn a_full_disk_while_recording_is_counted_and_what_fit_replays() {
     let failed: u64 = v["frames_failed"].as_object().unwrap().values().map(|x| x.as_u64().unwrap()).sum();
     assert_eq!(v["frames_in"].as_u64(), Some(stats.pairs_written), "{v}");
     assert_eq!(v["frames_published"].as_u64().unwrap() + failed, stats.pairs_written, "{v}");
+}
+
+/// A camera that stops delivering: the left eye's camera goes silent after 20 frames while the right one
+/// goes on. The live pipeline publishes the 20 pairs, then ends when no pair came for the capture's 2 s
+/// timeout, saying why (`capture_ended`) and counting what the right camera delivered alone; no hang.
+#[test]
+fn a_camera_that_stops_delivering_ends_the_live_run_with_the_reason() {
+    use abvs_camera::StereoCalibration;
+    use abvs_runtime::pipeline::{run, PipelineConfig};
+    use abvs_runtime::sources::live::LiveSource;
+    use abvs_runtime::tasks::kinematics::{EyeFk, StereoKinematics};
+    use abvs_runtime::tasks::rectify::RectifiedCamera;
+    let Rig { fx, capture, encoders, mut board, _slave, .. } = rig_with(0, Some(20));
+    let (w, h) = (fx.meta.width, fx.meta.height);
+    let stereo = StereoCalibration::read_yaml(fx.path(&fx.meta.stereo)).unwrap();
+    let kin = StereoKinematics::new(
+        EyeFk::load(&fx.path(&fx.meta.fk[0])).unwrap(),
+        EyeFk::load(&fx.path(&fx.meta.fk[1])).unwrap(),
+        stereo.rotation,
+        stereo.translation_mm / 1000.0,
+    );
+    let out = RectifiedCamera::with_hfov(320, 240, 100.0);
+    let engine = abvs_runtime::tasks::disparity::engine("sgbm", None, (320, 240), 48.0, 2).unwrap();
+    let t0 = std::time::Instant::now();
+    while encoders.homed() != [true, true] {
+        assert!(t0.elapsed() < Duration::from_secs(20), "not homed: {:?}", encoders.stats());
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    let source = LiveSource::new(capture, encoders, w, h);
+    // asked for all 50: the run must end by itself once the left camera is silent
+    let cfg = PipelineConfig { out, lossless: true, paced: false, frames: Some(50), ..Default::default() };
+    let (tx, rx) = std::sync::mpsc::channel();
+    std::thread::spawn(move || {
+        let _ = tx.send(run(source, kin, (stereo.left, stereo.right), engine, vec![], cfg).map(|s| s.json(1.0)));
+    });
+    let j = rx.recv_timeout(Duration::from_secs(60)).expect("the run ended (no hang)").unwrap();
+    assert!(board.wait().unwrap().success());
+    eprintln!("{}", serde_json::to_string_pretty(&j).unwrap());
+    assert_eq!(j["frames_in"], 20, "{j}");
+    let failed: u64 = j["frames_failed"].as_object().unwrap().values().map(|x| x.as_u64().unwrap()).sum();
+    assert_eq!(j["frames_published"].as_u64().unwrap() + failed, 20, "every pair accounted for: {j}");
+    let why = j["capture_ended"].as_str().expect("capture_ended");
+    assert!(why.contains("no stereo pair for 2.0 s"), "{why}");
+    // the capture counted both cameras: the left one's 20 frames, the right one's that went on alone
+    let input = &j["capture"]["pairing"]["input"];
+    assert_eq!(input[0], 20, "{j}");
+    assert!(input[1].as_u64().unwrap() > 20, "{j}");
 }
