@@ -69,7 +69,7 @@ fn subscribers_killed_while_holding_samples_do_not_disturb_the_publisher() {
     let prefix = format!("abvs-faults-kill-{}", std::process::id());
     let dir = tempfile::tempdir().unwrap();
     let stats = dir.path().join("run.json");
-    let mut run = runtime(&prefix, 30, Some(&stats)).stderr(Stdio::piped()).spawn().unwrap();
+    let mut run = runtime(&prefix, 20, Some(&stats)).stderr(Stdio::piped()).spawn().unwrap();
     let _run_err = stderr_lines(&mut run);
     for round in 0..2 {
         // as many subscribers as the service has slots (8): each takes samples, holds two (the most it may
