@@ -1,5 +1,6 @@
 //! `abvs gaze`: pointing both eyes. `fixate` solves both eyes' calibrated IK so that a 3D point
-//! lies on each camera's principal point (abvs_calib::gaze).
+//! lies on each camera's principal point (abvs_calib::gaze); `saccade` drives the drive board
+//! there over its serial link (crate::saccade).
 use abvs_calib::gaze::{optical_axis, Binocular, EyeAim, Fixation, Torsion};
 use abvs_calib::ik::CalibratedIk;
 use abvs_calib::model::FkModel;
@@ -15,6 +16,8 @@ use std::process::ExitCode;
 pub enum GazeCmd {
     /// Both eyes' link angles and counts that fixate a 3D point (left home camera frame, metres).
     Fixate(FixateArgs),
+    /// Drive the board: home from its stream, then minimum-jerk saccades to targets (command frames).
+    Saccade(crate::saccade::SaccadeArgs),
 }
 
 #[derive(Args)]
@@ -39,6 +42,7 @@ pub struct FixateArgs {
 pub fn run(cmd: GazeCmd) -> anyhow::Result<ExitCode> {
     match cmd {
         GazeCmd::Fixate(a) => fixate(a),
+        GazeCmd::Saccade(a) => crate::saccade::saccade(a),
     }
 }
 

@@ -14,6 +14,7 @@ mod plot;
 mod record;
 mod repeat;
 mod run;
+mod saccade;
 mod self_check_report;
 mod sim;
 mod table;

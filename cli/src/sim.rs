@@ -79,6 +79,12 @@ pub struct BoardArgs {
     /// With --session: draws the links' raw-count origins and roll starts.
     #[arg(long, default_value_t = 1)]
     seed: u64,
+    /// Execute move commands read from the port (after the start-up roll, both eyes streamed at
+    /// --rate-hz) for --seconds; `abvs gaze saccade` drives it.
+    #[arg(long)]
+    serve: bool,
+    #[arg(long, default_value_t = 10.0)]
+    seconds: f64,
 }
 
 #[derive(Args)]
@@ -174,6 +180,7 @@ pub fn run(cmd: SimCmd) -> anyhow::Result<ExitCode> {
     match cmd {
         SimCmd::AprilgridSession(a) => crate::camcal::sim_session(a),
         SimCmd::Repeatability(a) => crate::repeat::sim(a),
+        SimCmd::Board(a) if a.serve => crate::saccade::serve_board(&a.port, a.seed, a.rate_hz, a.seconds),
         SimCmd::Board(a) if a.session.is_some() => session_board(a),
         SimCmd::Board(a) => {
             use std::io::Write;

@@ -114,3 +114,115 @@ fn repeatability_session_and_table() {
     assert_eq!(rows.len(), 5);
     assert!(rows.iter().all(|r| r["rotation"]["value"].as_f64().unwrap() > 0.0 && r["approaches"] == 8));
 }
+
+/// Two pseudo-terminals joined by a relay: the board opens one, `abvs gaze` the other (each
+/// process needs a device path; a pty pair has one on its slave side only).
+struct Wire {
+    names: [String; 2],
+    stop: std::sync::Arc<std::sync::atomic::AtomicBool>,
+    threads: Vec<std::thread::JoinHandle<()>>,
+    _slaves: [serialport::TTYPort; 2],
+}
+
+impl Wire {
+    fn new() -> Wire {
+        use serialport::SerialPort;
+        use std::io::{Read, Write};
+        let (ma, sa) = serialport::TTYPort::pair().expect("pty pair");
+        let (mb, sb) = serialport::TTYPort::pair().expect("pty pair");
+        let names = [sa.name().unwrap(), sb.name().unwrap()];
+        let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+        let mut threads = vec![];
+        let (ma2, mb2) = (ma.try_clone_native().unwrap(), mb.try_clone_native().unwrap());
+        for (mut from, mut to) in [(ma, mb2), (mb, ma2)] {
+            from.set_timeout(std::time::Duration::from_millis(20)).unwrap();
+            let stop = stop.clone();
+            threads.push(std::thread::spawn(move || {
+                let mut buf = vec![0u8; 1 << 16];
+                while !stop.load(std::sync::atomic::Ordering::Relaxed) {
+                    match from.read(&mut buf) {
+                        Ok(n) if n > 0 => {
+                            let _ = to.write_all(&buf[..n]);
+                        }
+                        _ => {}
+                    }
+                }
+            }));
+        }
+        Wire { names, stop, threads, _slaves: [sa, sb] }
+    }
+}
+
+impl Drop for Wire {
+    fn drop(&mut self) {
+        self.stop.store(true, std::sync::atomic::Ordering::Relaxed);
+        for t in self.threads.drain(..) {
+            let _ = t.join();
+        }
+    }
+}
+
+#[test]
+fn gaze_saccades_drive_the_simulated_board_over_a_pty() {
+    let wire = Wire::new();
+    // Home, then a 30 deg yaw saccade of both eyes and an oblique one, at the paper's peak speed.
+    let gaze = Command::new(env!("CARGO_BIN_EXE_abvs"))
+        .args(["gaze", "saccade", "--port", &wire.names[1], "--calib", &s(&calib())])
+        .args(["--orientation", "0,0,0;0,0,30;10,-5,-20", "--json", "--timeout-s", "30"])
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    // The board powers up (start-up roll) once the host listens: wait for gaze to open its port.
+    let fd_dir = format!("/proc/{}/fd", gaze.id());
+    let t0 = std::time::Instant::now();
+    while !std::fs::read_dir(&fd_dir)
+        .map(|d| d.flatten().any(|f| std::fs::read_link(f.path()).is_ok_and(|l| l.to_string_lossy() == wire.names[1])))
+        .unwrap_or(false)
+    {
+        assert!(t0.elapsed().as_secs() < 30, "abvs gaze did not open {}", wire.names[1]);
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
+    let mut board = Command::new(env!("CARGO_BIN_EXE_abvs"))
+        .args(["sim", "board", "--port", &wire.names[0], "--serve", "--seconds", "20", "--seed", "3"])
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let out = gaze.wait_with_output().unwrap();
+    let _ = board.kill();
+    let board_err =
+        board.wait_with_output().map(|o| String::from_utf8_lossy(&o.stderr).into_owned()).unwrap_or_default();
+    assert!(out.status.success(), "{}\nboard: {board_err}", String::from_utf8_lossy(&out.stderr));
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let sac = v["saccades"].as_array().unwrap();
+    assert_eq!(sac.len(), 3);
+    for (k, s) in sac.iter().enumerate() {
+        assert_eq!(s["arrived"], true, "{s}");
+        let planned = s["planned_ms"].as_f64().unwrap();
+        let travel = s["travel_deg"].as_f64().unwrap();
+        // The minimum-jerk time at 1561 deg/s peak (rounded up to the microsecond).
+        assert!((planned - 1.875 * travel / 1561.0 * 1e3).abs() < 2e-3, "{s}");
+        for e in 0..2 {
+            // Completed within that time (first moving to first arrived sample, 1 ms samples),
+            // at the peak speed and not above it (one count per sample of rounding).
+            let measured = s["measured_ms"][e].as_f64().unwrap();
+            assert!(measured <= planned + 1e-9 && measured >= planned - 3.0, "saccade {k}: {s}");
+            let peak = s["peak_deg_s"][e].as_f64().unwrap();
+            assert!(peak <= 1561.0 + 4.0 && peak > 0.9 * 1561.0, "saccade {k}: {s}");
+            // The links end on the calibrated IK's counts of the target.
+            let to = &s["to_deg"][e];
+            let counts = &s["target_counts"][e];
+            for i in 0..3 {
+                let c = counts[i].as_i64().unwrap();
+                assert_eq!(c, (to[i].as_f64().unwrap() * 92672.0 / 360.0).round() as i64);
+            }
+        }
+    }
+    // The 30 deg yaw saccade: both eyes' links travel about 20 deg in 24 ms.
+    assert!((sac[1]["target"][2].as_f64().unwrap() - 30.0).abs() < 1e-12);
+    // The runtime's tracker homed both eyes on the stream and consumed it.
+    let enc = &v["encoders"];
+    assert!(enc["home_counts"][0].is_array() && enc["home_counts"][1].is_array(), "{enc}");
+    assert!(v["homed_samples"].as_u64().unwrap() > 200, "{v}");
+    assert_eq!(enc["link"]["crc_errors"], 0);
+}

@@ -3,8 +3,10 @@
 //! What the runtime is tested and measured with, never what runs on the robot: synthetic
 //! sessions with ground truth ([`synth`]: simulated units moving through saccades and pursuit in
 //! a rendered scene, with their calibration) and the depth error of a run against that truth
-//! ([`truth`], a sink of the runtime's pipeline), and simulated drive boards ([`board`]).
+//! ([`truth`], a sink of the runtime's pipeline), and simulated drive boards ([`board`]; [`servo_board`]
+//! executes move commands).
 //! `abvs sim session`, `abvs sim board` and `abvs run` use them.
 pub mod board;
+pub mod servo_board;
 pub mod synth;
 pub mod truth;
