@@ -205,8 +205,10 @@ fn gaze_saccades_drive_the_simulated_board_over_a_pty() {
         for e in 0..2 {
             // Completed within that time (first moving to first arrived sample, 1 ms samples),
             // at the peak speed and not above it (one count per sample of rounding).
+            // The board stamps samples on its own wall clock: on a loaded machine (CI runs tests
+            // in parallel) its 1 kHz loop can slip a sample or two, seen once here at load 8.
             let measured = s["measured_ms"][e].as_f64().unwrap();
-            assert!(measured <= planned + 1e-9 && measured >= planned - 3.0, "saccade {k}: {s}");
+            assert!(measured <= planned + 2.0 && measured >= planned - 3.0, "saccade {k}: {s}");
             let peak = s["peak_deg_s"][e].as_f64().unwrap();
             assert!(peak <= 1561.0 + 4.0 && peak > 0.9 * 1561.0, "saccade {k}: {s}");
             // The links end on the calibrated IK's counts of the target.
