@@ -134,6 +134,7 @@ pub struct Matcher {
     resp: Vec<f32>,
     integral: Vec<u32>,
     corners: Vec<(f32, u32, u32)>,
+    cands: Vec<(i32, i32, i32)>,
 }
 
 /// Half-size of the matching patch (px) and of the structure tensor's window.
@@ -156,6 +157,7 @@ impl Matcher {
             resp: Vec::new(),
             integral: Vec::new(),
             corners: Vec::new(),
+            cands: Vec::new(),
         })
     }
 
@@ -287,46 +289,61 @@ impl Matcher {
                 }
             }
             tpl.iter_mut().for_each(|t| *t -= sum);
-            // the best and the runner-up (zero-mean SAD) over the band of rows and the disparity range
-            let mut top: [(i32, i32, i32); 2] = [(i32::MAX, 0, 0); 2];
-            for dy in -band..=band {
-                let y = yl + dy;
-                if y - r < 0 || y + r >= h as i32 {
-                    continue;
+            // zero-mean SAD of the template at (x, y) of the right image; stops once it reaches `limit`
+            let cost = |x: i32, y: i32, limit: i32| -> i32 {
+                let mean = box_sum(x, y);
+                let mut c = 0;
+                let mut k = 0;
+                for j in -r..=r {
+                    let row = &right[((y + j) as usize) * w..];
+                    for i in -r..=r {
+                        c += (row[(x + i) as usize] as i32 * np - mean - tpl[k]).abs();
+                        k += 1;
+                    }
+                    if c >= limit {
+                        break;
+                    }
                 }
+                c
+            };
+            let inside = |x: i32, y: i32| x - r >= 0 && x + r < w as i32 && y - r >= 0 && y + r < h as i32;
+            // coarse: every other row of the band (a 7 px patch still responds one row off), every disparity;
+            // a cost is computed only up to 1.25 x the best so far (past it the candidate is clearly worse)
+            self.cands.clear();
+            let mut best = (i32::MAX, 0, 0);
+            for dy in (-(band / 2)..=band / 2).map(|k| 2 * k) {
                 for d in -1..=max_d {
-                    let x = xl - d;
-                    if x - r < 0 || x + r >= w as i32 {
+                    let (x, y) = (xl - d, yl + dy);
+                    if !inside(x, y) {
                         continue;
                     }
-                    let mean = box_sum(x, y);
-                    let mut c = 0;
-                    let mut k = 0;
-                    for j in -r..=r {
-                        let row = &right[((y + j) as usize) * w..];
-                        for i in -r..=r {
-                            c += (row[(x + i) as usize] as i32 * np - mean - tpl[k]).abs();
-                            k += 1;
-                        }
-                        if c >= top[1].0 {
-                            break;
-                        }
-                    }
-                    if c < top[1].0 {
-                        top[1] = (c, x, y);
-                        if top[1].0 < top[0].0 {
-                            top.swap(0, 1);
-                        }
+                    let c = cost(x, y, best.0.saturating_add(best.0 / 4));
+                    self.cands.push((c, x, y));
+                    if c < best.0 {
+                        best = (c, x, y);
                     }
                 }
             }
-            let [(best, bx, by), (c2, x2, y2)] = top;
-            if best == i32::MAX {
+            let (c0, bx, by) = best;
+            if c0 == i32::MAX {
                 continue;
             }
-            // distinctive: a runner-up away from the best (not its neighbour) must cost clearly more
-            if c2 != i32::MAX && ((x2 - bx).abs() > 1 || (y2 - by).abs() > 1) && best as f32 > 0.8 * c2 as f32 {
+            // distinctive: every candidate away from the best costs clearly more
+            let away = self.cands.iter().filter(|c| (c.1 - bx).abs() > 1 || (c.2 - by).abs() > 2).map(|c| c.0).min();
+            if away.is_some_and(|c2| c0 as f32 > 0.8 * c2 as f32) {
                 continue;
+            }
+            // fine: the best integer position around it
+            let (cx, cy) = (bx, by);
+            let (mut bx, mut by, mut bc) = (bx, by, c0);
+            for (i, j) in [(-1, -1), (0, -1), (1, -1), (-1, 0), (1, 0), (-1, 1), (0, 1), (1, 1)] {
+                let (x, y) = (cx + i, cy + j);
+                if inside(x, y) {
+                    let c = cost(x, y, bc);
+                    if c < bc {
+                        (bx, by, bc) = (x, y, c);
+                    }
+                }
             }
             if let Some(m) = refine(left, right, w, h, (xl, yl), (bx as f32, by as f32)) {
                 out.push(m);
@@ -619,6 +636,8 @@ pub struct Summary {
     fits: Vec<(Vector3<f64>, Matrix3<f64>)>,
     /// Time the worker spent on each checked frame.
     pub check_time: Latency,
+    /// CPU time of the worker thread on each checked frame (what the check costs the machine).
+    pub check_cpu: Latency,
     /// The last `warn_frames` frames' rotation errors.
     recent: std::collections::VecDeque<Vector3<f64>>,
     warned: bool,
@@ -636,6 +655,7 @@ impl Default for Summary {
             vertical: vec![0; BINS],
             fits: Vec::new(),
             check_time: Latency::default(),
+            check_cpu: Latency::default(),
             recent: std::collections::VecDeque::new(),
             warned: false,
             failed: 0,
@@ -775,6 +795,7 @@ impl Summary {
             "rotation_sigma_axes_deg": axes,
             "warnings": self.warnings,
             "check_ms": { "p50": num(self.check_time.ms(0.5)), "p99": num(self.check_time.ms(0.99)) },
+            "check_cpu_ms": { "p50": num(self.check_cpu.ms(0.5)), "p99": num(self.check_cpu.ms(0.99)) },
         })
     }
 }
@@ -892,9 +913,10 @@ impl SelfCheckSink {
                 let mut sum = Summary::default();
                 let mut matches = Vec::new();
                 for job in rx.iter() {
-                    let t0 = std::time::Instant::now();
+                    let (t0, c0) = (std::time::Instant::now(), thread_cpu_ns());
                     let r = check_frame(&mut matcher, &job, &mut matches);
                     sum.check_time.record_ns(t0.elapsed().as_nanos() as i64);
+                    sum.check_cpu.record_ns(thread_cpu_ns() - c0);
                     match r {
                         Ok(c) => {
                             sum.add(&c, &matches, &wcfg);
@@ -922,6 +944,14 @@ impl SelfCheckSink {
             .map_err(|e| RuntimeError::Invalid(format!("self-check: starting its thread: {e}")))?;
         Ok(SelfCheckSink { cfg, tx: Some(tx), free: free_rx, worker: Some(worker), skipped: 0 })
     }
+}
+
+/// CPU time of the calling thread (ns).
+fn thread_cpu_ns() -> i64 {
+    let mut ts = libc::timespec { tv_sec: 0, tv_nsec: 0 };
+    // SAFETY: a valid clock id and a valid out pointer.
+    unsafe { libc::clock_gettime(libc::CLOCK_THREAD_CPUTIME_ID, &mut ts) };
+    ts.tv_sec * 1_000_000_000 + ts.tv_nsec
 }
 
 /// This thread runs only on idle CPU time: SCHED_IDLE, or nice 19 where that is refused (Linux applies
