@@ -56,7 +56,7 @@ fn self_check_flags_log_and_stats() {
     let cfg = String::from_utf8_lossy(&out.stdout);
     assert!(cfg.contains("[sinks.self_check]") && cfg.contains("enabled = true"), "{cfg}");
     let bad = tmp.path().join("bad.toml");
-    std::fs::write(&bad, cfg.replace("every = 1", "every = 0")).unwrap();
+    std::fs::write(&bad, cfg.replace("every = 5", "every = 0")).unwrap();
     let out = abvs().args(["run", "--config"]).arg(&bad).output().unwrap();
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("sinks.self_check"), "{out:?}");
@@ -95,7 +95,7 @@ fn the_offline_report_names_the_wrong_eye_and_where() {
     let log = tmp.path().join("ok.csv");
     let out = abvs()
         .args(["run", "--no-publish", "--engine", "sgbm", "--lossless", "--quiet", "--truth-stride", "0"])
-        .arg("--self-check-log")
+        .args(["--self-check-every", "1", "--self-check-log"])
         .arg(&log)
         .output()
         .unwrap();
@@ -109,7 +109,7 @@ fn the_offline_report_names_the_wrong_eye_and_where() {
             .args(["run", "--no-publish", "--engine", "sgbm", "--lossless", "--quiet", "--truth-stride", "0"])
             .arg("--session")
             .arg(&copy)
-            .arg("--self-check-log")
+            .args(["--self-check-every", "1", "--self-check-log"])
             .arg(&log)
             .output()
             .unwrap();

@@ -48,7 +48,7 @@ fn run(dir: &Path, engine: &str, lossless: bool, frames: Option<u64>, check: Opt
 
 /// Replays a session (lossless, SGBM) with the self-check on every frame; its `self_check` stats.
 fn replay(dir: &Path, log: &Path) -> Value {
-    let check = SelfCheckConfig { blocking: true, log: Some(log.to_path_buf()), ..Default::default() };
+    let check = SelfCheckConfig { every: 1, blocking: true, log: Some(log.to_path_buf()), ..Default::default() };
     let v = run(dir, "sgbm", true, None, Some(check));
     assert_eq!(v["frames_published"], 50, "{v:#}");
     v["self_check"].clone()
@@ -187,7 +187,8 @@ fn truth_vs_log(dir: &Path, log: &Path) -> Vec<(u64, [f64; 3], [f64; 3])> {
 }
 
 /// The critical path with and without the self-check: replays of the fixture paced at its 25 fps, looped to
-/// SELF_CHECK_BENCH_FRAMES (250) frames, with SELF_CHECK_BENCH_ENGINE (onnx), interleaved without / with,
+/// SELF_CHECK_BENCH_FRAMES (250) frames, with SELF_CHECK_BENCH_ENGINE (onnx), interleaved without / with
+/// (checking every SELF_CHECK_BENCH_EVERY-th frame, 5),
 /// SELF_CHECK_BENCH_PAIRS (3) times; prints each run's end-to-end latency p50 / p99 and output-stage p50 and
 /// compares the medians of the p50s. A measurement, not a gate (the machine's load decides the numbers):
 /// `cargo test --release -p abvs-runtime --test self_check -- --ignored --nocapture critical_path`
@@ -198,11 +199,13 @@ fn critical_path_with_and_without_the_self_check() {
     let frames: u64 = env("SELF_CHECK_BENCH_FRAMES", "250").parse().unwrap();
     let pairs: usize = env("SELF_CHECK_BENCH_PAIRS", "3").parse().unwrap();
     let engine = env("SELF_CHECK_BENCH_ENGINE", "onnx");
+    let every: u64 = env("SELF_CHECK_BENCH_EVERY", "5").parse().unwrap();
     let ms = |v: &Value, k: &str| v[k]["p50"].as_f64().unwrap();
     let (mut off, mut on) = (Vec::new(), Vec::new());
     for i in 0..pairs {
         for check in [false, true] {
-            let v = run(&fixture(), &engine, false, Some(frames), check.then(SelfCheckConfig::default));
+            let cfg = SelfCheckConfig { every, ..Default::default() };
+            let v = run(&fixture(), &engine, false, Some(frames), check.then_some(cfg));
             let sc = &v["self_check"];
             println!(
                 "run {i} self-check {:<5} e2e p50 {:6.2} p99 {:6.2} ms  output p50 {:5.2} ms  published {} dropped {}{}",
