@@ -10,8 +10,10 @@
 //! - `error_by_frame.png` (the three components per frame), `error_over_gaze.png` (mean |error| over each
 //!   eye's yaw x pitch, side by side), `report.md` and `summary.json`.
 //!
-//! When both eyes look at the same targets their gazes move together and the two explanations cannot be told
-//! apart; the report then says so (with the correlation of the eyes' gazes) instead of naming an eye.
+//! An eye is named when its gaze explains most of the varying error and leaves at most half of what the other
+//! eye's gaze leaves unexplained. When both eyes look at the same targets their gazes move together (the
+//! fixture's correlate at 0.99) and only vergence and the nonlinear terms tell them apart; when they do not,
+//! the report says so (with the correlation of the eyes' gazes) instead of naming an eye.
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
@@ -194,6 +196,9 @@ pub fn run(a: SelfCheckArgs) -> anyhow::Result<ExitCode> {
     let (_, &(sum, cnt, first)) =
         by_fix.iter().max_by(|a, b| (a.1 .0 / a.1 .1 as f64).total_cmp(&(b.1 .0 / b.1 .1 as f64))).expect("rows");
     let worst = &rows[first];
+    // an eye's gaze explains the error when it explains most of it and leaves at most half of what the
+    // other eye's gaze leaves unexplained
+    let follows = |a: f64, b: f64| a > 0.5 && 1.0 - a <= 0.5 * (1.0 - b);
     let varying = norm(&spread);
     let constant = norm(&mean);
     let verdict =
@@ -203,13 +208,13 @@ pub fn run(a: SelfCheckArgs) -> anyhow::Result<ExitCode> {
             "mostly constant: the home stereo extrinsic (stereo.yaml), or an error both eyes share at every pose".into()
         } else if !(r2_left.is_finite() && r2_right.is_finite()) {
             "varies with the pose, but the log has too few fixations to tell which eye it follows".into()
-        } else if r2_right > r2_left + 0.15 && r2_right > 0.5 {
+        } else if follows(r2_right, r2_left) {
             format!(
                 "the right eye's model (its gaze explains {:.0} % of the varying error, the left's {:.0} %)",
                 100.0 * r2_right,
                 100.0 * r2_left
             )
-        } else if r2_left > r2_right + 0.15 && r2_left > 0.5 {
+        } else if follows(r2_left, r2_right) {
             format!(
                 "the left eye's model (its gaze explains {:.0} % of the varying error, the right's {:.0} %)",
                 100.0 * r2_left,

@@ -3,7 +3,7 @@
 //! A correctly rectified pair has no vertical disparity: a scene point lies on the same row in both images.
 //! The sink hands every `every`-th rectified pair to a worker thread of its own (idle CPU time only; when it is
 //! still busy the pair is skipped, counted), which
-//! 1. picks corners of the left image (Shi-Tomasi, the strongest per 10 x 10 px cell, so they cover the image)
+//! 1. picks corners of the left image (Shi-Tomasi, the strongest per cell of a grid of about `features` cells)
 //!    and finds each in the right image by a search over a band of rows (`band_px`) and the disparity range
 //!    (zero-mean SAD on 7 x 7 patches; the best must beat any runner-up away from it by 20 %). Plain Rust on
 //!    the worker: OpenCV's detectors (ORB, FAST) parallelise on OpenCV's process-wide TBB pool, the workers
@@ -92,7 +92,7 @@ impl Default for SelfCheckConfig {
             every: 5,
             band_px: 4.0,
             min_depth_m: 0.15,
-            features: 400,
+            features: 300,
             threshold_deg: 0.1,
             warn_frames: 25,
             log: None,
@@ -141,8 +141,6 @@ pub struct Matcher {
 /// Half-size of the matching patch (px) and of the structure tensor's window.
 const MATCH_R: i32 = 3;
 const TENSOR_R: usize = 2;
-/// Grid cell for spreading the corners over the image (px).
-const CELL: usize = 10;
 const PATCH_R: i32 = 6;
 
 impl Matcher {
@@ -229,11 +227,13 @@ impl Matcher {
         self.response(left, w, h);
         self.corners.clear();
         let floor = 6.0 * ((2 * TENSOR_R + 1) * (2 * TENSOR_R + 1)) as f32; // gradients of ~2.5 grey levels
-        for cy in (margin..h - margin).step_by(CELL) {
-            for cx in (margin..w - margin).step_by(CELL) {
+                                                                            // one corner per cell, cells sized so that they number about `features`: spread over the image
+        let cell = (((w * h) as f64 / self.features.max(1) as f64).sqrt() as usize).max(6);
+        for cy in (margin..h - margin).step_by(cell) {
+            for cx in (margin..w - margin).step_by(cell) {
                 let mut best = (floor, 0, 0);
-                for y in cy..(cy + CELL).min(h - margin) {
-                    for x in cx..(cx + CELL).min(w - margin) {
+                for y in cy..(cy + cell).min(h - margin) {
+                    for x in cx..(cx + cell).min(w - margin) {
                         let v = self.resp[y * w + x];
                         if v > best.0 {
                             best = (v, x, y);
