@@ -319,7 +319,11 @@ pub fn run<S: PairSource>(
     tracks[1].latency_s = latency(kin.right.unit());
 
     let q = cfg.queue.max(1);
-    let pool = 3 * q + 4;
+    // Enough buffers that the source always finds a free one when it takes a frame: the three queues hold
+    // at most 3q, rectify and disparity at most 2 each (the frame they push and, while a full queue drops
+    // its oldest, that one on its way back to the free list), the output 1, the source none at that moment:
+    // 3q + 5 in use, so one is always free and under overload only the oldest queued frames are dropped.
+    let pool = 3 * q + 6;
     let (free_tx, free_rx) = bounded::<Box<Work>>(pool);
     for _ in 0..pool {
         free_tx.send(Work::new((rw, rh), out)).expect("free list has room");
@@ -362,7 +366,7 @@ pub fn run<S: PairSource>(
                     let mut w = match if cfg.lossless { free_rx.recv().ok() } else { free_rx.try_recv().ok() } {
                         Some(w) => w,
                         None => {
-                            // every buffer in flight: the newest frame has to go
+                            // every buffer in flight (cannot happen with the pool's size; a counted guard)
                             dropped.fetch_add(1, Ordering::Relaxed);
                             continue;
                         }
