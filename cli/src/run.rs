@@ -389,6 +389,8 @@ pub fn run_config(c: &RuntimeConfig) -> anyhow::Result<ExitCode> {
                 frames: if c.source.looping { c.source.frames.or(Some(u64::MAX)) } else { c.source.frames },
                 duration,
                 window,
+                // from here Ctrl-C / SIGTERM stop the run cleanly (before it: the default, exit)
+                stop: Some(stop_on_signals()?),
                 ..Default::default()
             };
             let stats = run_replay(source, kin, (stereo.left, stereo.right), engine, sinks, cfg)?;
@@ -407,6 +409,8 @@ pub fn run_config(c: &RuntimeConfig) -> anyhow::Result<ExitCode> {
                 frames: c.source.frames,
                 duration,
                 window,
+                // from here Ctrl-C / SIGTERM stop the run cleanly (before it: the default, exit)
+                stop: Some(stop_on_signals()?),
                 ..Default::default()
             };
             let stats = run_pipeline(source, kin, (stereo.left, stereo.right), engine, sinks, cfg)?;
@@ -432,6 +436,19 @@ pub fn run_config(c: &RuntimeConfig) -> anyhow::Result<ExitCode> {
             .with_context(|| format!("writing {}", p.display()))?;
     }
     Ok(ExitCode::SUCCESS)
+}
+
+/// A flag set by Ctrl-C (SIGINT) or SIGTERM: the run stops taking frames, finishes those in flight and
+/// reports (table, stats JSON) as at its end; a second signal exits at once (status 1).
+fn stop_on_signals() -> anyhow::Result<&'static std::sync::atomic::AtomicBool> {
+    use signal_hook::consts::{SIGINT, SIGTERM};
+    let flag: &'static std::sync::Arc<std::sync::atomic::AtomicBool> = Box::leak(Box::default());
+    for sig in [SIGINT, SIGTERM] {
+        signal_hook::flag::register_conditional_shutdown(sig, 1, flag.clone())
+            .context("installing a signal handler")?;
+        signal_hook::flag::register(sig, flag.clone()).context("installing a signal handler")?;
+    }
+    Ok(&**flag)
 }
 
 /// Waits until the drive board's stream has homed both eyes (their links roll through the index

@@ -84,3 +84,31 @@ fn a_looped_replay_keeps_resident_memory_flat_and_latency_bounded() {
     eprintln!("resident memory over the judged windows: {lo:.1} .. {hi:.1} MB, slope {slope:.4} MB/min");
     assert!(slope * span <= 0.02 * my, "resident memory grows {slope:.3} MB/min ({my:.1} MB): {rss:?}");
 }
+
+/// A looped run without --seconds runs until stopped: SIGTERM (or Ctrl-C) ends it cleanly, with its
+/// statistics written as at the end of a replay (a soak stopped by hand still reports).
+#[test]
+fn a_looped_run_stopped_by_a_signal_still_reports() {
+    let dir = tempfile::tempdir().unwrap();
+    let stats = dir.path().join("stats.json");
+    let child = Command::new(env!("CARGO_BIN_EXE_abvs"))
+        .args(["run", "--quiet", "--engine", "sgbm", "--truth-stride", "0", "--loop", "--stats-window", "1"])
+        .args(["--service-prefix", &format!("abvs-soak-stop-{}", std::process::id())])
+        .arg("--stats-json")
+        .arg(&stats)
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    std::thread::sleep(std::time::Duration::from_secs(4));
+    assert!(Command::new("kill").args(["-TERM", &child.id().to_string()]).status().unwrap().success());
+    let t0 = std::time::Instant::now();
+    let out = child.wait_with_output().unwrap();
+    assert!(out.status.success(), "{:?}: {}", out.status, String::from_utf8_lossy(&out.stderr));
+    assert!(t0.elapsed() < std::time::Duration::from_secs(5), "stopping took {:?}", t0.elapsed());
+    let v: Value = serde_json::from_str(&std::fs::read_to_string(&stats).unwrap()).unwrap();
+    let n = |k: &str| v[k].as_u64().unwrap();
+    eprintln!("stopped after {} s: in {} published {}", v["elapsed_s"], n("frames_in"), n("frames_published"));
+    assert!(n("frames_in") >= 25, "{v}");
+    assert_eq!(n("frames_in"), n("frames_published") + n("frames_dropped"), "{v}");
+    assert!(!v["windows"].as_array().unwrap().is_empty(), "{v}");
+}

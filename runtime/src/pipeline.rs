@@ -9,7 +9,7 @@
 //! end, so steady state does not allocate. Under overload a full queue drops its **oldest** item (counted) to
 //! make room: latency stays bounded by the queue depths instead of growing. In lossless mode (offline
 //! processing, reproducible replays) queues block instead.
-use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::Arc;
 use std::time::Duration;
 
@@ -117,6 +117,9 @@ pub struct PipelineConfig {
     /// Length of a statistics window: latency percentiles, counts and resident memory per window
     /// ([`RunStats::windows`]).
     pub window: Duration,
+    /// Stop taking frames once this is set (Ctrl-C, SIGTERM): the frames in flight finish and the run
+    /// returns its statistics as at the end of a replay.
+    pub stop: Option<&'static AtomicBool>,
 }
 
 impl Default for PipelineConfig {
@@ -131,6 +134,7 @@ impl Default for PipelineConfig {
             frames: None,
             duration: None,
             window: Duration::from_secs(60),
+            stop: None,
         }
     }
 }
@@ -350,7 +354,9 @@ pub fn run<S: PairSource>(
                 let mut lat = Latency::default();
                 let end_ns = cfg.duration.map(|d| started.saturating_add(d.as_nanos().min(i64::MAX as u128) as i64));
                 loop {
-                    if end_ns.is_some_and(|end| monotonic_ns() >= end) {
+                    if end_ns.is_some_and(|end| monotonic_ns() >= end)
+                        || cfg.stop.is_some_and(|s| s.load(Ordering::Relaxed))
+                    {
                         break;
                     }
                     let Some(f) = source.next_frame(cfg.frames) else { break };
