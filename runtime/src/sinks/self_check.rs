@@ -38,7 +38,7 @@
 //!
 //! **Statistics.** Per checked frame: matches, |vertical disparity| p50 / p95 (px), `w` and its 1-sigma
 //! (from the IRLS residual scale). Over the run: |vertical| quantiles of all matches (0.005 px bins),
-//! `w` as the information-weighted mean of the frames' estimates (a Huber weight per frame on its distance
+//! `w` as the information-weighted mean of the last [`KEEP`] checked frames' estimates (a Huber weight per frame on its distance
 //! to the mean), and its sigma from the scatter between frames (cluster-robust sandwich), which includes the
 //! frame-to-frame FK error. A warning is printed (once, until it falls back) when the component-wise median
 //! of `w` over the last `warn_frames` checked frames exceeds `threshold_deg`.
@@ -621,6 +621,8 @@ pub struct Job {
 }
 
 const BIN_PX: f64 = 0.005;
+/// Checked frames kept for the run's rotation estimate and match count (about 33 minutes at 5 a second).
+pub const KEEP: usize = 10_000;
 const BINS: usize = 4000;
 
 /// The run's self-check: everything the worker accumulated.
@@ -631,10 +633,12 @@ pub struct Summary {
     /// Frames the worker was too busy for.
     pub skipped: u64,
     pub warnings: u64,
-    matches: Vec<u32>,
+    /// Matches of the last [`KEEP`] checked frames.
+    matches: std::collections::VecDeque<u32>,
     /// |vertical disparity| histogram of all matches (BIN_PX bins, the last one open).
     vertical: Vec<u64>,
-    fits: Vec<(Vector3<f64>, Matrix3<f64>)>,
+    /// Rotation fits of the last [`KEEP`] checked frames (the run's estimate is theirs: memory stays bounded).
+    fits: std::collections::VecDeque<(Vector3<f64>, Matrix3<f64>)>,
     /// Time the worker spent on each checked frame.
     pub check_time: Latency,
     /// CPU time of the worker thread on each checked frame (what the check costs the machine).
@@ -652,9 +656,9 @@ impl Default for Summary {
             frames_unfitted: 0,
             skipped: 0,
             warnings: 0,
-            matches: Vec::new(),
+            matches: std::collections::VecDeque::new(),
             vertical: vec![0; BINS],
-            fits: Vec::new(),
+            fits: std::collections::VecDeque::new(),
             check_time: Latency::default(),
             check_cpu: Latency::default(),
             recent: std::collections::VecDeque::new(),
@@ -667,14 +671,20 @@ impl Default for Summary {
 impl Summary {
     fn add(&mut self, c: &FrameCheck, ms: &[Match], cfg: &SelfCheckConfig) {
         self.frames += 1;
-        self.matches.push(c.matches as u32);
+        if self.matches.len() == KEEP {
+            self.matches.pop_front();
+        }
+        self.matches.push_back(c.matches as u32);
         for m in ms {
             let b = ((m.dy().abs() as f64 / BIN_PX) as usize).min(BINS - 1);
             self.vertical[b] += 1;
         }
         match &c.fit {
             Some(f) => {
-                self.fits.push((f.omega, f.info));
+                if self.fits.len() == KEEP {
+                    self.fits.pop_front();
+                }
+                self.fits.push_back((f.omega, f.info));
                 let n = cfg.warn_frames.max(1) as usize;
                 if self.recent.len() == n {
                     self.recent.pop_front();
@@ -769,7 +779,7 @@ impl Summary {
 
     /// The stats JSON's `self_check` object.
     pub fn json(&self) -> Value {
-        let mut m: Vec<u32> = self.matches.clone();
+        let mut m: Vec<u32> = self.matches.iter().copied().collect();
         m.sort_unstable();
         let matches_p50 = if m.is_empty() { Value::Null } else { json!(m[(m.len() - 1) / 2]) };
         let num = |x: f64| if x.is_finite() { json!((x * 1e4).round() / 1e4) } else { Value::Null };
