@@ -128,6 +128,30 @@ pub fn optical_axis(pose: &[f64; 6]) -> (Vector3<f64>, Vector3<f64>) {
     (Vector3::new(pose[3], pose[4], pose[5]), r * Vector3::z())
 }
 
+/// The point (mm, the eye's home camera frame) seen along `ray_cam` (a direction in the camera
+/// frame, e.g. an unprojected pixel) at `depth_mm` (its z in the camera frame, the depth-map
+/// convention), with the eye at link angles `theta_deg` as its calibrated model predicts it.
+/// What a fixation "at this pixel of the current image" needs: the image was taken from the eye's
+/// current pose, not from home.
+pub fn point_from_view(
+    model: &crate::model::FkModel,
+    theta_deg: [f64; 3],
+    gravity: [f64; 3],
+    ray_cam: &Vector3<f64>,
+    depth_mm: f64,
+) -> Result<[f64; 3]> {
+    if !(depth_mm.is_finite() && depth_mm > 0.0) {
+        return Err(CalibError::Invalid(format!("depth {depth_mm} mm: must be finite and positive")));
+    }
+    if !(ray_cam.z > 1e-9) {
+        return Err(CalibError::Invalid(format!("ray {:?} does not point in front of the camera", ray_cam.as_slice())));
+    }
+    let pose = model.eval(&mut model.state(), &theta_deg, gravity)?;
+    let r = Fick::from_deg([pose[0], pose[1], pose[2]]).to_matrix();
+    let x = r * (ray_cam * (depth_mm / ray_cam.z)) + Vector3::new(pose[3], pose[4], pose[5]);
+    Ok([x.x, x.y, x.z])
+}
+
 impl<'m> Binocular<'m> {
     /// One eye aims at `p` (mm, its home frame) from state `st`; returns the aim and the state
     /// advanced by the move.

@@ -26,8 +26,18 @@ pub struct FixateArgs {
     #[arg(long)]
     calib: PathBuf,
     /// x,y,z in metres, in the left home camera frame (x right, y down, z forward).
-    #[arg(long, value_parser = crate::parse3, allow_hyphen_values = true)]
-    point: [f64; 3],
+    #[arg(long, value_parser = crate::parse3, allow_hyphen_values = true, required_unless_present = "pixel", conflicts_with = "pixel")]
+    point: Option<[f64; 3]>,
+    /// Instead of --point: a pixel u,v of the current left image (raw, as the camera delivers it;
+    /// its intrinsics and distortion from stereo.yaml) ...
+    #[arg(long, value_parser = parse2, allow_hyphen_values = true, requires = "depth")]
+    pixel: Option<[f64; 2]>,
+    /// ... its depth in metres (z in the left camera frame, the depth map's convention) ...
+    #[arg(long, allow_hyphen_values = true)]
+    depth: Option<f64>,
+    /// ... and the left eye's link angles when the image was taken (deg; default home).
+    #[arg(long, value_parser = crate::parse3, allow_hyphen_values = true, default_value = "0,0,0")]
+    left_theta: [f64; 3],
     /// Torsion about the line of sight: listing (Listing's law) or zero-fick (Fick roll 0).
     #[arg(long, default_value = "listing")]
     torsion: String,
@@ -44,6 +54,14 @@ pub fn run(cmd: GazeCmd) -> anyhow::Result<ExitCode> {
         GazeCmd::Fixate(a) => fixate(a),
         GazeCmd::Saccade(a) => crate::saccade::saccade(a),
     }
+}
+
+fn parse2(s: &str) -> Result<[f64; 2], String> {
+    let v: Vec<f64> = s
+        .split(',')
+        .map(|x| x.trim().parse::<f64>().map_err(|_| format!("'{x}' is not a number")))
+        .collect::<Result<_, _>>()?;
+    v.try_into().map_err(|_| format!("'{s}': expected two comma-separated numbers"))
 }
 
 /// Pixel of a point (mm, home frame) in the camera at the aim's predicted pose.
@@ -66,7 +84,17 @@ fn fixate(a: FixateArgs) -> anyhow::Result<ExitCode> {
         left_to_right: Pose::new(stereo.rotation, stereo.translation_mm),
         torsion,
     };
-    let point_mm = a.point.map(|v| v * 1000.0);
+    let point_mm = match (a.point, a.pixel, a.depth) {
+        (Some(p), _, _) => p.map(|v| v * 1000.0),
+        (None, Some(px), Some(depth)) => {
+            let ray = stereo
+                .left
+                .unproject(&Vector2::new(px[0], px[1]))
+                .with_context(|| format!("pixel {px:?}: outside the left camera model's valid field"))?;
+            abvs_calib::gaze::point_from_view(&ml, a.left_theta, a.gravity, &ray, depth * 1000.0)?
+        }
+        _ => anyhow::bail!("give --point, or --pixel with --depth"),
+    };
     let f: Fixation = bino.fixate_from_home(point_mm, a.gravity)?;
     let eyes = [("left (eye0)", &f.left, &stereo.left), ("right (eye1)", &f.right, &stereo.right)];
     if a.json {
@@ -85,7 +113,7 @@ fn fixate(a: FixateArgs) -> anyhow::Result<ExitCode> {
             })
         };
         let v = serde_json::json!({
-            "point_m": a.point,
+            "point_m": point_mm.map(|v| v / 1000.0),
             "torsion": torsion.name(),
             "vergence_deg": f.vergence_deg,
             "left": eye(&f.left, &stereo.left),
@@ -96,9 +124,9 @@ fn fixate(a: FixateArgs) -> anyhow::Result<ExitCode> {
     }
     println!(
         "fixating [{:.3}, {:.3}, {:.3}] m (left home camera frame), torsion {}, models {} / {}",
-        a.point[0],
-        a.point[1],
-        a.point[2],
+        point_mm[0] / 1000.0,
+        point_mm[1] / 1000.0,
+        point_mm[2] / 1000.0,
         torsion.name(),
         ml.method(),
         mr.method()

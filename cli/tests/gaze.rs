@@ -100,6 +100,51 @@ fn gaze_fixate_puts_the_point_on_both_principal_points() {
 }
 
 #[test]
+fn gaze_fixate_at_a_pixel_and_depth_of_the_current_left_image() {
+    let c = s(&calib());
+    let json = |args: &[&str]| -> serde_json::Value { serde_json::from_str(&ok(args)).unwrap() };
+    let f = |v: &serde_json::Value, k: usize| v.as_array().unwrap()[k].as_f64().unwrap();
+    // Fixate a point; from the eye's new pose that point is at the principal point, at a depth
+    // equal to its range along the axis: fixating that pixel and depth must give the same point.
+    let first = json(&["gaze", "fixate", "--calib", &c, "--point", "0.12,-0.05,0.6", "--json"]);
+    let l = &first["left"];
+    let th: Vec<String> = (0..3).map(|k| format!("{}", f(&l["theta_deg"], k))).collect();
+    let pp = format!("{},{}", f(&l["principal_point"], 0), f(&l["principal_point"], 1));
+    let depth = format!("{}", l["range_mm"].as_f64().unwrap() / 1000.0);
+    let again = json(&[
+        "gaze",
+        "fixate",
+        "--calib",
+        &c,
+        "--pixel",
+        &pp,
+        "--depth",
+        &depth,
+        "--left-theta",
+        &th.join(","),
+        "--json",
+    ]);
+    for k in 0..3 {
+        let (a, b) = (f(&again["point_m"], k), [0.12, -0.05, 0.6][k]);
+        assert!((a - b).abs() < 1e-5, "point {k}: {a} vs {b}");
+        for eye in ["left", "right"] {
+            let (a, b) = (f(&again[eye]["theta_deg"], k), f(&first[eye]["theta_deg"], k));
+            assert!((a - b).abs() < 1e-4, "{eye} theta {k}: {a} vs {b}");
+        }
+    }
+    // From home, a pixel right of and above the centre at 0.8 m: a point right, up, 0.8 m ahead.
+    let home = json(&["gaze", "fixate", "--calib", &c, "--pixel", "500,240", "--depth", "0.8", "--json"]);
+    let p: Vec<f64> = (0..3).map(|k| f(&home["point_m"], k)).collect();
+    assert!(p[0] > 0.02 && p[1] < -0.02 && (p[2] - 0.8).abs() < 0.003, "{p:?}");
+    assert!(f(&home["left"]["theta_deg"], 0).abs() > 0.1, "{home}");
+    // Both or neither: a pixel needs its depth; a point and a pixel conflict.
+    let o = abvs(&["gaze", "fixate", "--calib", &c, "--pixel", "500,240"]);
+    assert!(!o.status.success() && String::from_utf8_lossy(&o.stderr).contains("--depth"));
+    let o = abvs(&["gaze", "fixate", "--calib", &c, "--pixel", "500,240", "--depth", "-1"]);
+    assert!(!o.status.success() && String::from_utf8_lossy(&o.stderr).contains("positive"), "{o:?}");
+}
+
+#[test]
 fn repeatability_session_and_table() {
     let d = tempfile::tempdir().unwrap();
     let unit = Path::new(env!("CARGO_MANIFEST_DIR")).join("../fixtures/units/c0.toml");
