@@ -15,7 +15,6 @@ pub mod methods;
 pub mod metrics;
 pub mod mlp;
 pub mod mpe;
-pub mod paper;
 pub mod repeatability;
 
 /// The model directory format and the FkModel evaluator live in abvs-fk (what the robot links).

@@ -1,5 +1,5 @@
 //! `abvs calib paper`: the paper's experiments on the simulated units C0..C3, one report.
-use abvs_calib::paper::{run_paper, PaperConfig};
+use abvs_paper::{run_paper, PaperConfig};
 use clap::Args;
 use std::path::PathBuf;
 use std::process::ExitCode;

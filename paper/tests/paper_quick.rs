@@ -1,7 +1,7 @@
 //! `abvs calib paper --quick` end to end: every stage runs, the report, the summary and the
 //! figures are written, the numbers are finite, and the physics-based hybrid beats hand-eye
 //! calibration (M_h) on C0 (it identifies everything M_h fits, and more).
-use abvs_calib::paper::{run_paper, PaperConfig};
+use abvs_paper::{run_paper, PaperConfig};
 use serde_json::Value;
 
 fn finite(v: &Value, what: &str) -> f64 {
