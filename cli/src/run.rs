@@ -92,6 +92,20 @@ pub struct RunArgs {
     /// needs the cargo feature `rerun`).
     #[arg(long)]
     pub rerun: Option<PathBuf>,
+    /// Record the ROS 2 messages (depth, camera info, cloud, tf, joint states) to this MCAP file
+    /// (profile ros2, readable by Foxglove and `ros2 bag`).
+    #[arg(long)]
+    pub mcap: Option<PathBuf>,
+    /// Publish the ROS 2 messages over Zenoh (keys abvs/depth, abvs/camera_info, abvs/points, tf,
+    /// abvs/joint_states).
+    #[arg(long)]
+    pub zenoh: bool,
+    /// Zenoh endpoint to connect to, e.g. tcp/192.168.1.20:7447 (repeatable; implies --zenoh).
+    #[arg(long, value_name = "ENDPOINT")]
+    pub zenoh_connect: Vec<String>,
+    /// A standard Zenoh configuration file (JSON5; implies --zenoh).
+    #[arg(long, value_name = "FILE")]
+    pub zenoh_config: Option<PathBuf>,
     /// Do not publish over iceoryx2.
     #[arg(long)]
     pub no_publish: bool,
@@ -274,6 +288,19 @@ pub fn effective_config(a: &RunArgs, m: &ArgMatches) -> anyhow::Result<RuntimeCo
     if given("self_check_log") {
         sc.log = a.self_check_log.as_ref().map(abs);
     }
+    if given("mcap") {
+        c.sinks.mcap.file = a.mcap.as_ref().map(abs);
+    }
+    let z = &mut c.bridges.zenoh;
+    if a.zenoh || !a.zenoh_connect.is_empty() || a.zenoh_config.is_some() {
+        z.enabled = true;
+    }
+    if !a.zenoh_connect.is_empty() {
+        z.connect = a.zenoh_connect.clone();
+    }
+    if given("zenoh_config") {
+        z.config = a.zenoh_config.as_ref().map(abs);
+    }
     if a.no_publish {
         c.bridges.iceoryx.enabled = false;
     }
@@ -354,6 +381,19 @@ pub fn run_config(c: &RuntimeConfig) -> anyhow::Result<ExitCode> {
         let cfg = abvs_runtime::bridges::iceoryx::BridgeConfig::for_resolution(w, h)
             .with_prefix(c.bridges.iceoryx.service_prefix.clone());
         sinks.push(Box::new(abvs_runtime::bridges::publish::PublishSink::new(cfg)?));
+    }
+    // ROS 2 outputs: lossless runs wait for them, live ones drop their oldest queued frame
+    if let Some(p) = &c.sinks.mcap.file {
+        sinks.push(Box::new(abvs_runtime::sinks::mcap_log::sink(p, c.sinks.mcap.queue, c.source.lossless)?));
+    }
+    let z = &c.bridges.zenoh;
+    if z.enabled {
+        sinks.push(Box::new(abvs_runtime::bridges::zenoh::sink(
+            z.config.as_deref(),
+            &z.connect,
+            z.queue,
+            c.source.lossless,
+        )?));
     }
     if let Some(p) = &c.sinks.rerun {
         sinks.push(rerun_sink(p)?);

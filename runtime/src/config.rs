@@ -201,6 +201,8 @@ pub struct SinksConfig {
     pub stats_window_s: f64,
     /// The self-check of the stereo calibration from the rectified images (`sinks::self_check`).
     pub self_check: SelfCheckSettings,
+    /// MCAP recording of the ROS 2 messages (`sinks::mcap_log`).
+    pub mcap: McapSettings,
 }
 
 impl Default for SinksConfig {
@@ -213,7 +215,25 @@ impl Default for SinksConfig {
             quiet: false,
             stats_window_s: 60.0,
             self_check: SelfCheckSettings::default(),
+            mcap: McapSettings::default(),
         }
+    }
+}
+
+/// `[sinks.mcap]`: the ROS 2 messages of every frame recorded as MCAP (see `crate::ros2`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct McapSettings {
+    /// The MCAP file; absent: no recording.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub file: Option<PathBuf>,
+    /// Frames the writer may fall behind by before the oldest is dropped (lossless runs wait instead).
+    pub queue: usize,
+}
+
+impl Default for McapSettings {
+    fn default() -> Self {
+        McapSettings { file: None, queue: crate::sinks::mcap_log::DEFAULT_QUEUE }
     }
 }
 
@@ -250,6 +270,27 @@ impl Default for SelfCheckSettings {
 #[serde(deny_unknown_fields, default)]
 pub struct BridgesConfig {
     pub iceoryx: IceoryxConfig,
+    pub zenoh: ZenohSettings,
+}
+
+/// `[bridges.zenoh]`: the ROS 2 messages published over Zenoh (see `bridges::zenoh`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ZenohSettings {
+    pub enabled: bool,
+    /// Endpoints to connect to, e.g. `tcp/192.168.1.20:7447` (added to the configuration file's).
+    pub connect: Vec<String>,
+    /// A standard Zenoh configuration file (JSON5); absent: Zenoh's defaults (a peer).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub config: Option<PathBuf>,
+    /// Frames the publisher may fall behind by before the oldest is dropped.
+    pub queue: usize,
+}
+
+impl Default for ZenohSettings {
+    fn default() -> Self {
+        ZenohSettings { enabled: false, connect: Vec::new(), config: None, queue: crate::bridges::zenoh::DEFAULT_QUEUE }
+    }
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -321,6 +362,8 @@ impl RuntimeConfig {
             c.sinks.dump.as_mut().map(fix);
             c.sinks.rerun.as_mut().map(fix);
             c.sinks.self_check.log.as_mut().map(fix);
+            c.sinks.mcap.file.as_mut().map(fix);
+            c.bridges.zenoh.config.as_mut().map(fix);
         }
         c.check().map_err(|m| file(None, m))?;
         Ok(c)
@@ -358,6 +401,13 @@ impl RuntimeConfig {
         let sc = &self.sinks.self_check;
         if sc.every == 0 || sc.warn_frames == 0 || !(sc.threshold_deg > 0.0) {
             return Err("sinks.self_check: every and warn_frames must be at least 1, threshold_deg positive".into());
+        }
+        for (what, q) in
+            [("sinks.mcap.queue", self.sinks.mcap.queue), ("bridges.zenoh.queue", self.bridges.zenoh.queue)]
+        {
+            if !(1..=1024).contains(&q) {
+                return Err(format!("{what}: {q} must be in 1..=1024"));
+            }
         }
         let w = self.sinks.stats_window_s;
         if !(w >= 0.01 && w <= 86400.0) {

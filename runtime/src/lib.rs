@@ -2,13 +2,15 @@
 //!
 //! Grouped by role, data flowing one way: **sources** (frames, encoders) -> **tasks** (time alignment,
 //! per-eye FK and the moving extrinsic, rectification, disparity, depth and cloud) -> **sinks** (stats,
-//! truth scoring, dumps) and **bridges** (iceoryx2 publishing to other processes). [`pipeline`] wires the stages
+//! truth scoring, dumps, MCAP recordings) and **bridges** (iceoryx2 and Zenoh publishing to other processes); [`ros2`]
+//! builds the ROS 2 messages of a frame. [`pipeline`] wires the stages
 //! on threads joined by bounded channels; [`session`] is the on-disk format of recorded sessions, which [`record`] writes from live sources.
 pub mod bridges;
 pub mod config;
 pub mod error;
 pub mod pipeline;
 pub mod record;
+pub mod ros2;
 pub mod session;
 pub mod sinks;
 pub mod sources;

@@ -1,3 +1,5 @@
-//! Bridges: publishing to other processes (iceoryx2 shared memory).
+//! Bridges: publishing to other processes (iceoryx2 shared memory on this computer, ROS 2 messages
+//! over Zenoh to others).
 pub mod iceoryx;
 pub mod publish;
+pub mod zenoh;

@@ -1,0 +1,467 @@
+//! ROS 2 messages of a published frame, CDR-encoded: the one place both the Zenoh bridge
+//! (`bridges::zenoh`) and the MCAP recorder (`sinks::mcap_log`) get their bytes from.
+//!
+//! | topic (Zenoh key without the `/`) | type | frame_id |
+//! | --- | --- | --- |
+//! | `/abvs/depth` | sensor_msgs/msg/Image, `32FC1`, metres, NaN = invalid (REP 118) | `left_rect_camera` |
+//! | `/abvs/camera_info` | sensor_msgs/msg/CameraInfo of that image (K, R = I, P of the rectified left camera) | `left_rect_camera` |
+//! | `/abvs/points` | sensor_msgs/msg/PointCloud2, x y z float32 + rgb, valid points only | `left_home_camera` |
+//! | `/tf` | tf2_msgs/msg/TFMessage: `left_home_camera` -> `left_camera`, `right_camera`, `left_rect_camera` | |
+//! | `/abvs/joint_states` | sensor_msgs/msg/JointState: the six link angles (rad) at mid-exposure | `left_home_camera` |
+//!
+//! Every header stamp is the frame's left mid-exposure time on CLOCK_MONOTONIC (`FrameHeader::t_frame_ns`
+//! of the iceoryx2 services), so one frame's five messages carry one stamp. Camera frames have OpenCV axes
+//! (x right, y down, z forward). The head frame is the left eye's home camera (`left_home_camera`): the
+//! moving cameras are placed in it by calibrated FK every frame, the rectified left camera (the depth
+//! image's) is the current left camera turned by the frame's rectifying rotation. The messages are
+//! encoded by the `cdr` crate through serde (standard little-endian encapsulation, 00 01 00 00) from
+//! the Humble definitions in [`SCHEMAS`]; byte arrays are written whole (`serde_bytes`).
+use abvs_eye::Pose;
+use nalgebra::{Matrix3, Rotation3, UnitQuaternion};
+use serde::Serialize;
+
+use crate::pipeline::Published;
+
+/// The head frame: the left eye's camera at home, where the cloud's points are.
+pub const HEAD_FRAME: &str = "left_home_camera";
+/// The left eye's camera as the eye turns.
+pub const LEFT_FRAME: &str = "left_camera";
+/// The right eye's camera as the eye turns.
+pub const RIGHT_FRAME: &str = "right_camera";
+/// The rectified left camera: the depth image and its CameraInfo.
+pub const RECT_FRAME: &str = "left_rect_camera";
+/// JointState names: each eye's three links (`theta1..3` of docs/spec).
+pub const JOINT_NAMES: [&str; 6] =
+    ["left_eye_link1", "left_eye_link2", "left_eye_link3", "right_eye_link1", "right_eye_link2", "right_eye_link3"];
+
+/// One output topic: its ROS 2 name, Zenoh key, type and ros2msg schema.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Topic {
+    /// ROS 2 topic name, e.g. `/abvs/depth` (the MCAP channel).
+    pub topic: &'static str,
+    /// Zenoh key: the topic without its leading slash, as zenoh-bridge-ros2dds maps it.
+    pub key: &'static str,
+    /// ROS 2 type name, e.g. `sensor_msgs/msg/Image` (the MCAP schema name).
+    pub type_name: &'static str,
+    /// ros2msg schema text: the definition, then each dependency after a `MSG:` separator.
+    pub schema: &'static str,
+}
+
+/// The five topics, in the order [`Encoded::messages`] returns them.
+pub const TOPICS: [Topic; 5] = [
+    Topic { topic: "/abvs/depth", key: "abvs/depth", type_name: "sensor_msgs/msg/Image", schema: SCHEMAS[0] },
+    Topic {
+        topic: "/abvs/camera_info",
+        key: "abvs/camera_info",
+        type_name: "sensor_msgs/msg/CameraInfo",
+        schema: SCHEMAS[1],
+    },
+    Topic { topic: "/abvs/points", key: "abvs/points", type_name: "sensor_msgs/msg/PointCloud2", schema: SCHEMAS[2] },
+    Topic { topic: "/tf", key: "tf", type_name: "tf2_msgs/msg/TFMessage", schema: SCHEMAS[3] },
+    Topic {
+        topic: "/abvs/joint_states",
+        key: "abvs/joint_states",
+        type_name: "sensor_msgs/msg/JointState",
+        schema: SCHEMAS[4],
+    },
+];
+
+/// A dependency's definition after the ros2msg separator line.
+macro_rules! dep {
+    ($name:literal, $text:expr) => {
+        concat!(
+            "================================================================================\n",
+            "MSG: ",
+            $name,
+            "\n",
+            $text
+        )
+    };
+}
+
+/// The ROS 2 Humble definitions (comments left out) of the five types, in [`TOPICS`] order.
+pub const SCHEMAS: [&str; 5] = [
+    concat!(
+        "std_msgs/Header header\nuint32 height\nuint32 width\nstring encoding\nuint8 is_bigendian\nuint32 step\nuint8[] data\n",
+        dep!("std_msgs/Header", "builtin_interfaces/Time stamp\nstring frame_id\n"),
+        dep!("builtin_interfaces/Time", "int32 sec\nuint32 nanosec\n"),
+    ),
+    concat!(
+        "std_msgs/Header header\nuint32 height\nuint32 width\nstring distortion_model\nfloat64[] d\nfloat64[9] k\n",
+        "float64[9] r\nfloat64[12] p\nuint32 binning_x\nuint32 binning_y\nsensor_msgs/RegionOfInterest roi\n",
+        dep!("std_msgs/Header", "builtin_interfaces/Time stamp\nstring frame_id\n"),
+        dep!("builtin_interfaces/Time", "int32 sec\nuint32 nanosec\n"),
+        dep!("sensor_msgs/RegionOfInterest", "uint32 x_offset\nuint32 y_offset\nuint32 height\nuint32 width\nbool do_rectify\n"),
+    ),
+    concat!(
+        "std_msgs/Header header\nuint32 height\nuint32 width\nsensor_msgs/PointField[] fields\nbool is_bigendian\n",
+        "uint32 point_step\nuint32 row_step\nuint8[] data\nbool is_dense\n",
+        dep!("std_msgs/Header", "builtin_interfaces/Time stamp\nstring frame_id\n"),
+        dep!("builtin_interfaces/Time", "int32 sec\nuint32 nanosec\n"),
+        dep!(
+            "sensor_msgs/PointField",
+            "uint8 INT8=1\nuint8 UINT8=2\nuint8 INT16=3\nuint8 UINT16=4\nuint8 INT32=5\nuint8 UINT32=6\nuint8 FLOAT32=7\nuint8 FLOAT64=8\nstring name\nuint32 offset\nuint8 datatype\nuint32 count\n"
+        ),
+    ),
+    concat!(
+        "geometry_msgs/TransformStamped[] transforms\n",
+        dep!("geometry_msgs/TransformStamped", "std_msgs/Header header\nstring child_frame_id\ngeometry_msgs/Transform transform\n"),
+        dep!("std_msgs/Header", "builtin_interfaces/Time stamp\nstring frame_id\n"),
+        dep!("builtin_interfaces/Time", "int32 sec\nuint32 nanosec\n"),
+        dep!("geometry_msgs/Transform", "geometry_msgs/Vector3 translation\ngeometry_msgs/Quaternion rotation\n"),
+        dep!("geometry_msgs/Vector3", "float64 x\nfloat64 y\nfloat64 z\n"),
+        dep!("geometry_msgs/Quaternion", "float64 x 0\nfloat64 y 0\nfloat64 z 0\nfloat64 w 1\n"),
+    ),
+    concat!(
+        "std_msgs/Header header\nstring[] name\nfloat64[] position\nfloat64[] velocity\nfloat64[] effort\n",
+        dep!("std_msgs/Header", "builtin_interfaces/Time stamp\nstring frame_id\n"),
+        dep!("builtin_interfaces/Time", "int32 sec\nuint32 nanosec\n"),
+    ),
+];
+
+#[derive(Serialize, Clone, Copy, Debug, PartialEq)]
+struct Time {
+    sec: i32,
+    nanosec: u32,
+}
+
+impl Time {
+    /// CLOCK_MONOTONIC ns as builtin_interfaces/Time (the nanoseconds are never negative).
+    fn from_ns(t: i64) -> Time {
+        Time { sec: t.div_euclid(1_000_000_000) as i32, nanosec: t.rem_euclid(1_000_000_000) as u32 }
+    }
+}
+
+#[derive(Serialize)]
+struct Header<'a> {
+    stamp: Time,
+    frame_id: &'a str,
+}
+
+#[derive(Serialize)]
+struct Image<'a> {
+    header: Header<'a>,
+    height: u32,
+    width: u32,
+    encoding: &'a str,
+    is_bigendian: u8,
+    step: u32,
+    #[serde(with = "serde_bytes")]
+    data: &'a [u8],
+}
+
+#[derive(Serialize)]
+struct RegionOfInterest {
+    x_offset: u32,
+    y_offset: u32,
+    height: u32,
+    width: u32,
+    do_rectify: bool,
+}
+
+#[derive(Serialize)]
+struct CameraInfo<'a> {
+    header: Header<'a>,
+    height: u32,
+    width: u32,
+    distortion_model: &'a str,
+    d: &'a [f64],
+    k: [f64; 9],
+    r: [f64; 9],
+    // serde implements arrays up to 32 as tuples: CDR's fixed arrays, no length
+    p: [f64; 12],
+    binning_x: u32,
+    binning_y: u32,
+    roi: RegionOfInterest,
+}
+
+#[derive(Serialize)]
+struct PointField<'a> {
+    name: &'a str,
+    offset: u32,
+    datatype: u8,
+    count: u32,
+}
+
+#[derive(Serialize)]
+struct PointCloud2<'a> {
+    header: Header<'a>,
+    height: u32,
+    width: u32,
+    fields: &'a [PointField<'a>],
+    is_bigendian: bool,
+    point_step: u32,
+    row_step: u32,
+    #[serde(with = "serde_bytes")]
+    data: &'a [u8],
+    is_dense: bool,
+}
+
+#[derive(Serialize)]
+struct Vector3 {
+    x: f64,
+    y: f64,
+    z: f64,
+}
+
+#[derive(Serialize)]
+struct Quaternion {
+    x: f64,
+    y: f64,
+    z: f64,
+    w: f64,
+}
+
+#[derive(Serialize)]
+struct Transform {
+    translation: Vector3,
+    rotation: Quaternion,
+}
+
+#[derive(Serialize)]
+struct TransformStamped<'a> {
+    header: Header<'a>,
+    child_frame_id: &'a str,
+    transform: Transform,
+}
+
+#[derive(Serialize)]
+struct TfMessage<'a> {
+    transforms: &'a [TransformStamped<'a>],
+}
+
+#[derive(Serialize)]
+struct JointState<'a> {
+    header: Header<'a>,
+    name: &'a [&'a str],
+    position: &'a [f64],
+    velocity: &'a [f64],
+    effort: &'a [f64],
+}
+
+const FLOAT32: u8 = 7;
+/// Bytes of one cloud point: x, y, z float32 then rgb (PCL's packing: 0x00RRGGBB as a float32's bits).
+pub const POINT_STEP: usize = 16;
+const FIELDS: [PointField<'static>; 4] = [
+    PointField { name: "x", offset: 0, datatype: FLOAT32, count: 1 },
+    PointField { name: "y", offset: 4, datatype: FLOAT32, count: 1 },
+    PointField { name: "z", offset: 8, datatype: FLOAT32, count: 1 },
+    PointField { name: "rgb", offset: 12, datatype: FLOAT32, count: 1 },
+];
+
+/// A copy of what the five messages of one frame need, taken on the pipeline's output thread
+/// ([`FrameSnapshot::fill`]) and encoded later on a sink's own thread. Reused: filling a snapshot
+/// allocates only when a frame has more points than any before it.
+#[derive(Debug, Clone, Default)]
+pub struct FrameSnapshot {
+    pub seq: u64,
+    pub t_frame_ns: i64,
+    /// Link angles (deg), left eye then right.
+    pub theta: [[f64; 3]; 2],
+    /// Current left camera -> left home camera.
+    pub rel_left: Pose,
+    /// Current left camera -> current right camera.
+    pub left_to_right: Pose,
+    /// Current left camera -> rectified frame.
+    pub rect_from_left: Matrix3<f64>,
+    pub width: u32,
+    pub height: u32,
+    /// fx = fy, cx, cy of the rectified left camera (px).
+    pub f: f64,
+    pub cx: f64,
+    pub cy: f64,
+    pub baseline_m: f64,
+    /// Row-major depth (m), NaN = invalid.
+    pub depth: Vec<f32>,
+    /// The cloud as PointCloud2 data: [`POINT_STEP`] bytes a point, little-endian.
+    pub cloud: Vec<u8>,
+}
+
+/// The packed rgb of a gray level (PCL / rviz: 0x00RRGGBB; the top byte is the iceoryx2 cloud's alpha,
+/// 0xff, so the 16 bytes of a point are those of its `CloudPoint`).
+pub fn gray_rgb(g: u8) -> u32 {
+    let g = g as u32;
+    0xff00_0000 | g << 16 | g << 8 | g
+}
+
+impl FrameSnapshot {
+    /// Copies a published frame's depth, cloud and geometry.
+    pub fn fill(&mut self, out: &Published) {
+        self.seq = out.seq;
+        self.t_frame_ns = out.t_frame_ns;
+        self.theta = *out.theta;
+        self.rel_left = out.pose.rel_left;
+        self.left_to_right = out.pose.left_to_right;
+        self.rect_from_left = out.rect.rect_from_left;
+        self.width = out.cam.width;
+        self.height = out.cam.height;
+        (self.f, self.cx, self.cy) = (out.cam.f, out.cam.cx, out.cam.cy);
+        self.baseline_m = out.rect.baseline_m;
+        self.depth.clear();
+        self.depth.extend_from_slice(&out.depth.depth);
+        let n = out.depth.n_points;
+        self.cloud.clear();
+        self.cloud.reserve(n * POINT_STEP);
+        for (p, g) in out.depth.points[..n].iter().zip(&out.depth.intensity[..n]) {
+            self.cloud.extend_from_slice(&p.x.to_le_bytes());
+            self.cloud.extend_from_slice(&p.y.to_le_bytes());
+            self.cloud.extend_from_slice(&p.z.to_le_bytes());
+            self.cloud.extend_from_slice(&gray_rgb(*g).to_le_bytes());
+        }
+    }
+
+    /// Points in the cloud.
+    pub fn n_points(&self) -> usize {
+        self.cloud.len() / POINT_STEP
+    }
+
+    /// The rectified left camera's K (row-major 3x3).
+    pub fn k(&self) -> [f64; 9] {
+        [self.f, 0.0, self.cx, 0.0, self.f, self.cy, 0.0, 0.0, 1.0]
+    }
+
+    /// Where each camera frame is in the head frame (`left_home_camera`): (child frame, pose that maps the
+    /// child's coordinates to the head's), as `/tf` carries them.
+    pub fn transforms(&self) -> [(&'static str, Pose); 3] {
+        let right = self.rel_left.compose(&self.left_to_right.inverse());
+        let rect = self.rel_left.compose(&Pose::new(self.rect_from_left.transpose(), nalgebra::Vector3::zeros()));
+        [(LEFT_FRAME, self.rel_left), (RIGHT_FRAME, right), (RECT_FRAME, rect)]
+    }
+}
+
+/// The encoded messages of one frame, buffers reused from frame to frame.
+#[derive(Debug, Default)]
+pub struct Encoded {
+    bufs: [Vec<u8>; 5],
+}
+
+fn f32_bytes(v: &[f32]) -> &[u8] {
+    // SAFETY: f32 has no padding and any byte is a valid u8; the slice covers exactly the floats' memory.
+    unsafe { std::slice::from_raw_parts(v.as_ptr().cast::<u8>(), std::mem::size_of_val(v)) }
+}
+
+fn quaternion(r: &Matrix3<f64>) -> Quaternion {
+    let q = UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix(r));
+    Quaternion { x: q.i, y: q.j, z: q.k, w: q.w }
+}
+
+fn encode_into<T: Serialize>(buf: &mut Vec<u8>, msg: &T) -> Result<(), String> {
+    buf.clear();
+    cdr::serialize_into::<_, _, _, cdr::CdrLe>(&mut *buf, msg, cdr::Infinite).map_err(|e| e.to_string())
+}
+
+impl Encoded {
+    /// Encodes the five messages of `s` (CDR, little-endian encapsulation).
+    pub fn encode(&mut self, s: &FrameSnapshot) -> Result<(), String> {
+        if cfg!(target_endian = "big") {
+            return Err("ROS 2 messages are built for little-endian machines only".into());
+        }
+        let stamp = Time::from_ns(s.t_frame_ns);
+        let header = |frame_id| Header { stamp, frame_id };
+        let [depth, info, points, tf, joints] = &mut self.bufs;
+        encode_into(
+            depth,
+            &Image {
+                header: header(RECT_FRAME),
+                height: s.height,
+                width: s.width,
+                encoding: "32FC1",
+                is_bigendian: 0,
+                step: s.width * 4,
+                data: f32_bytes(&s.depth),
+            },
+        )?;
+        let k = s.k();
+        encode_into(
+            info,
+            &CameraInfo {
+                header: header(RECT_FRAME),
+                height: s.height,
+                width: s.width,
+                // the image is rectified: no distortion left
+                distortion_model: "plumb_bob",
+                d: &[0.0; 5],
+                k,
+                r: [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0],
+                p: [s.f, 0.0, s.cx, 0.0, 0.0, s.f, s.cy, 0.0, 0.0, 0.0, 1.0, 0.0],
+                binning_x: 0,
+                binning_y: 0,
+                roi: RegionOfInterest { x_offset: 0, y_offset: 0, height: 0, width: 0, do_rectify: false },
+            },
+        )?;
+        let n = s.n_points() as u32;
+        encode_into(
+            points,
+            &PointCloud2 {
+                header: header(HEAD_FRAME),
+                height: 1,
+                width: n,
+                fields: &FIELDS,
+                is_bigendian: false,
+                point_step: POINT_STEP as u32,
+                row_step: n * POINT_STEP as u32,
+                data: &s.cloud,
+                is_dense: true,
+            },
+        )?;
+        let tfs = s.transforms().map(|(child, p)| TransformStamped {
+            header: header(HEAD_FRAME),
+            child_frame_id: child,
+            transform: Transform { translation: Vector3 { x: p.t.x, y: p.t.y, z: p.t.z }, rotation: quaternion(&p.r) },
+        });
+        encode_into(tf, &TfMessage { transforms: &tfs })?;
+        let t = &s.theta;
+        let position = [t[0][0], t[0][1], t[0][2], t[1][0], t[1][1], t[1][2]].map(f64::to_radians);
+        encode_into(
+            joints,
+            &JointState {
+                header: header(HEAD_FRAME),
+                name: &JOINT_NAMES,
+                position: &position,
+                velocity: &[],
+                effort: &[],
+            },
+        )?;
+        Ok(())
+    }
+
+    /// (topic, CDR bytes) of the last encoded frame, in [`TOPICS`] order.
+    pub fn messages(&self) -> impl Iterator<Item = (&'static Topic, &[u8])> {
+        TOPICS.iter().zip(self.bufs.iter().map(|b| b.as_slice()))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn time_and_header_bytes() {
+        assert_eq!(Time::from_ns(1_500_000_000), Time { sec: 1, nanosec: 500_000_000 });
+        assert_eq!(Time::from_ns(-1), Time { sec: -1, nanosec: 999_999_999 });
+        let mut b = Vec::new();
+        encode_into(&mut b, &Header { stamp: Time { sec: 2, nanosec: 3 }, frame_id: "ab" }).unwrap();
+        // encapsulation, sec, nanosec, string length (with NUL), "ab\0"
+        assert_eq!(b, [0, 1, 0, 0, 2, 0, 0, 0, 3, 0, 0, 0, 3, 0, 0, 0, b'a', b'b', 0]);
+    }
+
+    #[test]
+    fn snapshot_encodes_every_topic() {
+        let mut s = FrameSnapshot { width: 2, height: 1, f: 100.0, cx: 0.5, cy: 0.0, ..Default::default() };
+        s.rect_from_left = Matrix3::identity();
+        s.depth = vec![1.0, f32::NAN];
+        s.cloud = [1f32, 2.0, 3.0].iter().flat_map(|v| v.to_le_bytes()).chain(gray_rgb(9).to_le_bytes()).collect();
+        let mut e = Encoded::default();
+        e.encode(&s).unwrap();
+        let m: Vec<_> = e.messages().collect();
+        assert_eq!(m.len(), 5);
+        // the cloud's data ends the message, followed by is_dense
+        let pc = m[2].1;
+        assert_eq!(&pc[pc.len() - 17..pc.len() - 1], &s.cloud[..]);
+        assert_eq!(pc[pc.len() - 1], 1);
+        for t in TOPICS {
+            assert!(t.schema.starts_with(|c: char| c.is_ascii_lowercase()), "{}", t.type_name);
+            assert_eq!(t.key, &t.topic[1..]);
+        }
+    }
+}

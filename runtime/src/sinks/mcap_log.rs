@@ -1,0 +1,78 @@
+//! `abvs run --mcap FILE`: the ROS 2 messages of [`crate::ros2`] recorded as MCAP (profile `ros2`, schemas
+//! `ros2msg` named as in ROS 2, messages `cdr`), which Foxglove and `ros2 bag` read. Written on the sink's
+//! own thread ([`Ros2OutSink`]); log and publish times are the frame's stamp (CLOCK_MONOTONIC ns).
+use std::collections::BTreeMap;
+use std::fs::File;
+use std::io::BufWriter;
+use std::path::Path;
+
+use crate::error::{Result, RuntimeError};
+use crate::ros2::{Topic, TOPICS};
+use crate::sinks::ros2_out::{Ros2OutSink, Ros2Writer};
+
+/// Frames the recorder may fall behind by before the oldest is dropped (about 0.6 s at 25 fps).
+pub const DEFAULT_QUEUE: usize = 16;
+
+pub struct McapWriter {
+    writer: Option<mcap::Writer<BufWriter<File>>>,
+    channels: [u16; 5],
+    counts: [u64; 5],
+    path: String,
+}
+
+impl McapWriter {
+    /// Creates `path` (replacing a file there) with the five channels and their schemas.
+    pub fn create(path: &Path) -> Result<McapWriter> {
+        let name = path.display().to_string();
+        let err = |what: &str, e: mcap::McapError| RuntimeError::Invalid(format!("--mcap {name}: {what}: {e}"));
+        let file = File::create(path).map_err(|e| RuntimeError::Invalid(format!("--mcap {name}: {e}")))?;
+        let mut writer = mcap::WriteOptions::new()
+            .profile("ros2")
+            .library(concat!("abvs ", env!("CARGO_PKG_VERSION")))
+            // no compression: the recorder must keep up on the robot's cores; depth and clouds compress poorly
+            .compression(None)
+            .create(BufWriter::with_capacity(1 << 20, file))
+            .map_err(|e| err("starting the file", e))?;
+        let mut channels = [0u16; 5];
+        for (c, t) in channels.iter_mut().zip(&TOPICS) {
+            let schema =
+                writer.add_schema(t.type_name, "ros2msg", t.schema.as_bytes()).map_err(|e| err("schema", e))?;
+            *c = writer.add_channel(schema, t.topic, "cdr", &BTreeMap::new()).map_err(|e| err("channel", e))?;
+        }
+        Ok(McapWriter { writer: Some(writer), channels, counts: [0; 5], path: name })
+    }
+}
+
+impl Ros2Writer for McapWriter {
+    fn write(&mut self, topic: &'static Topic, seq: u64, stamp_ns: i64, cdr: &[u8]) -> std::result::Result<(), String> {
+        let i = TOPICS.iter().position(|t| t == topic).ok_or_else(|| format!("unknown topic {}", topic.topic))?;
+        let w = self.writer.as_mut().ok_or("the file is closed")?;
+        let t = stamp_ns.max(0) as u64;
+        let header = mcap::records::MessageHeader {
+            channel_id: self.channels[i],
+            sequence: seq as u32,
+            log_time: t,
+            publish_time: t,
+        };
+        w.write_to_known_channel(&header, cdr).map_err(|e| format!("{}: {e}", self.path))?;
+        self.counts[i] += 1;
+        Ok(())
+    }
+
+    fn finish(&mut self) -> std::result::Result<serde_json::Value, String> {
+        if let Some(mut w) = self.writer.take() {
+            w.finish().map_err(|e| format!("{}: closing: {e}", self.path))?;
+            // the BufWriter flushes as it drops; flush explicitly to see the error
+            use std::io::Write;
+            w.into_inner().flush().map_err(|e| format!("{}: {e}", self.path))?;
+        }
+        let per: serde_json::Map<_, _> =
+            TOPICS.iter().zip(self.counts).map(|(t, n)| (t.topic.to_string(), serde_json::json!(n))).collect();
+        Ok(serde_json::json!({ "file": self.path, "messages": per }))
+    }
+}
+
+/// The MCAP recorder as a pipeline sink (stats key `mcap`).
+pub fn sink(path: &Path, queue: usize, blocking: bool) -> Result<Ros2OutSink> {
+    Ros2OutSink::new("mcap", McapWriter::create(path)?, queue, blocking)
+}

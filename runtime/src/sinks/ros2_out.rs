@@ -1,0 +1,209 @@
+//! The sink behind every ROS 2 output (`bridges::zenoh`, `sinks::mcap_log`): the output thread only copies
+//! the frame into a pooled [`FrameSnapshot`] and queues it; the sink's own thread encodes the five messages
+//! ([`crate::ros2`]) and hands them to a [`Ros2Writer`] (the network, a file). The queue is bounded: when the
+//! writer falls behind, the oldest queued frame is dropped (counted) and the pipeline never waits on it,
+//! except in blocking mode (lossless runs: every frame is written).
+use std::thread::JoinHandle;
+use std::time::{Duration, Instant};
+
+use crossbeam_channel::{bounded, Receiver, Sender, TrySendError};
+use serde::Serialize;
+
+use crate::error::{Result, RuntimeError};
+use crate::pipeline::{Published, Sink};
+use crate::ros2::{Encoded, FrameSnapshot, Topic};
+use crate::sinks::stats::RunStats;
+
+/// Where encoded messages go.
+pub trait Ros2Writer: Send + 'static {
+    /// Writes one message of the frame `seq` stamped `stamp_ns` (CLOCK_MONOTONIC).
+    fn write(&mut self, topic: &'static Topic, seq: u64, stamp_ns: i64, cdr: &[u8]) -> std::result::Result<(), String>;
+    /// Ends the output (closes the file); what it reports goes into the stats.
+    fn finish(&mut self) -> std::result::Result<serde_json::Value, String> {
+        Ok(serde_json::Value::Null)
+    }
+}
+
+/// What a ROS 2 output counted (stats JSON under the sink's name).
+#[derive(Debug, Clone, Default, Serialize)]
+pub struct Ros2OutStats {
+    /// Frames the pipeline handed to the sink.
+    pub frames_in: u64,
+    /// Frames whose five messages were all written.
+    pub frames_written: u64,
+    /// Frames dropped from the full queue (the oldest) because the writer was behind.
+    pub frames_dropped: u64,
+    /// Frames whose encoding or writing failed (the first error is in `last_error`).
+    pub frames_failed: u64,
+    /// Messages written, per frame five.
+    pub messages: u64,
+    /// Encoding + writing time per frame on the sink's thread (ms): median and largest.
+    pub write_ms_p50: f64,
+    pub write_ms_max: f64,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub last_error: Option<String>,
+    /// What the writer reported at the end (e.g. the MCAP file's message counts).
+    #[serde(skip_serializing_if = "serde_json::Value::is_null")]
+    pub writer: serde_json::Value,
+}
+
+/// A ROS 2 output behind the pipeline's [`Sink`] trait.
+pub struct Ros2OutSink {
+    name: &'static str,
+    blocking: bool,
+    queue_tx: Option<Sender<Box<FrameSnapshot>>>,
+    queue_rx: Receiver<Box<FrameSnapshot>>,
+    free_tx: Sender<Box<FrameSnapshot>>,
+    free_rx: Receiver<Box<FrameSnapshot>>,
+    frames_in: u64,
+    dropped: u64,
+    worker: Option<JoinHandle<Ros2OutStats>>,
+}
+
+impl Ros2OutSink {
+    /// A sink named `name` (its stats key) writing through `writer` on its own thread, `queue` frames deep.
+    /// `blocking`: wait for the writer instead of dropping (lossless runs).
+    pub fn new<W: Ros2Writer>(name: &'static str, writer: W, queue: usize, blocking: bool) -> Result<Ros2OutSink> {
+        if queue == 0 || queue > 1024 {
+            return Err(RuntimeError::Invalid(format!("{name}: queue {queue} must be in 1..=1024")));
+        }
+        let (queue_tx, queue_rx) = bounded::<Box<FrameSnapshot>>(queue);
+        // queue + the one the worker holds + the one being filled: one is always free or queued
+        let (free_tx, free_rx) = bounded::<Box<FrameSnapshot>>(queue + 2);
+        for _ in 0..queue + 2 {
+            let _ = free_tx.send(Box::default());
+        }
+        let (rx, free) = (queue_rx.clone(), free_tx.clone());
+        let worker = std::thread::Builder::new()
+            .name(format!("abvs-{name}"))
+            .spawn(move || worker(writer, rx, free))
+            .map_err(|e| RuntimeError::Invalid(format!("{name}: starting its thread: {e}")))?;
+        Ok(Ros2OutSink {
+            name,
+            blocking,
+            queue_tx: Some(queue_tx),
+            queue_rx,
+            free_tx,
+            free_rx,
+            frames_in: 0,
+            dropped: 0,
+            worker: Some(worker),
+        })
+    }
+}
+
+fn worker<W: Ros2Writer>(
+    mut writer: W,
+    queue: Receiver<Box<FrameSnapshot>>,
+    free: Sender<Box<FrameSnapshot>>,
+) -> Ros2OutStats {
+    let mut st = Ros2OutStats::default();
+    let mut enc = Encoded::default();
+    let mut times: Vec<f64> = Vec::new();
+    // ends when the sink drops its sender (finish) and the queue is drained
+    for snap in queue.iter() {
+        let t0 = Instant::now();
+        let r = enc.encode(&snap).and_then(|()| {
+            for (topic, bytes) in enc.messages() {
+                writer.write(topic, snap.seq, snap.t_frame_ns, bytes)?;
+                st.messages += 1;
+            }
+            Ok(())
+        });
+        match r {
+            Ok(()) => st.frames_written += 1,
+            Err(e) => {
+                st.frames_failed += 1;
+                st.last_error.get_or_insert(format!("frame {}: {e}", snap.seq));
+            }
+        }
+        if times.len() < 1_000_000 {
+            times.push(t0.elapsed().as_secs_f64() * 1e3);
+        }
+        let _ = free.send(snap);
+    }
+    match writer.finish() {
+        Ok(v) => st.writer = v,
+        Err(e) => {
+            st.last_error.get_or_insert(e);
+        }
+    }
+    times.sort_by(f64::total_cmp);
+    st.write_ms_p50 = times.get(times.len() / 2).copied().unwrap_or(0.0);
+    st.write_ms_max = times.last().copied().unwrap_or(0.0);
+    st
+}
+
+impl Sink for Ros2OutSink {
+    fn name(&self) -> &'static str {
+        self.name
+    }
+
+    fn consume(&mut self, out: &Published) -> Result<()> {
+        let Some(tx) = &self.queue_tx else { return Ok(()) };
+        self.frames_in += 1;
+        let alive = |w: &Option<JoinHandle<Ros2OutStats>>| w.as_ref().is_some_and(|w| !w.is_finished());
+        let snap = if self.blocking {
+            loop {
+                match self.free_rx.recv_timeout(Duration::from_millis(100)) {
+                    Ok(s) => break Some(s),
+                    Err(_) if alive(&self.worker) => continue,
+                    Err(_) => break None,
+                }
+            }
+        } else {
+            // no free buffer: the writer is behind, so the oldest queued frame makes room
+            self.free_rx.try_recv().ok().or_else(|| {
+                let old = self.queue_rx.try_recv().ok();
+                self.dropped += old.is_some() as u64;
+                old
+            })
+        };
+        let Some(mut snap) = snap else {
+            // the worker holds every buffer (it died): count the frame as dropped
+            self.dropped += 1;
+            return Ok(());
+        };
+        snap.fill(out);
+        let mut snap = snap;
+        loop {
+            match tx.try_send(snap) {
+                Ok(()) => return Ok(()),
+                Err(TrySendError::Full(back)) if self.blocking && alive(&self.worker) => {
+                    snap = back;
+                    std::thread::sleep(Duration::from_micros(200));
+                }
+                Err(TrySendError::Full(back)) => {
+                    // the oldest queued frame makes room (the worker took none since the free one came)
+                    snap = back;
+                    match self.queue_rx.try_recv() {
+                        Ok(old) => {
+                            self.dropped += 1;
+                            let _ = self.free_tx.try_send(old);
+                        }
+                        Err(_) if !alive(&self.worker) => {
+                            self.dropped += 1;
+                            return Err(RuntimeError::Invalid(format!("{}: its thread has ended", self.name)));
+                        }
+                        Err(_) => {}
+                    }
+                }
+                Err(TrySendError::Disconnected(_)) => {
+                    return Err(RuntimeError::Invalid(format!("{}: its thread has ended", self.name)))
+                }
+            }
+        }
+    }
+
+    fn finish(&mut self, stats: &mut RunStats) {
+        // the worker writes what is queued, then ends
+        self.queue_tx = None;
+        let mut st = match self.worker.take().map(|w| w.join()) {
+            Some(Ok(st)) => st,
+            _ => Ros2OutStats { last_error: Some("its thread panicked".into()), ..Default::default() },
+        };
+        st.frames_in = self.frames_in;
+        st.frames_dropped = self.dropped;
+        stats.extra.insert(self.name.into(), serde_json::to_value(&st).unwrap_or_default());
+    }
+}
