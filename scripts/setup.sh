@@ -4,6 +4,8 @@
 #     opencv-doc ships the real test images (chessboard stereo set, Middlebury Aloe) the tests use
 #   - the ONNX Runtime shared library, taken from the onnxruntime wheel on PyPI and unpacked into
 #     .deps/onnxruntime/ inside this checkout, where the built `abvs` finds it without any variable
+#   - a Python environment in .deps/python (pinned packages from PyPI) for the Python subscriber
+#     (python/abvs_iceoryx2.py) and the tests that check the runtime's outputs from Python
 # Idempotent: a second run only checks.
 set -euo pipefail
 root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
@@ -11,7 +13,7 @@ ORT_VERSION=1.31.1
 SUDO=""
 if [ "$(id -u)" -ne 0 ]; then SUDO="sudo"; fi
 
-pkgs=(build-essential pkg-config clang libclang-dev libopencv-dev opencv-doc python3-pip unzip curl fonts-dejavu-core)
+pkgs=(build-essential pkg-config clang libclang-dev libopencv-dev opencv-doc python3-pip python3-venv unzip curl fonts-dejavu-core)
 missing=()
 for p in "${pkgs[@]}"; do
   dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
@@ -40,5 +42,19 @@ if [ ! -f "$ort_lib" ]; then
   rm -rf "$tmp"
 fi
 echo "[setup] ONNX Runtime: $ort_lib"
+
+# Python: iceoryx2 of the runtime's iceoryx2 version (0.10), Zenoh of its zenoh version (1.10), rosbags
+# (CDR of the ROS 2 Humble types), mcap + mcap-ros2-support (reading the recordings), numpy.
+py_dir="$root/.deps/python"
+py_pkgs=(numpy==2.4.6 iceoryx2==0.10.0 eclipse-zenoh==1.10.2 rosbags==0.11.9 mcap==1.6.0 mcap-ros2-support==0.6.0)
+py_stamp="$py_dir/.abvs-packages"
+if [ ! -x "$py_dir/bin/python3" ] || [ "$(cat "$py_stamp" 2>/dev/null)" != "${py_pkgs[*]}" ]; then
+  echo "[setup] Python environment $py_dir: ${py_pkgs[*]}"
+  python3 -m venv "$py_dir"
+  "$py_dir/bin/python3" -m pip install --quiet --disable-pip-version-check "${py_pkgs[@]}"
+  echo "${py_pkgs[*]}" > "$py_stamp"
+fi
+"$py_dir/bin/python3" -c "import numpy, iceoryx2, zenoh, rosbags, mcap, mcap_ros2"
+echo "[setup] Python: $py_dir/bin/python3"
 "$root/scripts/fetch-apriltag-photos.sh"
 echo "[setup] done"
