@@ -8,12 +8,16 @@
 pub mod bridges;
 pub mod config;
 pub mod error;
+pub mod messages;
 pub mod pipeline;
 pub mod record;
 pub mod ros2;
+pub mod runner;
 pub mod session;
 pub mod sinks;
 pub mod sources;
+pub mod stage;
+pub mod stats;
 pub mod tasks;
 
 pub use error::{Result, RuntimeError};

@@ -78,6 +78,9 @@ use iceoryx2::port::LoanError;
 use iceoryx2::prelude::*;
 use iceoryx2::sample::Sample;
 
+/// The runtime's one clock (CLOCK_MONOTONIC ns), re-exported where the bridge's users have always found it.
+pub use crate::messages::monotonic_ns;
+
 /// The iceoryx2 service flavour of both sides: inter-process, ports usable from any thread.
 pub type Ipc = ipc_threadsafe::Service;
 
@@ -305,14 +308,6 @@ pub enum BridgeError {
 
 fn iox<'a, E: Debug>(service: &'a str, what: &'static str) -> impl FnOnce(E) -> BridgeError + 'a {
     move |e| BridgeError::Iceoryx { service: service.to_string(), what, detail: format!("{e:?}") }
-}
-
-/// CLOCK_MONOTONIC in nanoseconds (the clock of `t_frame_ns` and `t_publish_ns`).
-pub fn monotonic_ns() -> i64 {
-    let mut ts = libc::timespec { tv_sec: 0, tv_nsec: 0 };
-    // SAFETY: clock_gettime writes into the timespec we own; CLOCK_MONOTONIC always exists on Linux.
-    unsafe { libc::clock_gettime(libc::CLOCK_MONOTONIC, &mut ts) };
-    ts.tv_sec as i64 * 1_000_000_000 + ts.tv_nsec as i64
 }
 
 fn node(cfg: &BridgeConfig, role: &str) -> Result<(Node<Ipc>, u64), BridgeError> {

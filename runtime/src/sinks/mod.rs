@@ -7,4 +7,18 @@ pub mod rerun_log;
 pub mod ros2_out;
 pub mod self_check;
 pub mod session_writer;
-pub mod stats;
+/// The run's statistics (moved to [`crate::stats`]; the path sinks have always used still works).
+pub use crate::stats;
+
+use crate::error::Result;
+pub use crate::messages::Published;
+use crate::stats::RunStats;
+
+/// Where finished frames go: statistics, dumps, the self-check, iceoryx2 publishing (a bridge is a sink
+/// whose output leaves the process). Runs on the output lane, after every stage.
+pub trait Sink: Send {
+    fn name(&self) -> &'static str;
+    fn consume(&mut self, out: &Published) -> Result<()>;
+    /// Adds what the sink measured to the run's statistics.
+    fn finish(&mut self, _stats: &mut RunStats) {}
+}

@@ -191,7 +191,7 @@ impl EncoderStream {
                         }
                         Err(e) => break Err(format!("encoder port {name}: {e}")),
                     };
-                    let rx_ns = crate::sinks::stats::monotonic_ns();
+                    let rx_ns = crate::messages::monotonic_ns();
                     tracker.feed(&buf[..n], rx_ns, &mut out);
                     for r in out.drain(..) {
                         if let Err(TrySendError::Full(_)) = tx.try_send(r) {

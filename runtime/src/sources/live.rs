@@ -4,13 +4,12 @@
 //! the wire.
 use std::time::{Duration, Instant};
 
-use crate::pipeline::{EncoderFeed, PairSource};
-use crate::sinks::stats::RunStats;
+use crate::messages::{EncoderSample, SourcePair};
 use crate::sources::encoder_stream::EncoderStream;
-use crate::sources::replay::ReplayFrame;
 use crate::sources::v4l_capture::{CaptureError, StereoCapture};
-use crate::sources::FramePair;
-use crate::tasks::align::{EncoderSample, EncoderTrack};
+use crate::sources::{EncoderFeed, FramePair, PairSource};
+use crate::stats::RunStats;
+use crate::tasks::align::EncoderTrack;
 
 /// How long the time-alignment stage waits for encoder samples that should exist by now.
 pub const ENCODER_WAIT: Duration = Duration::from_millis(30);
@@ -57,7 +56,7 @@ impl PairSource for LiveSource {
         Box::new(LiveEncoders { stream, newest_ns: [i64::MIN; 2] })
     }
 
-    fn next_frame(&mut self, limit: Option<u64>) -> Option<ReplayFrame<'_>> {
+    fn next_frame(&mut self, limit: Option<u64>) -> Option<SourcePair<'_>> {
         if let Some(p) = self.current.take() {
             self.capture.recycle(p);
         }
@@ -87,7 +86,7 @@ impl PairSource for LiveSource {
         }
         self.emitted += 1;
         let p = self.current.as_ref().expect("just stored");
-        Some(ReplayFrame {
+        Some(SourcePair {
             // the camera's own frame number (a stand-in camera replaying a session puts the
             // session seq there, which lets ground truth be looked up)
             session_seq: p.left.seq,

@@ -7,32 +7,27 @@ pub mod pixel;
 pub mod replay;
 pub mod v4l_capture;
 
-/// One grayscale camera frame as it leaves a source: 8-bit luma, row-major, tightly packed.
-#[derive(Clone, Debug, PartialEq)]
-pub struct Frame {
-    /// Source sequence number (V4L2 buffer sequence, or the recorded index).
-    pub seq: u64,
-    /// Start of exposure, CLOCK_MONOTONIC, nanoseconds.
-    pub t_start_ns: i64,
-    /// Exposure time, nanoseconds (mid-exposure = t_start_ns + exposure_ns / 2).
-    pub exposure_ns: i64,
-    pub width: u32,
-    pub height: u32,
-    pub gray: Vec<u8>,
+pub use crate::messages::{Frame, FramePair, SourcePair};
+use crate::stats::RunStats;
+use crate::tasks::align::EncoderTrack;
+
+/// Where the graph's stereo pairs come from: a recorded session ([`replay::ReplaySource`]) or the live
+/// cameras ([`live::LiveSource`]).
+pub trait PairSource: Send {
+    /// Raw frame size (both eyes).
+    fn size(&self) -> (u32, u32);
+    /// Anchors the source's clock to `now_ns` (CLOCK_MONOTONIC) and hands out its encoder stream,
+    /// which the time-alignment stage reads on another thread.
+    fn start(&mut self, now_ns: i64) -> Box<dyn EncoderFeed>;
+    /// The next pair, or `None` when the source is done (`limit` pairs, end of a replay, capture stopped).
+    fn next_frame(&mut self, limit: Option<u64>) -> Option<SourcePair<'_>>;
+    /// Adds what the source counted (unreadable files, capture drops) to the run's statistics.
+    fn finish(&mut self, _stats: &mut RunStats) {}
 }
 
-impl Frame {
-    /// Mid-exposure time (CLOCK_MONOTONIC ns): the instant the encoders are interpolated to.
-    pub fn t_mid_ns(&self) -> i64 {
-        self.t_start_ns + self.exposure_ns / 2
-    }
-}
-
-/// A left/right pair of frames taken together.
-#[derive(Clone, Debug, PartialEq)]
-pub struct FramePair {
-    /// Pair sequence number (increases by one per pair delivered).
-    pub seq: u64,
-    pub left: Frame,
-    pub right: Frame,
+/// The encoder samples of a [`PairSource`], on its clock.
+pub trait EncoderFeed: Send {
+    /// Pushes every sample stamped up to `t_ns` into the eyes' tracks (a live feed waits briefly
+    /// for samples still on the wire).
+    fn feed(&mut self, t_ns: i64, tracks: &mut [EncoderTrack; 2]);
 }

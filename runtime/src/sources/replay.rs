@@ -25,7 +25,10 @@ use std::time::Duration;
 use crossbeam_channel::{bounded, Receiver, RecvTimeoutError, Select, Sender};
 
 use crate::error::{Result, RuntimeError};
+use crate::messages::SourcePair;
 use crate::session::{EncoderRecord, FrameRecord, Session, SessionMeta};
+use crate::sources::{EncoderFeed, PairSource};
+use crate::stats::RunStats;
 use crate::tasks::align::{EncoderSample, EncoderTrack};
 
 /// Stereo pairs decoded ahead of the pipeline (each holds both images: 4 x 2 x 1.9 MB at 1600x1200).
@@ -81,20 +84,8 @@ impl FrameFault {
     }
 }
 
-/// What the replay hands the pipeline for one pair (written into pooled buffers).
-pub struct ReplayFrame<'a> {
-    /// The frame's `seq` in its session (before looping; for a live camera its frame number): the key of
-    /// its ground truth.
-    pub session_seq: u64,
-    /// Pipeline sequence number (keeps increasing when a replay loops).
-    pub seq: u64,
-    pub t_start_ns: i64,
-    /// The right frame's start of exposure (live pairs differ by up to the pairing tolerance).
-    pub right_t_start_ns: i64,
-    pub exposure_ns: i64,
-    pub left: &'a [u8],
-    pub right: &'a [u8],
-}
+/// What the replay hands the pipeline for one pair (the name it had before sources shared the message).
+pub type ReplayFrame<'a> = SourcePair<'a>;
 
 /// The running decode-ahead thread, seen from the replay.
 struct Decoder {
@@ -367,7 +358,7 @@ impl ReplaySource {
     /// The next pair (looping), or `None` once `limit` rows were reached (`None` limit: one pass), or when
     /// the replay ended early ([`ReplaySource::ended`] says why). Rows whose frame cannot be replayed count
     /// towards the limit and in [`ReplaySource::frames_failed`].
-    pub fn next_frame(&mut self, limit: Option<u64>) -> Option<ReplayFrame<'_>> {
+    pub fn next_frame(&mut self, limit: Option<u64>) -> Option<SourcePair<'_>> {
         let limit = limit.unwrap_or(self.rows.len() as u64);
         if self.decoder.is_none() {
             // not started: recorded time as is
@@ -417,7 +408,7 @@ impl ReplaySource {
                     let shift = self.loop_shift(self.loops);
                     let s = &self.rows[i];
                     let p = self.current.insert(pair);
-                    return Some(ReplayFrame {
+                    return Some(SourcePair {
                         session_seq: s.seq,
                         seq: s.seq + self.loops as u64 * self.seq_span,
                         t_start_ns: s.t_start_ns + shift,
@@ -429,5 +420,35 @@ impl ReplaySource {
                 }
             }
         }
+    }
+}
+// ---- as the graph's source
+
+impl PairSource for ReplaySource {
+    fn size(&self) -> (u32, u32) {
+        ReplaySource::size(self)
+    }
+    fn start(&mut self, now_ns: i64) -> Box<dyn EncoderFeed> {
+        Box::new(ReplaySource::start(self, now_ns))
+    }
+    fn next_frame(&mut self, limit: Option<u64>) -> Option<SourcePair<'_>> {
+        ReplaySource::next_frame(self, limit)
+    }
+    fn finish(&mut self, stats: &mut RunStats) {
+        stats.extra.insert("bad_frame_files".into(), serde_json::json!(self.bad_frames().len()));
+        if let Some(e) = &self.ended {
+            stats.extra.insert("source_ended".into(), serde_json::json!(e));
+        }
+        // frames the replay reached but could not read: in, and failed with their reason
+        for (reason, n) in self.frames_failed() {
+            stats.frames_in += n;
+            *stats.frames_failed.entry(reason.to_string()).or_default() += n;
+        }
+    }
+}
+
+impl EncoderFeed for EncoderReplay {
+    fn feed(&mut self, t_ns: i64, tracks: &mut [EncoderTrack; 2]) {
+        EncoderReplay::feed(self, t_ns, tracks)
     }
 }

@@ -9,15 +9,14 @@
 //! (1561 deg/s, ~2e5 deg/s^2) linear interpolation between 1 kHz samples errs by up to
 //! `a h^2 / 8` ~ 0.02 deg, the whole error budget; the cubic's error is two orders smaller.
 use crate::error::{Result, RuntimeError};
+use crate::messages::Work;
+use crate::sources::EncoderFeed;
+use crate::stage::{Stage, StageContext};
+use crate::stats::RunStats;
 use abvs_eye::UnitModel;
 use std::collections::VecDeque;
 
-/// One encoder reading of the three links (deg, homed) at a CLOCK_MONOTONIC time (s).
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct EncoderSample {
-    pub t_s: f64,
-    pub theta_deg: [f64; 3],
-}
+pub use crate::messages::EncoderSample;
 
 /// Counts of what the track refused, for the runtime's statistics.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
@@ -125,5 +124,61 @@ impl EncoderTrack {
     /// The time span currently buffered (s).
     pub fn span(&self) -> Option<(f64, f64)> {
         Some((self.samples.front()?.t_s, self.samples.back()?.t_s))
+    }
+}
+
+/// The time-alignment stage: both eyes' link angles at their frames' mid-exposure ([`Work::theta`]), from
+/// the source's encoder feed.
+pub struct AlignStage {
+    tracks: [EncoderTrack; 2],
+    encoders: Option<Box<dyn EncoderFeed>>,
+}
+
+impl AlignStage {
+    /// `latency_s`: each eye's encoder latency (its unit model's encoder_time_offset; 0 without one).
+    pub fn new(latency_s: [f64; 2]) -> Self {
+        let mut tracks = [EncoderTrack::new(2000), EncoderTrack::new(2000)];
+        tracks[0].latency_s = latency_s[0];
+        tracks[1].latency_s = latency_s[1];
+        AlignStage { tracks, encoders: None }
+    }
+
+    pub fn tracks(&self) -> &[EncoderTrack; 2] {
+        &self.tracks
+    }
+}
+
+impl Stage for AlignStage {
+    fn name(&self) -> &'static str {
+        "align"
+    }
+
+    fn start(&mut self, ctx: &mut StageContext) -> Result<()> {
+        self.encoders = ctx.encoders.take();
+        if self.encoders.is_none() {
+            return Err(RuntimeError::Invalid("align: the source's encoder feed was taken by another stage".into()));
+        }
+        Ok(())
+    }
+
+    fn process(&mut self, w: &mut Work) -> Result<()> {
+        let tracks = &mut self.tracks;
+        if let Some(encoders) = self.encoders.as_mut() {
+            // encoders up to a little past the frame (interpolation needs the samples after it)
+            let latest = w.t_frame_ns.max(w.t_right_ns) + 20_000_000;
+            encoders.feed(latest + (tracks[0].latency_s.max(tracks[1].latency_s) * 1e9) as i64, tracks);
+        }
+        w.theta[0] = tracks[0].at_camera_time(w.t_frame_ns as f64 * 1e-9)?;
+        w.theta[1] = tracks[1].at_camera_time(w.t_right_ns as f64 * 1e-9)?;
+        Ok(())
+    }
+
+    fn failure(&self, e: &RuntimeError) -> &'static str {
+        crate::stage::timing_failure(e).unwrap_or("kinematics or rectification failed")
+    }
+
+    fn finish(&mut self, stats: &mut RunStats) {
+        let refused = self.tracks[0].stats.non_monotonic + self.tracks[1].stats.non_monotonic;
+        stats.extra.insert("encoder_samples_refused".into(), serde_json::json!(refused));
     }
 }

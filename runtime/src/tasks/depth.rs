@@ -7,7 +7,10 @@
 use abvs_eye::Pose;
 use glam::{Mat3, Vec3};
 
-use crate::tasks::rectify::{Rectification, RectifiedCamera};
+use crate::error::{Result, RuntimeError};
+pub use crate::messages::DepthFrame;
+use crate::messages::{Rectification, RectifiedCamera, Work};
+use crate::stage::{Stage, StageContext};
 
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct DepthConfig {
@@ -21,35 +24,7 @@ impl Default for DepthConfig {
     }
 }
 
-/// The depth map and the valid points of one frame.
-pub struct DepthFrame {
-    pub width: u32,
-    pub height: u32,
-    /// Z (m) per rectified left pixel, NaN = invalid.
-    pub depth: Vec<f32>,
-    /// Valid points in the left home camera frame (first `n_points` entries are meaningful).
-    pub points: Vec<Vec3>,
-    /// Gray level of each point (rectified left image).
-    pub intensity: Vec<u8>,
-    /// Pixel index of each point (row-major), to look truth up.
-    pub pixel: Vec<u32>,
-    pub n_points: usize,
-}
-
 impl DepthFrame {
-    pub fn new(width: u32, height: u32) -> Self {
-        let n = (width * height) as usize;
-        DepthFrame {
-            width,
-            height,
-            depth: vec![f32::NAN; n],
-            points: vec![Vec3::ZERO; n],
-            intensity: vec![0; n],
-            pixel: vec![0; n],
-            n_points: 0,
-        }
-    }
-
     /// Fills depth and points from a disparity map; `valid` says which rectified pixels see the raw image.
     #[allow(clippy::too_many_arguments)]
     pub fn compute(
@@ -99,9 +74,51 @@ impl DepthFrame {
         }
         self.n_points = n;
     }
+}
 
-    pub fn valid_fraction(&self) -> f64 {
-        self.n_points as f64 / self.depth.len() as f64
+/// The depth stage: depth map and cloud ([`Work::depth`]) from the disparity, on the output lane (which
+/// lends the frame its depth buffer).
+pub struct DepthStage {
+    pub cfg: DepthConfig,
+    cam: Option<RectifiedCamera>,
+}
+
+impl DepthStage {
+    pub fn new(cfg: DepthConfig) -> Self {
+        DepthStage { cfg, cam: None }
+    }
+}
+
+impl Stage for DepthStage {
+    fn name(&self) -> &'static str {
+        "depth"
+    }
+
+    fn start(&mut self, ctx: &mut StageContext) -> Result<()> {
+        self.cam = Some(ctx.out);
+        Ok(())
+    }
+
+    fn process(&mut self, w: &mut Work) -> Result<()> {
+        let cam = self.cam.as_ref().ok_or_else(|| RuntimeError::Invalid("depth: not started".into()))?;
+        let Work { disparity, rectified, pose, depth, .. } = w;
+        let (Some(pose), Some(rect)) = (pose.as_ref(), rectified.rect.as_ref()) else {
+            return Err(RuntimeError::Invalid("depth: a frame without pose or rectification".into()));
+        };
+        if depth.depth.len() != disparity.len() {
+            return Err(RuntimeError::Invalid("depth: no depth buffer (the stage runs on the output lane)".into()));
+        }
+        let valid = &rectified.valid;
+        depth.compute(disparity, |i| valid[i] != 0, &rectified.left, cam, rect, &pose.rel_left, &self.cfg);
+        Ok(())
+    }
+
+    fn failure(&self, _e: &RuntimeError) -> &'static str {
+        "depth failed"
+    }
+
+    fn needs_output_lane(&self) -> bool {
+        true
     }
 }
 

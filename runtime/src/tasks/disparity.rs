@@ -14,6 +14,8 @@ use opencv::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::error::{Result, RuntimeError};
+use crate::messages::Work;
+use crate::stage::{Stage, StageContext};
 
 pub const DISPARITY_FORMAT: &str = "abvs-disparity-model/1";
 
@@ -349,5 +351,47 @@ pub fn engine(
             Ok(Box::new(e))
         }
         other => Err(RuntimeError::Invalid(format!("unknown disparity engine `{other}` (onnx | sgbm)"))),
+    }
+}
+
+/// The disparity stage: left-view disparity ([`Work::disparity`]) of the rectified pair, by any engine.
+pub struct DisparityStage {
+    pub engine: Box<dyn DisparityEngine>,
+}
+
+impl DisparityStage {
+    pub fn new(engine: Box<dyn DisparityEngine>) -> Self {
+        DisparityStage { engine }
+    }
+}
+
+impl Stage for DisparityStage {
+    fn name(&self) -> &'static str {
+        "disparity"
+    }
+
+    fn start(&mut self, ctx: &mut StageContext) -> Result<()> {
+        let out = (ctx.out.width, ctx.out.height);
+        let e = &self.engine;
+        if e.size() != out {
+            return Err(RuntimeError::Invalid(format!(
+                "disparity engine {} runs at {}x{}, the pipeline at {}x{}",
+                e.name(),
+                e.size().0,
+                e.size().1,
+                out.0,
+                out.1
+            )));
+        }
+        Ok(())
+    }
+
+    fn process(&mut self, w: &mut Work) -> Result<()> {
+        let Work { rectified, disparity, .. } = w;
+        self.engine.compute(&rectified.left, &rectified.right, disparity)
+    }
+
+    fn failure(&self, _e: &RuntimeError) -> &'static str {
+        "disparity engine failed"
     }
 }

@@ -12,6 +12,9 @@ use abvs_fk::model::{FkModel, FkState};
 use nalgebra::{Matrix3, Vector3};
 
 use crate::error::{Result, RuntimeError};
+pub use crate::messages::StereoPose;
+use crate::messages::Work;
+use crate::stage::Stage;
 
 /// One eye's FK evaluator with its stream state (motion history for backlash, warm start).
 pub enum EyeFk {
@@ -69,17 +72,6 @@ impl EyeFk {
     }
 }
 
-/// Both eyes' poses at one instant and the extrinsic between the current cameras (metres).
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct StereoPose {
-    /// T_rel,l: current left camera -> left home camera.
-    pub rel_left: Pose,
-    /// T_rel,r: current right camera -> right home camera.
-    pub rel_right: Pose,
-    /// T_l^r: current left camera -> current right camera.
-    pub left_to_right: Pose,
-}
-
 /// The moving extrinsic T_l^r = T_rel,r^-1 . T_lH^rH . T_rel,l.
 pub fn moving_extrinsic(rel_left: &Pose, rel_right: &Pose, home_left_to_right: &Pose) -> Pose {
     rel_right.inverse().compose(home_left_to_right).compose(rel_left)
@@ -113,6 +105,40 @@ impl StereoKinematics {
             rel_right,
             left_to_right: moving_extrinsic(&rel_left, &rel_right, &self.home_left_to_right),
         })
+    }
+}
+
+/// The kinematics stage: both eyes' poses and the moving extrinsic ([`Work::pose`]) from the aligned link
+/// angles.
+pub struct KinematicsStage {
+    pub kin: StereoKinematics,
+}
+
+impl KinematicsStage {
+    pub fn new(kin: StereoKinematics) -> Self {
+        KinematicsStage { kin }
+    }
+
+    /// Each eye's encoder latency (s) from its unit model (0 for an FK without one): what time alignment
+    /// applies.
+    pub fn encoder_latency_s(&self) -> [f64; 2] {
+        let latency = |unit: Option<&UnitModel>| unit.map(|u| u.encoder_time_for_camera(0.0).abs()).unwrap_or(0.0);
+        [latency(self.kin.left.unit()), latency(self.kin.right.unit())]
+    }
+}
+
+impl Stage for KinematicsStage {
+    fn name(&self) -> &'static str {
+        "kinematics"
+    }
+
+    fn process(&mut self, w: &mut Work) -> Result<()> {
+        w.pose = Some(self.kin.solve(&w.theta[0], &w.theta[1])?);
+        Ok(())
+    }
+
+    fn failure(&self, e: &RuntimeError) -> &'static str {
+        crate::stage::timing_failure(e).unwrap_or("kinematics or rectification failed")
     }
 }
 

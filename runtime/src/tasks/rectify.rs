@@ -15,35 +15,10 @@ use opencv::imgproc;
 use opencv::prelude::*;
 
 use crate::error::{Result, RuntimeError};
+use crate::messages::Work;
+use crate::stage::{Stage, StageContext};
 
-/// The rectified output: a pinhole camera shared by both eyes.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct RectifiedCamera {
-    pub width: u32,
-    pub height: u32,
-    pub f: f64,
-    pub cx: f64,
-    pub cy: f64,
-}
-
-impl RectifiedCamera {
-    /// A rectified camera at `width` x `height` whose horizontal field of view is `hfov_deg`.
-    pub fn with_hfov(width: u32, height: u32, hfov_deg: f64) -> Self {
-        let f = (width as f64 / 2.0) / (hfov_deg.to_radians() / 2.0).tan();
-        RectifiedCamera { width, height, f, cx: (width as f64 - 1.0) / 2.0, cy: (height as f64 - 1.0) / 2.0 }
-    }
-}
-
-/// Rectifying rotations for one extrinsic.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Rectification {
-    /// Current left camera -> rectified frame.
-    pub rect_from_left: Matrix3<f64>,
-    /// Current right camera -> rectified frame (same orientation, origin at the right camera).
-    pub rect_from_right: Matrix3<f64>,
-    /// Distance between the optical centres (m).
-    pub baseline_m: f64,
-}
+pub use crate::messages::{Rectification, RectifiedCamera};
 
 /// Rectifying rotations for the extrinsic `left_to_right` (x_r = R x_l + t): the rectified x axis runs along
 /// the baseline from the left to the right centre (so disparity x_l - x_r is positive), z is the mean of the
@@ -264,6 +239,71 @@ impl StereoRectifier {
         self.left.build(&self.cam_left, &rect.rect_from_left);
         self.right.build(&self.cam_right, &rect.rect_from_right);
         Ok(rect)
+    }
+}
+
+/// Scales calibration intrinsics to the frames' size (sensor binning modes keep the lens).
+pub fn camera_for_frames(cam: &Camera, w: u32, h: u32) -> Result<Camera> {
+    if cam.width == w && cam.height == h {
+        return Ok(*cam);
+    }
+    let ra = cam.width as f64 / cam.height as f64;
+    let rb = w as f64 / h as f64;
+    if (ra - rb).abs() > 1e-3 {
+        return Err(RuntimeError::Invalid(format!(
+            "calibration is for {}x{} images, the frames are {w}x{h} (different aspect ratio)",
+            cam.width, cam.height
+        )));
+    }
+    Ok(cam.scaled(w, h))
+}
+
+/// The rectification stage: per-frame maps for the moving extrinsic and the remapped pair
+/// ([`Work::rectified`]).
+pub struct RectifyStage {
+    /// Both eyes' lenses as calibrated (scaled to the frames' size at the start).
+    pub cams: (Camera, Camera),
+    /// Node spacing of the map grid (px).
+    pub grid_step: u32,
+    rectifier: Option<StereoRectifier>,
+}
+
+impl RectifyStage {
+    pub fn new(cams: (Camera, Camera), grid_step: u32) -> Self {
+        RectifyStage { cams, grid_step, rectifier: None }
+    }
+}
+
+impl Stage for RectifyStage {
+    fn name(&self) -> &'static str {
+        "rectify"
+    }
+
+    fn start(&mut self, ctx: &mut StageContext) -> Result<()> {
+        let (rw, rh) = ctx.raw;
+        let cam_l = camera_for_frames(&self.cams.0, rw, rh)?;
+        let cam_r = camera_for_frames(&self.cams.1, rw, rh)?;
+        self.rectifier = Some(StereoRectifier::new(cam_l, cam_r, ctx.out, self.grid_step)?);
+        Ok(())
+    }
+
+    fn process(&mut self, w: &mut Work) -> Result<()> {
+        let rectifier = self.rectifier.as_mut().ok_or_else(|| RuntimeError::Invalid("rectify: not started".into()))?;
+        let pose = w.pose.as_ref().ok_or_else(|| RuntimeError::Invalid("rectify: a frame without pose".into()))?;
+        let rect = rectifier.update(&pose.left_to_right)?;
+        let (rw, rh) = (rectifier.cam_left.width, rectifier.cam_left.height);
+        let out = &mut w.rectified;
+        rectifier.left.remap(&w.raw_left, rw, rh, &mut out.left)?;
+        rectifier.right.remap(&w.raw_right, rw, rh, &mut out.right)?;
+        for (v, x) in out.valid.iter_mut().zip(rectifier.left.map_x()) {
+            *v = (*x >= 0.0) as u8;
+        }
+        out.rect = Some(rect);
+        Ok(())
+    }
+
+    fn failure(&self, e: &RuntimeError) -> &'static str {
+        crate::stage::timing_failure(e).unwrap_or("kinematics or rectification failed")
     }
 }
 

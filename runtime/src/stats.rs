@@ -1,4 +1,4 @@
-//! Latency statistics of the pipeline: a histogram per stage and end to end (HdrHistogram, allocated at
+//! The run's statistics (every role adds to them, so they belong to none): latency statistics of the pipeline: a histogram per stage and end to end (HdrHistogram, allocated at
 //! start-up so recording never allocates), counters of frames in / published / dropped, printed at exit and
 //! written as JSON.
 use std::collections::BTreeMap;
@@ -8,7 +8,7 @@ use hdrhistogram::Histogram;
 use serde_json::{json, Value};
 
 /// CLOCK_MONOTONIC in nanoseconds (the one clock of frames, encoders and published headers).
-pub use crate::bridges::iceoryx::monotonic_ns;
+pub use crate::messages::monotonic_ns;
 
 /// Latency histogram in microseconds (1 us .. 60 s, 3 significant digits).
 pub struct Latency(Histogram<u64>);

@@ -1,0 +1,272 @@
+//! The messages between the runtime's roles, and the one clock: every source, stage, sink and bridge imports
+//! its data types from here (none from another role's module), so dependencies run one way.
+//!
+//! ```text
+//! source ─ SourcePair + EncoderSample ─> align ─ theta ─> kinematics ─ StereoPose ─> rectify ─ RectifiedPair ─>
+//!   disparity ─ disparity map ─> depth ─ DepthFrame ─> Published (sinks, bridges)
+//! ```
+//! A frame travels through the stages in one pooled [`Work`] holding every message of that frame.
+use glam::Vec3;
+use nalgebra::Matrix3;
+
+use abvs_eye::Pose;
+
+// ---------------------------------------------------------------- clock
+
+/// CLOCK_MONOTONIC in nanoseconds (the clock of `t_frame_ns` and `t_publish_ns`).
+pub fn monotonic_ns() -> i64 {
+    let mut ts = libc::timespec { tv_sec: 0, tv_nsec: 0 };
+    // SAFETY: clock_gettime writes into the timespec we own; CLOCK_MONOTONIC always exists on Linux.
+    unsafe { libc::clock_gettime(libc::CLOCK_MONOTONIC, &mut ts) };
+    ts.tv_sec as i64 * 1_000_000_000 + ts.tv_nsec as i64
+}
+
+// ---------------------------------------------------------------- sources
+
+/// One grayscale camera frame as it leaves a source: 8-bit luma, row-major, tightly packed.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Frame {
+    /// Source sequence number (V4L2 buffer sequence, or the recorded index).
+    pub seq: u64,
+    /// Start of exposure, CLOCK_MONOTONIC, nanoseconds.
+    pub t_start_ns: i64,
+    /// Exposure time, nanoseconds (mid-exposure = t_start_ns + exposure_ns / 2).
+    pub exposure_ns: i64,
+    pub width: u32,
+    pub height: u32,
+    pub gray: Vec<u8>,
+}
+
+impl Frame {
+    /// Mid-exposure time (CLOCK_MONOTONIC ns): the instant the encoders are interpolated to.
+    pub fn t_mid_ns(&self) -> i64 {
+        self.t_start_ns + self.exposure_ns / 2
+    }
+}
+
+/// A left/right pair of frames taken together.
+#[derive(Clone, Debug, PartialEq)]
+pub struct FramePair {
+    /// Pair sequence number (increases by one per pair delivered).
+    pub seq: u64,
+    pub left: Frame,
+    pub right: Frame,
+}
+
+/// One pair as a source hands it to the graph (borrowed from the source until its next pair; the runner
+/// copies it into a pooled [`Work`]).
+pub struct SourcePair<'a> {
+    /// The frame's `seq` in its session (before looping; for a live camera its frame number): the key of
+    /// its ground truth.
+    pub session_seq: u64,
+    /// Pipeline sequence number (keeps increasing when a replay loops).
+    pub seq: u64,
+    pub t_start_ns: i64,
+    /// The right frame's start of exposure (live pairs differ by up to the pairing tolerance).
+    pub right_t_start_ns: i64,
+    pub exposure_ns: i64,
+    pub left: &'a [u8],
+    pub right: &'a [u8],
+}
+
+// ---------------------------------------------------------------- encoders, poses
+
+/// One encoder reading of the three links (deg, homed) at a CLOCK_MONOTONIC time (s).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct EncoderSample {
+    pub t_s: f64,
+    pub theta_deg: [f64; 3],
+}
+
+/// Both eyes' poses at one instant and the extrinsic between the current cameras (metres).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct StereoPose {
+    /// T_rel,l: current left camera -> left home camera.
+    pub rel_left: Pose,
+    /// T_rel,r: current right camera -> right home camera.
+    pub rel_right: Pose,
+    /// T_l^r: current left camera -> current right camera.
+    pub left_to_right: Pose,
+}
+
+// ---------------------------------------------------------------- rectified pair
+
+/// The rectified output: a pinhole camera shared by both eyes.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct RectifiedCamera {
+    pub width: u32,
+    pub height: u32,
+    pub f: f64,
+    pub cx: f64,
+    pub cy: f64,
+}
+
+impl RectifiedCamera {
+    /// A rectified camera at `width` x `height` whose horizontal field of view is `hfov_deg`.
+    pub fn with_hfov(width: u32, height: u32, hfov_deg: f64) -> Self {
+        let f = (width as f64 / 2.0) / (hfov_deg.to_radians() / 2.0).tan();
+        RectifiedCamera { width, height, f, cx: (width as f64 - 1.0) / 2.0, cy: (height as f64 - 1.0) / 2.0 }
+    }
+}
+
+/// Rectifying rotations for one extrinsic.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Rectification {
+    /// Current left camera -> rectified frame.
+    pub rect_from_left: Matrix3<f64>,
+    /// Current right camera -> rectified frame (same orientation, origin at the right camera).
+    pub rect_from_right: Matrix3<f64>,
+    /// Distance between the optical centres (m).
+    pub baseline_m: f64,
+}
+
+/// A rectified pair at the output resolution and the rotations that made it.
+pub struct RectifiedPair {
+    pub left: Vec<u8>,
+    pub right: Vec<u8>,
+    /// 1 where the rectified left pixel sees the raw image.
+    pub valid: Vec<u8>,
+    pub rect: Option<Rectification>,
+}
+
+impl RectifiedPair {
+    pub fn new(width: u32, height: u32) -> Self {
+        let n = (width * height) as usize;
+        RectifiedPair { left: vec![0; n], right: vec![0; n], valid: vec![0; n], rect: None }
+    }
+}
+
+// ---------------------------------------------------------------- depth
+
+/// The depth map and the valid points of one frame.
+pub struct DepthFrame {
+    pub width: u32,
+    pub height: u32,
+    /// Z (m) per rectified left pixel, NaN = invalid.
+    pub depth: Vec<f32>,
+    /// Valid points in the left home camera frame (first `n_points` entries are meaningful).
+    pub points: Vec<Vec3>,
+    /// Gray level of each point (rectified left image).
+    pub intensity: Vec<u8>,
+    /// Pixel index of each point (row-major), to look truth up.
+    pub pixel: Vec<u32>,
+    pub n_points: usize,
+}
+
+impl DepthFrame {
+    pub fn new(width: u32, height: u32) -> Self {
+        let n = (width * height) as usize;
+        DepthFrame {
+            width,
+            height,
+            depth: vec![f32::NAN; n],
+            points: vec![Vec3::ZERO; n],
+            intensity: vec![0; n],
+            pixel: vec![0; n],
+            n_points: 0,
+        }
+    }
+
+    /// A frame without buffers (no allocation): the pooled frames hold one until the output lane lends its
+    /// own (see [`Work::depth`]).
+    pub fn empty() -> Self {
+        DepthFrame::new(0, 0)
+    }
+
+    pub fn valid_fraction(&self) -> f64 {
+        self.n_points as f64 / self.depth.len() as f64
+    }
+}
+
+// ---------------------------------------------------------------- the pooled frame, the published frame
+
+/// One frame's messages as it moves through the stage graph. Allocated at start-up and recycled: a stage
+/// writes its message into buffers that already exist, so steady state does not allocate.
+pub struct Work {
+    pub seq: u64,
+    /// The frame's `seq` in its session (before looping): the key of its ground truth.
+    pub session_seq: u64,
+    /// Left mid-exposure time (CLOCK_MONOTONIC ns): the frame's timestamp.
+    pub t_frame_ns: i64,
+    /// Right mid-exposure time (ns).
+    pub t_right_ns: i64,
+    /// The raw pair (gray, the source's size).
+    pub raw_left: Vec<u8>,
+    pub raw_right: Vec<u8>,
+    /// Link angles of both eyes at their frames' mid-exposure (deg, homed): the align stage's output.
+    pub theta: [[f64; 3]; 2],
+    pub pose: Option<StereoPose>,
+    pub rectified: RectifiedPair,
+    /// Left-view disparity (px), NaN where there is none.
+    pub disparity: Vec<f32>,
+    /// Depth and cloud. Filled and published on the output lane, which lends its one buffer to the frame
+    /// it is working on: a buffer per pooled frame would double the pool's memory (1.6 MB a frame at
+    /// 320x240) for a message that never crosses a queue. Empty everywhere else.
+    pub depth: DepthFrame,
+}
+
+impl Work {
+    /// Buffers for raw frames of `raw` and outputs of `out` (width, height).
+    pub fn new(raw: (u32, u32), out: (u32, u32)) -> Box<Work> {
+        let nr = (raw.0 * raw.1) as usize;
+        let no = (out.0 * out.1) as usize;
+        Box::new(Work {
+            seq: 0,
+            session_seq: 0,
+            t_frame_ns: 0,
+            t_right_ns: 0,
+            raw_left: vec![0; nr],
+            raw_right: vec![0; nr],
+            theta: [[0.0; 3]; 2],
+            pose: None,
+            rectified: RectifiedPair::new(out.0, out.1),
+            disparity: vec![f32::NAN; no],
+            depth: DepthFrame::empty(),
+        })
+    }
+
+    /// Takes a source's pair into this frame's buffers (the frame's results of a previous use are cleared).
+    pub fn fill(&mut self, f: &SourcePair) {
+        self.seq = f.seq;
+        self.session_seq = f.session_seq;
+        self.t_frame_ns = f.t_start_ns + f.exposure_ns / 2;
+        self.t_right_ns = f.right_t_start_ns + f.exposure_ns / 2;
+        self.raw_left.copy_from_slice(f.left);
+        self.raw_right.copy_from_slice(f.right);
+        self.pose = None;
+        self.rectified.rect = None;
+    }
+
+    /// What the sinks see of this frame, once every stage ran (`None` before).
+    pub fn published<'a>(&'a self, cam: &'a RectifiedCamera) -> Option<Published<'a>> {
+        Some(Published {
+            seq: self.seq,
+            session_seq: self.session_seq,
+            t_frame_ns: self.t_frame_ns,
+            theta: &self.theta,
+            pose: self.pose.as_ref()?,
+            rect: self.rectified.rect.as_ref()?,
+            cam,
+            depth: &self.depth,
+            left_rect: &self.rectified.left,
+            right_rect: &self.rectified.right,
+            disparity: &self.disparity,
+        })
+    }
+}
+
+/// What an output sink sees of one finished frame.
+pub struct Published<'a> {
+    pub seq: u64,
+    /// The frame's `seq` in its session (before looping): the key of its ground truth.
+    pub session_seq: u64,
+    pub t_frame_ns: i64,
+    pub theta: &'a [[f64; 3]; 2],
+    pub pose: &'a StereoPose,
+    pub rect: &'a Rectification,
+    pub cam: &'a RectifiedCamera,
+    pub depth: &'a DepthFrame,
+    pub left_rect: &'a [u8],
+    pub right_rect: &'a [u8],
+    pub disparity: &'a [f32],
+}

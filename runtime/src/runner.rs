@@ -1,0 +1,453 @@
+//! The generic runner: a source, lanes of [`Stage`]s and sinks, built from a description and run on
+//! threads joined by bounded crossbeam channels, data flowing one way.
+//!
+//! ```text
+//! source ──q──> lane 1 (stages) ──q──> ... ──q──> output lane (stages, then the sinks)
+//!    ^                                                        │
+//!    └──────────── free list of pooled work buffers ──────────┘
+//! ```
+//! Every frame travels in one pooled [`Work`] item allocated at start-up and returned to the free list at
+//! the end, so steady state does not allocate. Under overload a full queue drops its **oldest** item
+//! (counted) to make room: latency stays bounded by the queue depths instead of growing. In lossless mode
+//! (offline processing, reproducible replays) queues block instead. Each lane is one thread and one latency
+//! histogram; the sinks run on the output lane. Nothing here knows which stages or sinks a graph has.
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::Arc;
+use std::time::Duration;
+
+use crossbeam_channel::{bounded, Receiver, RecvTimeoutError, Select, Sender, TrySendError};
+
+use crate::error::{Result, RuntimeError};
+use crate::messages::{monotonic_ns, DepthFrame, RectifiedCamera, Work};
+use crate::sinks::Sink;
+use crate::sources::PairSource;
+use crate::stage::{Stage, StageContext};
+use crate::stats::{rss_bytes, Latency, RunStats, Window};
+
+/// One thread of the graph: stages run in order on each frame.
+pub struct Lane {
+    /// The lane's name in the statistics (its latency histogram).
+    pub name: &'static str,
+    pub stages: Vec<Box<dyn Stage>>,
+}
+
+/// A source, lanes of stages (the last is the output lane, where the sinks run) and sinks.
+pub struct Graph<S> {
+    pub source: S,
+    /// The rectified output the stages after rectification work at (sizes the pooled buffers).
+    pub out: RectifiedCamera,
+    pub lanes: Vec<Lane>,
+    pub sinks: Vec<Box<dyn Sink>>,
+}
+
+impl<S: PairSource> Graph<S> {
+    /// Builds the graph a description names: lanes separated by `;`, each `name = stage, stage, ...`, the
+    /// last the output lane, e.g. `"rectify = align, kinematics, rectify; disparity = disparity; output =
+    /// depth"`. Every stage given is named exactly once and every name is given.
+    pub fn from_description(
+        source: S,
+        out: RectifiedCamera,
+        description: &'static str,
+        stages: Vec<Box<dyn Stage>>,
+        sinks: Vec<Box<dyn Sink>>,
+    ) -> Result<Self> {
+        let bad = |msg: String| RuntimeError::Invalid(format!("stage graph `{description}`: {msg}"));
+        let mut pool: Vec<Option<Box<dyn Stage>>> = stages.into_iter().map(Some).collect();
+        let mut lanes = Vec::new();
+        for lane in description.split(';').map(str::trim).filter(|l| !l.is_empty()) {
+            let (name, list) = lane.split_once('=').ok_or_else(|| bad(format!("lane `{lane}` has no `=`")))?;
+            let mut stages = Vec::new();
+            for stage in list.split(',').map(str::trim).filter(|s| !s.is_empty()) {
+                let i = pool
+                    .iter()
+                    .position(|s| s.as_ref().is_some_and(|s| s.name() == stage))
+                    .ok_or_else(|| bad(format!("no stage `{stage}` given (or it is named twice)")))?;
+                stages.push(pool[i].take().expect("found above"));
+            }
+            lanes.push(Lane { name: name.trim(), stages });
+        }
+        if let Some(s) = pool.iter().flatten().next() {
+            return Err(bad(format!("stage `{}` is given but not placed", s.name())));
+        }
+        let g = Graph { source, out, lanes, sinks };
+        g.check()?;
+        Ok(g)
+    }
+
+    /// Adds a sink (it runs on the output lane, after the sinks already there).
+    pub fn add_sink(&mut self, sink: Box<dyn Sink>) {
+        self.sinks.push(sink);
+    }
+
+    /// Adds a side stage at the end of the lane `lane`.
+    pub fn add_stage(&mut self, lane: &str, stage: Box<dyn Stage>) -> Result<()> {
+        let l = self
+            .lanes
+            .iter_mut()
+            .find(|l| l.name == lane)
+            .ok_or_else(|| RuntimeError::Invalid(format!("stage graph: no lane `{lane}` for {}", stage.name())))?;
+        l.stages.push(stage);
+        self.check()
+    }
+
+    /// The lanes' names in the statistics, the source's first.
+    pub fn stage_names(&self) -> Vec<&'static str> {
+        std::iter::once("source").chain(self.lanes.iter().map(|l| l.name)).collect()
+    }
+
+    fn check(&self) -> Result<()> {
+        let bad = |msg: String| Err(RuntimeError::Invalid(format!("stage graph: {msg}")));
+        if self.lanes.is_empty() {
+            return bad("no lanes".into());
+        }
+        let n = self.lanes.len();
+        for (i, l) in self.lanes.iter().enumerate() {
+            if let Some(s) = l.stages.iter().find(|s| s.needs_output_lane() && i + 1 != n) {
+                return bad(format!(
+                    "stage `{}` writes depth and must be on the output lane, not `{}`",
+                    s.name(),
+                    l.name
+                ));
+            }
+            if self.lanes[..i].iter().any(|o| o.name == l.name) || l.name == "source" {
+                return bad(format!("lane name `{}` used twice", l.name));
+            }
+        }
+        Ok(())
+    }
+}
+
+/// How the runner moves frames (the graph says what is done to them).
+#[derive(Debug, Clone, Copy)]
+pub struct RunConfig {
+    /// Capacity of each inter-lane queue.
+    pub queue: usize,
+    /// Block instead of dropping: every frame is processed (offline, reproducible).
+    pub lossless: bool,
+    /// Release replayed frames at their recorded times (as a live camera would).
+    pub paced: bool,
+    /// Number of frames (looping the session); `None` plays it once.
+    pub frames: Option<u64>,
+    /// Stop taking frames from the source this long after the start (the frames in flight finish).
+    pub duration: Option<Duration>,
+    /// Length of a statistics window ([`RunStats::windows`]).
+    pub window: Duration,
+    /// Stop taking frames once this is set (Ctrl-C, SIGTERM): the frames in flight finish and the run
+    /// returns its statistics as at the end of a replay.
+    pub stop: Option<&'static AtomicBool>,
+}
+
+type Queue = (Sender<Box<Work>>, Receiver<Box<Work>>);
+
+/// Pushes into a bounded queue; when full, the oldest queued item goes back to the free list (dropped).
+fn push(
+    tx: &Sender<Box<Work>>,
+    rx: &Receiver<Box<Work>>,
+    free: &Sender<Box<Work>>,
+    w: Box<Work>,
+    lossless: bool,
+    dropped: &AtomicU64,
+) {
+    if lossless {
+        let _ = tx.send(w);
+        return;
+    }
+    let mut w = w;
+    loop {
+        match tx.try_send(w) {
+            Ok(()) => return,
+            Err(TrySendError::Full(back)) => {
+                w = back;
+                if let Ok(old) = rx.try_recv() {
+                    dropped.fetch_add(1, Ordering::Relaxed);
+                    let _ = free.send(old);
+                }
+            }
+            Err(TrySendError::Disconnected(_)) => return,
+        }
+    }
+}
+
+/// crossbeam allocates once, lazily, the first time a thread blocks on any channel (its thread-local wait
+/// context). Left to chance that can happen hundreds of frames into a run (the first time a stage finds its
+/// queue empty), so every lane's thread takes that allocation at start-up instead.
+fn prewarm_thread() {
+    let (_tx, rx) = bounded::<()>(0);
+    let _ = rx.recv_timeout(Duration::from_micros(1));
+}
+
+/// The other lazy crossbeam allocation: the list of threads waiting on one side of a channel is allocated
+/// (capacity 4, kept afterwards) the first time a thread waits there. A `Select` with a zero timeout
+/// registers a waiter on every operation that is not ready and then gives up without blocking, so it
+/// allocates every list at once: receivers on the empty channels, then senders on the full work queues.
+fn prewarm_waiter_lists(free: &Queue, queues: &[Queue]) {
+    let mut spare: Vec<Box<Work>> = free.1.try_iter().collect();
+    let n = spare.len();
+    let mut sel = Select::new();
+    sel.recv(&free.1);
+    for q in queues {
+        sel.recv(&q.1);
+    }
+    // all channels are empty: nothing can be selected, the call only registers and times out
+    assert!(sel.select_timeout(Duration::ZERO).is_err(), "pre-warm: an empty queue was ready");
+    let mut sel = Select::new();
+    for q in queues {
+        while !q.0.is_full() {
+            let Some(w) = spare.pop() else { break };
+            let _ = q.0.try_send(w);
+        }
+        sel.send(&q.0);
+    }
+    if queues.iter().all(|q| q.0.is_full()) {
+        assert!(sel.select_timeout(Duration::ZERO).is_err(), "pre-warm: a full queue was ready");
+    }
+    for q in queues {
+        spare.extend(q.1.try_iter());
+    }
+    assert_eq!(spare.len(), n, "pre-warm lost a buffer");
+    for w in spare {
+        free.0.send(w).expect("free list has room");
+    }
+}
+
+/// Runs a lane's stages on one frame; the first failure names its counter.
+fn process(stages: &mut [Box<dyn Stage>], w: &mut Work) -> std::result::Result<(), &'static str> {
+    for s in stages.iter_mut() {
+        if let Err(e) = s.process(w) {
+            return Err(s.failure(&e));
+        }
+    }
+    Ok(())
+}
+
+/// Runs a graph to the end of its source (or its duration, or the stop flag) and returns its statistics.
+pub fn run<S: PairSource>(graph: Graph<S>, cfg: &RunConfig) -> Result<RunStats> {
+    graph.check()?;
+    let names = graph.stage_names();
+    let Graph { mut source, out: cam, mut lanes, mut sinks } = graph;
+    let (rw, rh) = source.size();
+    let out = (cam.width, cam.height);
+    let cfg = *cfg;
+
+    let q = cfg.queue.max(1);
+    let n = lanes.len();
+    // Enough buffers that the source always finds a free one when it takes a frame: the n queues hold at
+    // most n q, every lane but the output at most 2 (the frame it pushes and, while a full queue drops its
+    // oldest, that one on its way back to the free list), the output 1, the source none at that moment:
+    // n q + 2 (n - 1) + 1 in use, so one is always free and under overload only the oldest queued frames
+    // are dropped. (Three lanes: 3 q + 6.)
+    let pool = n * q + 2 * (n - 1) + 2;
+    let free: Queue = bounded::<Box<Work>>(pool);
+    for _ in 0..pool {
+        free.0.send(Work::new((rw, rh), out)).expect("free list has room");
+    }
+    // queue i feeds lane i (queue 0 from the source)
+    let queues: Vec<Queue> = (0..n).map(|_| bounded::<Box<Work>>(q)).collect();
+    // (the free list's senders never wait: it has room for every buffer)
+    prewarm_waiter_lists(&free, &queues);
+    let dropped = Arc::new(AtomicU64::new(0));
+    let frames_in = Arc::new(AtomicU64::new(0));
+    let mut stats = RunStats::new(&names);
+    let started = monotonic_ns();
+    let mut encoders = Some(source.start(started + 5_000_000));
+    let mut ctx = StageContext { raw: (rw, rh), out: cam, encoders: &mut encoders };
+    for s in lanes.iter_mut().flat_map(|l| l.stages.iter_mut()) {
+        s.start(&mut ctx)?;
+    }
+    // Each sender moves to its one producer, so a queue disconnects when that producer ends.
+    let mut senders: Vec<Option<Sender<Box<Work>>>> = queues.iter().map(|q| Some(q.0.clone())).collect();
+    let receivers: Vec<Receiver<Box<Work>>> = queues.iter().map(|q| q.1.clone()).collect();
+    drop(queues);
+    let (free_tx, free_rx) = free;
+    let (output, middle) = lanes.split_last_mut().expect("checked: at least one lane");
+
+    let result = std::thread::scope(|s| -> Result<()> {
+        // ---- source
+        let src = {
+            let (free_rx, free_tx) = (free_rx.clone(), free_tx.clone());
+            let (q_tx, q_rx) = (senders[0].take().expect("one producer"), receivers[0].clone());
+            let (dropped, frames_in) = (dropped.clone(), frames_in.clone());
+            let source = &mut source;
+            s.spawn(move || -> Latency {
+                prewarm_thread();
+                let mut lat = Latency::default();
+                let end_ns = cfg.duration.map(|d| started.saturating_add(d.as_nanos().min(i64::MAX as u128) as i64));
+                loop {
+                    if end_ns.is_some_and(|end| monotonic_ns() >= end)
+                        || cfg.stop.is_some_and(|s| s.load(Ordering::Relaxed))
+                    {
+                        break;
+                    }
+                    let Some(f) = source.next_frame(cfg.frames) else { break };
+                    frames_in.fetch_add(1, Ordering::Relaxed);
+                    let ready = f.t_start_ns + f.exposure_ns; // a frame exists once its exposure ended
+                    if cfg.paced {
+                        let wait = ready - monotonic_ns();
+                        if wait > 0 {
+                            std::thread::sleep(Duration::from_nanos(wait as u64));
+                        }
+                    }
+                    let t0 = monotonic_ns();
+                    let mut w = match if cfg.lossless { free_rx.recv().ok() } else { free_rx.try_recv().ok() } {
+                        Some(w) => w,
+                        None => {
+                            // every buffer in flight (cannot happen with the pool's size; a counted guard)
+                            dropped.fetch_add(1, Ordering::Relaxed);
+                            continue;
+                        }
+                    };
+                    w.fill(&f);
+                    lat.record_ns(monotonic_ns() - t0);
+                    push(&q_tx, &q_rx, &free_tx, w, cfg.lossless, &dropped);
+                }
+                drop(q_tx);
+                lat
+            })
+        };
+        // ---- the lanes before the output, one thread each
+        let mut handles = Vec::with_capacity(middle.len());
+        for (i, lane) in middle.iter_mut().enumerate() {
+            let (rx, free_tx) = (receivers[i].clone(), free_tx.clone());
+            let (q_tx, q_rx) = (senders[i + 1].take().expect("one producer"), receivers[i + 1].clone());
+            let dropped = dropped.clone();
+            let name = lane.name;
+            let h = s.spawn(move || -> (Latency, Vec<&'static str>) {
+                prewarm_thread();
+                let mut lat = Latency::default();
+                let mut failed = Vec::new();
+                for mut w in rx.iter() {
+                    let t0 = monotonic_ns();
+                    match process(&mut lane.stages, &mut w) {
+                        Ok(()) => {
+                            lat.record_ns(monotonic_ns() - t0);
+                            push(&q_tx, &q_rx, &free_tx, w, cfg.lossless, &dropped);
+                        }
+                        Err(reason) => {
+                            failed.push(reason);
+                            let _ = free_tx.send(w);
+                        }
+                    }
+                }
+                (lat, failed)
+            });
+            handles.push((name, h));
+        }
+        // ---- the output lane: its stages, the sinks (this thread), and the statistics windows
+        let rx = receivers[n - 1].clone();
+        // the one depth buffer, lent to the frame being published (see `Work::depth`)
+        let mut depth = DepthFrame::new(out.0, out.1);
+        let window_ns = (cfg.window.as_nanos().clamp(1_000_000, i64::MAX as u128)) as i64;
+        let mut win = WindowCounter::new(started, window_ns);
+        win.prepare(&mut stats, cfg.duration);
+        loop {
+            let now = monotonic_ns();
+            if now >= win.end_ns {
+                win.close(now, &mut stats, &frames_in, &dropped);
+                continue;
+            }
+            let mut w = match rx.recv_timeout(Duration::from_nanos((win.end_ns - now) as u64)) {
+                Ok(w) => w,
+                Err(RecvTimeoutError::Timeout) => continue,
+                Err(RecvTimeoutError::Disconnected) => break,
+            };
+            let t0 = monotonic_ns();
+            std::mem::swap(&mut w.depth, &mut depth);
+            if let Err(reason) = process(&mut output.stages, &mut w) {
+                stats.fail(reason);
+            } else if let Some(published) = w.published(&cam) {
+                let mut ok = true;
+                for sink in sinks.iter_mut() {
+                    if let Err(e) = sink.consume(&published) {
+                        ok = false;
+                        eprintln!("warning: frame {}: sink {}: {e}", w.seq, sink.name());
+                        stats.fail("sink failed");
+                    }
+                }
+                let t1 = monotonic_ns();
+                stats.stage_mut(output.name).record_ns(t1 - t0);
+                if ok {
+                    stats.frames_published += 1;
+                    stats.points_total += w.depth.n_points as u64;
+                    stats.end_to_end.record_ns(t1 - w.t_frame_ns);
+                    win.latency.record_ns(t1 - w.t_frame_ns);
+                    stats.digest(&w.depth.depth);
+                }
+            }
+            std::mem::swap(&mut w.depth, &mut depth);
+            let _ = free_tx.send(w);
+        }
+        win.close(monotonic_ns(), &mut stats, &frames_in, &dropped);
+        let src_lat = src.join().map_err(|_| RuntimeError::Invalid("source thread panicked".into()))?;
+        for (name, h) in handles {
+            let (lat, failed) = h.join().map_err(|_| RuntimeError::Invalid(format!("{name} thread panicked")))?;
+            stats.stage_mut(name).merge(&lat);
+            for f in failed {
+                stats.fail(f);
+            }
+        }
+        stats.stage_mut("source").merge(&src_lat);
+        Ok(())
+    });
+    result?;
+    stats.frames_in = frames_in.load(Ordering::Relaxed);
+    stats.frames_dropped = dropped.load(Ordering::Relaxed);
+    let elapsed = (monotonic_ns() - started) as f64 * 1e-9;
+    stats.extra.insert("elapsed_s".into(), serde_json::json!(elapsed));
+    source.finish(&mut stats);
+    for s in lanes.iter_mut().flat_map(|l| l.stages.iter_mut()) {
+        s.finish(&mut stats);
+    }
+    for sink in sinks.iter_mut() {
+        sink.finish(&mut stats);
+    }
+    Ok(stats)
+}
+
+/// The statistics window being filled (see [`RunConfig::window`]): closing one reads the counters and the
+/// resident memory; neither allocates (the list of windows is reserved up front for an hour, or for the
+/// run's duration).
+struct WindowCounter {
+    started: i64,
+    len_ns: i64,
+    end_ns: i64,
+    latency: Latency,
+    /// Counters at the window's start: frames in, published, dropped.
+    at_start: [u64; 3],
+}
+
+impl WindowCounter {
+    fn new(started: i64, len_ns: i64) -> Self {
+        WindowCounter { started, len_ns, end_ns: started + len_ns, latency: Latency::default(), at_start: [0; 3] }
+    }
+
+    /// Sets the run's window length and reserves its list: the run's windows, or an hour's (a longer run
+    /// without a duration grows the list, doubling, about once an hour and then ever more rarely).
+    fn prepare(&self, stats: &mut RunStats, duration: Option<Duration>) {
+        stats.window_s = self.len_ns as f64 / 1e9;
+        let n = match duration {
+            Some(d) => (d.as_nanos() / self.len_ns as u128) as usize + 2,
+            None => (3600_000_000_000 / self.len_ns) as usize + 2,
+        };
+        stats.windows.reserve(n.min(1 << 16));
+    }
+
+    fn close(&mut self, now: i64, stats: &mut RunStats, frames_in: &AtomicU64, dropped: &AtomicU64) {
+        let counts = [frames_in.load(Ordering::Relaxed), stats.frames_published, dropped.load(Ordering::Relaxed)];
+        let l = &self.latency;
+        stats.windows.push(Window {
+            t_s: (now - self.started) as f64 * 1e-9,
+            frames_in: counts[0] - self.at_start[0],
+            frames_published: counts[1] - self.at_start[1],
+            frames_dropped: counts[2] - self.at_start[2],
+            p50_ms: l.ms(0.5),
+            p99_ms: l.ms(0.99),
+            max_ms: l.max_ms(),
+            rss_bytes: rss_bytes().unwrap_or(0),
+        });
+        self.at_start = counts;
+        self.latency.reset();
+        while self.end_ns <= now {
+            self.end_ns += self.len_ns;
+        }
+    }
+}
