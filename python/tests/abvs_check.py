@@ -1,0 +1,254 @@
+"""Checks of the runtime's outputs from Python, driven by the Rust tests (cli/tests/ros2_outputs.rs,
+runtime/tests/python_layout.rs). Each subcommand prints one JSON object on its last line; the Rust
+tests assert on it. Needs .deps/python (scripts/setup.sh): eclipse-zenoh, rosbags, mcap,
+mcap-ros2-support, iceoryx2, numpy.
+
+  layout                       the ctypes layout of FrameHeader and CloudPoint
+  iox PREFIX                   receive depth and clouds until stdin closes (prints "ready" first)
+  zenoh ENDPOINT PREFIX        listen on ENDPOINT for the five keys, and the iceoryx2 clouds, until
+                               stdin closes; decode every message, compare clouds by stamp
+  mcap FILE PREFIX             receive the iceoryx2 headers until stdin closes, then decode FILE
+"""
+import json
+import os
+import sys
+import threading
+import time
+
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
+
+import numpy as np  # noqa: E402
+
+import abvs_iceoryx2 as abvs  # noqa: E402
+
+KEYS = {
+    "abvs/depth": "sensor_msgs/msg/Image",
+    "abvs/camera_info": "sensor_msgs/msg/CameraInfo",
+    "abvs/points": "sensor_msgs/msg/PointCloud2",
+    "tf": "tf2_msgs/msg/TFMessage",
+    "abvs/joint_states": "sensor_msgs/msg/JointState",
+}
+
+
+def stamp_ns(header):
+    return header.stamp.sec * 1_000_000_000 + header.stamp.nanosec
+
+
+def stdin_closed():
+    """An event set when stdin reaches its end (the test's signal that the run is over)."""
+    ev = threading.Event()
+
+    def watch():
+        sys.stdin.read()
+        ev.set()
+
+    threading.Thread(target=watch, daemon=True).start()
+    return ev
+
+
+class IoxCollector:
+    """Receives both iceoryx2 topics on a thread: depth shapes, headers and (optionally) clouds by stamp."""
+
+    def __init__(self, prefix, keep_clouds):
+        self.depth = abvs.Subscriber("depth", prefix)
+        self.cloud = abvs.Subscriber("cloud", prefix)
+        self.keep_clouds = keep_clouds
+        self.depth_frames = 0
+        self.cloud_frames = 0
+        self.bad_shapes = []
+        self.headers = {}  # t_frame_ns -> (seq, intrinsics)
+        self.clouds = {}  # t_frame_ns -> structured array copy
+        self.stop = threading.Event()
+        self.threads = [threading.Thread(target=self.run_depth), threading.Thread(target=self.run_cloud)]
+        for t in self.threads:
+            t.start()
+
+    def run_depth(self):
+        while not self.stop.is_set():
+            f = self.depth.receive(0.2)
+            if f is None:
+                continue
+            with f:
+                h = f.header
+                if f.data.shape != (h.height, h.width) or f.data.dtype != np.float32:
+                    self.bad_shapes.append([list(f.data.shape), h.height, h.width])
+                self.headers[h.t_frame_ns] = (h.seq, list(h.intrinsics), h.frame_id_str())
+                self.depth_frames += 1
+
+    def run_cloud(self):
+        while not self.stop.is_set():
+            f = self.cloud.receive(0.2)
+            if f is None:
+                continue
+            with f:
+                if self.keep_clouds:
+                    self.clouds[f.header.t_frame_ns] = (f.header.seq, f.data.copy())
+                self.cloud_frames += 1
+
+    def finish(self):
+        self.stop.set()
+        for t in self.threads:
+            t.join()
+        self.depth.close()
+        self.cloud.close()
+
+
+def cmd_layout():
+    print(json.dumps(abvs.layout()))
+
+
+def cmd_iox(prefix):
+    done = stdin_closed()
+    c = IoxCollector(prefix, keep_clouds=False)
+    print("ready", flush=True)
+    done.wait()
+    time.sleep(0.5)  # samples still on their way
+    c.finish()
+    seqs = sorted(s for s, _, _ in c.headers.values())
+    print(json.dumps({
+        "depth_frames": c.depth_frames,
+        "cloud_frames": c.cloud_frames,
+        "bad_shapes": c.bad_shapes[:5],
+        "first_seq": seqs[0] if seqs else None,
+        "last_seq": seqs[-1] if seqs else None,
+        "frame_ids": sorted({f for _, _, f in c.headers.values()}),
+    }))
+
+
+def cmd_zenoh(endpoint, prefix):
+    import zenoh
+    from rosbags.typesys import Stores, get_typestore
+
+    done = stdin_closed()
+    conf = zenoh.Config()
+    conf.insert_json5("mode", '"peer"')
+    conf.insert_json5("listen/endpoints", json.dumps([endpoint]))
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    session = zenoh.open(conf)
+    raw = {k: [] for k in KEYS}
+    lock = threading.Lock()
+
+    def on_sample(sample):
+        # decoding waits for the end: the callback only keeps the bytes
+        with lock:
+            raw[str(sample.key_expr)].append(sample.payload.to_bytes())
+
+    subs = [session.declare_subscriber(k, on_sample) for k in KEYS]
+    iox = IoxCollector(prefix, keep_clouds=True)
+    print("ready", flush=True)
+    done.wait()
+    time.sleep(1.0)
+    iox.finish()
+    for s in subs:
+        s.undeclare()
+    session.close()
+
+    ts = get_typestore(Stores.ROS2_HUMBLE)
+    out = {"received": {k: len(v) for k, v in raw.items()}, "decode_errors": [], "iox_clouds": len(iox.clouds)}
+    decoded = {k: [] for k in KEYS}
+    for k, msgs in raw.items():
+        for b in msgs:
+            try:
+                decoded[k].append(ts.deserialize_cdr(b, KEYS[k]))
+            except Exception as e:  # noqa: BLE001 - every failure is reported to the test
+                out["decode_errors"].append(f"{k}: {e}")
+    out["decoded"] = {k: len(v) for k, v in decoded.items()}
+    # clouds: the PointCloud2 of a frame against the iceoryx2 cloud of the same frame (same stamp)
+    compared, equal, mismatches = 0, 0, []
+    for m in decoded["abvs/points"]:
+        t = stamp_ns(m.header)
+        if t not in iox.clouds:
+            continue
+        seq, ref = iox.clouds[t]
+        compared += 1
+        names = [f.name for f in m.fields]
+        pts = np.frombuffer(m.data.tobytes(), dtype=abvs.CLOUD_DTYPE)
+        same = (names == ["x", "y", "z", "rgb"] and m.point_step == 16 and len(pts) == len(ref)
+                and m.width * m.height == len(ref) and bytes(m.data.tobytes()) == ref.tobytes())
+        equal += same
+        if not same and len(mismatches) < 3:
+            mismatches.append({"seq": seq, "points": len(pts), "iox_points": len(ref), "fields": names})
+    out["clouds_compared"] = compared
+    out["clouds_equal"] = equal
+    out["cloud_mismatches"] = mismatches
+    depth = decoded["abvs/depth"]
+    out["depth_encoding"] = sorted({m.encoding for m in depth})
+    out["depth_frame_ids"] = sorted({m.header.frame_id for m in depth})
+    out["depth_shape_ok"] = all(len(m.data) == m.height * m.step and m.step == 4 * m.width for m in depth)
+    tf_children = set()
+    for m in decoded["tf"]:
+        for tr in m.transforms:
+            tf_children.add((tr.header.frame_id, tr.child_frame_id))
+    out["tf"] = sorted(f"{a}->{b}" for a, b in tf_children)
+    out["joint_names"] = list(decoded["abvs/joint_states"][0].name) if decoded["abvs/joint_states"] else []
+    print(json.dumps(out))
+
+
+def cmd_mcap(path, prefix):
+    from mcap.reader import make_reader
+    from mcap_ros2.decoder import DecoderFactory
+
+    done = stdin_closed()
+    iox = IoxCollector(prefix, keep_clouds=False)
+    print("ready", flush=True)
+    done.wait()
+    time.sleep(0.5)
+    iox.finish()
+    counts, schemas, errors = {}, {}, []
+    last_stamp, back = {}, 0
+    k_checked, k_equal, k_mismatch = 0, 0, []
+    with open(path, "rb") as f:
+        reader = make_reader(f, decoder_factories=[DecoderFactory()])
+        it = reader.iter_decoded_messages()
+        while True:
+            try:
+                schema, channel, message, msg = next(it)
+            except StopIteration:
+                break
+            except Exception as e:  # noqa: BLE001 - a message that does not decode is reported
+                errors.append(str(e))
+                break
+            topic = channel.topic
+            counts[topic] = counts.get(topic, 0) + 1
+            schemas[topic] = [schema.name, schema.encoding, channel.message_encoding]
+            heads = [tr.header for tr in msg.transforms] if topic == "/tf" else [msg.header]
+            for h in heads:
+                t = stamp_ns(h)
+                if t < last_stamp.get(topic, -1):
+                    back += 1
+                last_stamp[topic] = t
+            if topic == "/abvs/camera_info":
+                t = stamp_ns(msg.header)
+                if t in iox.headers:
+                    k_checked += 1
+                    fx, fy, cx, cy = iox.headers[t][1]
+                    k = list(msg.k)
+                    if k == [fx, 0.0, cx, 0.0, fy, cy, 0.0, 0.0, 1.0]:
+                        k_equal += 1
+                    elif len(k_mismatch) < 3:
+                        k_mismatch.append({"k": k, "intrinsics": [fx, fy, cx, cy]})
+        summary = reader.get_summary()
+        profile = reader.get_header().profile
+    print(json.dumps({
+        "messages": counts,
+        "schemas": schemas,
+        "decode_errors": errors,
+        "stamps_back": back,
+        "profile": profile,
+        "k_checked": k_checked,
+        "k_equal": k_equal,
+        "k_mismatch": k_mismatch,
+        "iox_headers": len(iox.headers),
+        "summary_messages": summary.statistics.message_count if summary and summary.statistics else None,
+    }))
+
+
+def main(argv):
+    if not argv:
+        sys.exit(__doc__)
+    cmd, args = argv[0], argv[1:]
+    {"layout": cmd_layout, "iox": cmd_iox, "zenoh": cmd_zenoh, "mcap": cmd_mcap}[cmd](*args)
+
+
+if __name__ == "__main__":
+    main(sys.argv[1:])

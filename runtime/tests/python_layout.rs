@@ -1,0 +1,52 @@
+//! The Python subscriber's ctypes structures (python/abvs_iceoryx2.py) against the Rust `#[repr(C)]` types
+//! of the iceoryx2 services: type names, sizes, alignments and every field's offset, so a layout change on
+//! one side cannot drift from the other. Needs the Python environment of scripts/setup.sh (.deps/python, or
+//! the interpreter in ABVS_PYTHON): missing, the test fails (CI installs it).
+use std::collections::BTreeMap;
+use std::mem::{align_of, offset_of, size_of};
+use std::path::PathBuf;
+use std::process::Command;
+
+use abvs_runtime::bridges::iceoryx::{CloudPoint, FrameHeader};
+use iceoryx2::prelude::ZeroCopySend;
+
+fn repo() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("..")
+}
+
+fn python() -> PathBuf {
+    let p =
+        std::env::var_os("ABVS_PYTHON").map(PathBuf::from).unwrap_or_else(|| repo().join(".deps/python/bin/python3"));
+    assert!(p.exists(), "{}: no Python environment; run scripts/setup.sh (or set ABVS_PYTHON)", p.display());
+    p
+}
+
+#[test]
+fn python_ctypes_match_the_rust_layout() {
+    macro_rules! fields {
+        ($t:ty; $($f:ident),*) => {{
+            let mut m = BTreeMap::new();
+            $( m.insert(stringify!($f).to_string(), offset_of!($t, $f)); )*
+            m
+        }};
+    }
+    let header = fields!(FrameHeader; seq, t_frame_ns, t_publish_ns, frame_id, pose_left, pose_right, intrinsics,
+        width, height, baseline_m, valid, flags);
+    let point = fields!(CloudPoint; x, y, z, rgba);
+    // SAFETY: type_name only returns the #[type_name] attribute's string.
+    let (hn, pn) = unsafe { (<FrameHeader as ZeroCopySend>::type_name(), <CloudPoint as ZeroCopySend>::type_name()) };
+    let rust = serde_json::json!({
+        hn: { "size": size_of::<FrameHeader>(), "align": align_of::<FrameHeader>(), "fields": header },
+        pn: { "size": size_of::<CloudPoint>(), "align": align_of::<CloudPoint>(), "fields": point },
+    });
+    let o = Command::new(python())
+        .arg(repo().join("python/tests/abvs_check.py"))
+        .arg("layout")
+        .output()
+        .expect("running python");
+    assert!(o.status.success(), "python: {}", String::from_utf8_lossy(&o.stderr));
+    let py: serde_json::Value = serde_json::from_slice(&o.stdout).expect("python prints JSON");
+    assert_eq!(py, rust, "Python's ctypes layout (left) differs from the Rust one (right)");
+    // the struct must have a field per Rust field: a field added in Rust and not listed above would pass
+    assert_eq!(size_of::<FrameHeader>(), 8 * 3 + 32 + 8 * 16 + 4 * 2 + 8 + 4 * 2);
+}
