@@ -1,0 +1,200 @@
+//! The ROS 2 outputs and the Python subscriber against a real `abvs run` on the fixture, checked from
+//! Python (python/tests/abvs_check.py): Zenoh (eclipse-zenoh + rosbags), MCAP (mcap + mcap-ros2-support)
+//! and the iceoryx2 services (python/abvs_iceoryx2.py). The Python environment comes from
+//! scripts/setup.sh (.deps/python, or the interpreter in ABVS_PYTHON); without it these tests fail.
+use std::io::{BufRead, BufReader};
+use std::path::{Path, PathBuf};
+use std::process::{Child, ChildStdout, Command, Stdio};
+
+use serde_json::Value;
+
+fn repo() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("..")
+}
+
+fn python() -> PathBuf {
+    let p =
+        std::env::var_os("ABVS_PYTHON").map(PathBuf::from).unwrap_or_else(|| repo().join(".deps/python/bin/python3"));
+    assert!(p.exists(), "{}: no Python environment; run scripts/setup.sh (or set ABVS_PYTHON)", p.display());
+    p
+}
+
+/// A unique iceoryx2 service prefix per test (tests of one binary run at once).
+fn prefix(test: &str) -> String {
+    format!("abvs-t{}-{test}", std::process::id())
+}
+
+/// Starts the Python check and waits for its "ready" line (its subscribers exist).
+fn start_check(args: &[&str]) -> (Child, BufReader<ChildStdout>) {
+    let mut child = Command::new(python())
+        .arg(repo().join("python/tests/abvs_check.py"))
+        .args(args)
+        .stdin(Stdio::piped())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::inherit())
+        .spawn()
+        .expect("starting python");
+    let mut out = BufReader::new(child.stdout.take().unwrap());
+    let mut line = String::new();
+    out.read_line(&mut line).unwrap();
+    assert_eq!(line.trim(), "ready", "python check {args:?} did not start (see its stderr above)");
+    (child, out)
+}
+
+/// Closes the check's stdin (the run is over) and reads its JSON result.
+fn finish_check(mut child: Child, mut out: BufReader<ChildStdout>) -> Value {
+    drop(child.stdin.take());
+    let mut text = String::new();
+    std::io::Read::read_to_string(&mut out, &mut text).unwrap();
+    let st = child.wait().unwrap();
+    assert!(st.success(), "python check failed: {st:?}\n{text}");
+    serde_json::from_str(text.lines().last().unwrap_or("")).unwrap_or_else(|e| panic!("{e}: {text}"))
+}
+
+/// `abvs run` on the fixture (paced at 25 fps) with `extra`; returns its stats JSON.
+fn run(dir: &Path, prefix: &str, extra: &[&str]) -> Value {
+    let stats = dir.join("stats.json");
+    let o = Command::new(env!("CARGO_BIN_EXE_abvs"))
+        .args(["run", "--quiet", "--service-prefix", prefix, "--stats-json", stats.to_str().unwrap()])
+        .args(extra)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "abvs run: {}", String::from_utf8_lossy(&o.stderr));
+    serde_json::from_str(&std::fs::read_to_string(stats).unwrap()).unwrap()
+}
+
+fn published(s: &Value) -> u64 {
+    let n = s["frames_published"].as_u64().unwrap();
+    assert!(n >= 45, "the fixture's 50 frames, at most a few dropped: {n}");
+    n
+}
+
+#[test]
+fn python_iceoryx2_subscriber_receives_the_frames() {
+    let d = tempfile::tempdir().unwrap();
+    let p = prefix("iox");
+    let (child, out) = start_check(&["iox", &p]);
+    let s = run(d.path(), &p, &[]);
+    let r = finish_check(child, out);
+    let n = published(&s) as f64;
+    let (depth, cloud) = (r["depth_frames"].as_f64().unwrap(), r["cloud_frames"].as_f64().unwrap());
+    println!("published {n}, python received depth {depth}, clouds {cloud}");
+    assert!(depth >= 0.95 * n && cloud >= 0.95 * n, "{r}");
+    assert_eq!(r["bad_shapes"], serde_json::json!([]), "depth arrays of the wrong shape: {r}");
+    assert_eq!(r["frame_ids"], serde_json::json!(["left_home_camera"]));
+}
+
+#[test]
+fn zenoh_messages_reach_a_python_listener() {
+    let d = tempfile::tempdir().unwrap();
+    let p = prefix("zenoh");
+    // a free loopback port for the listener (taken back by the OS a moment before Python binds it)
+    let port = std::net::TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port();
+    let endpoint = format!("tcp/127.0.0.1:{port}");
+    let (child, out) = start_check(&["zenoh", &endpoint, &p]);
+    let s = run(d.path(), &p, &["--zenoh-connect", &endpoint]);
+    let r = finish_check(child, out);
+    let n = published(&s);
+    println!("published {n}; zenoh stats {}; python {r}", s["zenoh"]);
+    let z = &s["zenoh"];
+    assert_eq!(z["frames_in"].as_u64(), Some(n), "{z}");
+    assert_eq!(z["frames_failed"].as_u64(), Some(0), "{z}");
+    for key in ["abvs/depth", "abvs/camera_info", "abvs/points", "tf", "abvs/joint_states"] {
+        let got = r["received"][key].as_u64().unwrap();
+        assert!(got as f64 >= 0.9 * n as f64, "{key}: {got} of {n} frames received");
+        assert_eq!(r["decoded"][key], r["received"][key], "{key}: every message decodes");
+    }
+    assert_eq!(r["decode_errors"], serde_json::json!([]));
+    // every cloud that also came over iceoryx2 (same frame = same stamp) is the same bytes
+    let compared = r["clouds_compared"].as_u64().unwrap();
+    assert!(compared as f64 >= 0.9 * n as f64, "{r}");
+    assert_eq!(r["clouds_equal"].as_u64(), Some(compared), "{r}");
+    assert_eq!(r["depth_encoding"], serde_json::json!(["32FC1"]));
+    assert_eq!(r["depth_frame_ids"], serde_json::json!(["left_rect_camera"]));
+    assert_eq!(r["depth_shape_ok"], Value::Bool(true));
+    assert_eq!(
+        r["tf"],
+        serde_json::json!([
+            "left_home_camera->left_camera",
+            "left_home_camera->left_rect_camera",
+            "left_home_camera->right_camera"
+        ])
+    );
+    assert_eq!(r["joint_names"].as_array().map(|a| a.len()), Some(6));
+}
+
+#[test]
+fn mcap_recording_decodes_in_python() {
+    let d = tempfile::tempdir().unwrap();
+    let p = prefix("mcap");
+    let file = d.path().join("out.mcap");
+    let (child, out) = start_check(&["mcap", file.to_str().unwrap(), &p]);
+    let s = run(d.path(), &p, &["--mcap", file.to_str().unwrap()]);
+    let r = finish_check(child, out);
+    let n = published(&s);
+    println!("published {n}; mcap stats {}; python {r}", s["mcap"]);
+    assert_eq!(s["mcap"]["frames_dropped"].as_u64(), Some(0), "{}", s["mcap"]);
+    assert_eq!(r["decode_errors"], serde_json::json!([]));
+    let types = [
+        ("/abvs/depth", "sensor_msgs/msg/Image"),
+        ("/abvs/camera_info", "sensor_msgs/msg/CameraInfo"),
+        ("/abvs/points", "sensor_msgs/msg/PointCloud2"),
+        ("/tf", "tf2_msgs/msg/TFMessage"),
+        ("/abvs/joint_states", "sensor_msgs/msg/JointState"),
+    ];
+    for (topic, ty) in types {
+        assert_eq!(r["schemas"][topic], serde_json::json!([ty, "ros2msg", "cdr"]), "{topic}");
+        // one message per published frame on every topic: the clouds equal frames_published
+        assert_eq!(r["messages"][topic].as_u64(), Some(n), "{topic}: {r}");
+    }
+    assert_eq!(r["summary_messages"].as_u64(), Some(5 * n));
+    assert_eq!(r["profile"], "ros2");
+    assert_eq!(r["stamps_back"].as_u64(), Some(0), "stamps never go back");
+    // CameraInfo K against the FrameHeader intrinsics of the same frame (received over iceoryx2)
+    let checked = r["k_checked"].as_u64().unwrap();
+    assert!(checked as f64 >= 0.9 * n as f64, "{r}");
+    assert_eq!(r["k_equal"].as_u64(), Some(checked), "{r}");
+}
+
+#[test]
+fn print_config_carries_the_ros2_outputs_and_bad_input_is_refused() {
+    let abvs = |args: &[&str]| Command::new(env!("CARGO_BIN_EXE_abvs")).args(args).output().unwrap();
+    let o = abvs(&[
+        "run",
+        "--print-config",
+        "--zenoh-connect",
+        "tcp/10.0.0.2:7447",
+        "--zenoh-connect",
+        "tcp/10.0.0.3:7447",
+        "--mcap",
+        "/tmp/x.mcap",
+    ]);
+    assert!(o.status.success());
+    let c: toml::Value = toml::from_str(&String::from_utf8_lossy(&o.stdout)).unwrap();
+    let z = &c["bridges"]["zenoh"];
+    assert_eq!(z["enabled"].as_bool(), Some(true));
+    assert_eq!(z["connect"].as_array().unwrap().len(), 2);
+    assert_eq!(c["sinks"]["mcap"]["file"].as_str(), Some("/tmp/x.mcap"));
+    // the printed configuration runs as it says (round trip through a file)
+    let d = tempfile::tempdir().unwrap();
+    let f = d.path().join("r.toml");
+    std::fs::write(&f, &o.stdout).unwrap();
+    let again = abvs(&["run", "--config", f.to_str().unwrap(), "--print-config"]);
+    assert_eq!(again.stdout, o.stdout);
+    // a missing Zenoh configuration file, an MCAP file that cannot be created, a zero queue: errors, no panic
+    let cases: [(&[&str], &str); 3] = [
+        (&["run", "--zenoh-config", "/nonexistent/zenoh.json5"], "/nonexistent/zenoh.json5"),
+        (&["run", "--no-publish", "--mcap", "/nonexistent/dir/out.mcap"], "/nonexistent/dir/out.mcap"),
+        (&["run", "--zenoh-connect", "not an endpoint"], "not an endpoint"),
+    ];
+    for (args, says) in cases {
+        let o = abvs(args);
+        let e = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(1), "{args:?}: {e}");
+        assert!(e.contains(says) && !e.contains("panicked"), "{args:?}: {e}");
+    }
+    let bad = String::from_utf8_lossy(&o.stdout).replace("queue = 16", "queue = 0");
+    std::fs::write(&f, bad).unwrap();
+    let o = abvs(&["run", "--config", f.to_str().unwrap()]);
+    assert!(String::from_utf8_lossy(&o.stderr).contains("sinks.mcap.queue"));
+}
