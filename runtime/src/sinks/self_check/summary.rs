@@ -1,0 +1,247 @@
+//! The run's self-check statistics (bounded memory over a long run) and the per-frame log.
+use super::*;
+
+pub(super) const BIN_PX: f64 = 0.005;
+/// Checked frames kept for the run's rotation estimate and match count (about 33 minutes at 5 a second).
+pub const KEEP: usize = 10_000;
+pub(super) const BINS: usize = 4000;
+
+/// The run's self-check: everything the worker accumulated.
+pub struct Summary {
+    pub frames: u64,
+    /// Checked frames whose matches did not support a rotation fit.
+    pub frames_unfitted: u64,
+    /// Frames the worker was too busy for.
+    pub skipped: u64,
+    pub warnings: u64,
+    /// Matches of the last [`KEEP`] checked frames.
+    matches: std::collections::VecDeque<u32>,
+    /// |vertical disparity| histogram of all matches (BIN_PX bins, the last one open).
+    vertical: Vec<u64>,
+    /// Rotation fits of the last [`KEEP`] checked frames (the run's estimate is theirs: memory stays bounded).
+    fits: std::collections::VecDeque<(Vector3<f64>, Matrix3<f64>)>,
+    /// Time the worker spent on each checked frame.
+    pub check_time: Latency,
+    /// CPU time of the worker thread on each checked frame (what the check costs the machine).
+    pub check_cpu: Latency,
+    /// The last `warn_frames` frames' rotation errors.
+    recent: std::collections::VecDeque<Vector3<f64>>,
+    warned: bool,
+    pub(super) failed: u64,
+}
+
+impl Default for Summary {
+    fn default() -> Self {
+        Summary {
+            frames: 0,
+            frames_unfitted: 0,
+            skipped: 0,
+            warnings: 0,
+            matches: std::collections::VecDeque::new(),
+            vertical: vec![0; BINS],
+            fits: std::collections::VecDeque::new(),
+            check_time: Latency::default(),
+            check_cpu: Latency::default(),
+            recent: std::collections::VecDeque::new(),
+            warned: false,
+            failed: 0,
+        }
+    }
+}
+
+impl Summary {
+    pub(super) fn add(&mut self, c: &FrameCheck, ms: &[Match], cfg: &SelfCheckConfig) {
+        self.frames += 1;
+        if self.matches.len() == KEEP {
+            self.matches.pop_front();
+        }
+        self.matches.push_back(c.matches as u32);
+        for m in ms {
+            let b = ((m.dy().abs() as f64 / BIN_PX) as usize).min(BINS - 1);
+            self.vertical[b] += 1;
+        }
+        match &c.fit {
+            Some(f) => {
+                if self.fits.len() == KEEP {
+                    self.fits.pop_front();
+                }
+                self.fits.push_back((f.omega, f.info));
+                let n = cfg.warn_frames.max(1) as usize;
+                if self.recent.len() == n {
+                    self.recent.pop_front();
+                }
+                self.recent.push_back(f.omega);
+                if self.recent.len() == n {
+                    // component-wise median of the window: a persistent error, not one odd frame
+                    let med = |k: usize| {
+                        let mut v: Vec<f64> = self.recent.iter().map(|w| w[k]).collect();
+                        v.sort_by(f64::total_cmp);
+                        0.5 * (v[(n - 1) / 2] + v[n / 2])
+                    };
+                    let m = Vector3::new(med(0), med(1), med(2)).map(f64::to_degrees);
+                    if m.norm() > cfg.threshold_deg {
+                        if !self.warned {
+                            self.warned = true;
+                            self.warnings += 1;
+                            eprintln!(
+                                "warning: self-check: stereo rotation error [{:.3}, {:.3}, {:.3}] deg (median of the \
+                                 last {n} checked frames, up to frame {}; |vertical| p50 {:.2} px) exceeds {} deg: \
+                                 the calibration may be off",
+                                m.x, m.y, m.z, c.seq, c.vertical_p50, cfg.threshold_deg
+                            );
+                        }
+                    } else {
+                        self.warned = false;
+                    }
+                }
+            }
+            None => self.frames_unfitted += 1,
+        }
+    }
+
+    pub(super) fn vertical_quantile(&self, q: f64) -> f64 {
+        let n: u64 = self.vertical.iter().sum();
+        if n == 0 {
+            return f64::NAN;
+        }
+        let want = ((n as f64 * q).ceil() as u64).max(1);
+        let mut acc = 0;
+        for (i, c) in self.vertical.iter().enumerate() {
+            acc += c;
+            if acc >= want {
+                return (i as f64 + 0.5) * BIN_PX;
+            }
+        }
+        f64::NAN
+    }
+
+    /// The run's rotation error (rad) and its covariance from the scatter between frames: the information-
+    /// weighted mean of the frames' estimates, each frame also weighted by Huber on its distance to the mean
+    /// (in units of the robust spread of those distances).
+    pub fn rotation(&self) -> Option<(Vector3<f64>, Matrix3<f64>)> {
+        if self.fits.is_empty() {
+            return None;
+        }
+        let mut fw = vec![1.0; self.fits.len()];
+        let mut mean = Vector3::zeros();
+        let mut a_sum = Matrix3::zeros();
+        for it in 0..20 {
+            let mut a = Matrix3::zeros();
+            let mut b = Vector3::zeros();
+            for ((om, info), w) in self.fits.iter().zip(&fw) {
+                a += info * *w;
+                b += info * om * *w;
+            }
+            let next = a.try_inverse()? * b;
+            a_sum = a;
+            let mut d: Vec<f64> = self.fits.iter().map(|(om, _)| (om - next).norm()).collect();
+            let dist = d.clone();
+            d.sort_by(f64::total_cmp);
+            let k = 2.0 * 1.4826 * d[d.len() / 2].max(1e-12);
+            for (w, x) in fw.iter_mut().zip(&dist) {
+                *w = if *x <= k { 1.0 } else { k / x };
+            }
+            let step = (next - mean).norm();
+            mean = next;
+            if it > 0 && step < 1e-12 {
+                break;
+            }
+        }
+        let n = self.fits.len() as f64;
+        let ainv = a_sum.try_inverse()?;
+        let mut meat = Matrix3::zeros();
+        for ((om, info), w) in self.fits.iter().zip(&fw) {
+            let g = info * (om - mean) * *w;
+            meat += g * g.transpose();
+        }
+        let cov = ainv * meat * ainv * if n > 1.0 { n / (n - 1.0) } else { f64::INFINITY };
+        Some((mean, cov))
+    }
+
+    /// The stats JSON's `self_check` object.
+    pub fn json(&self) -> Value {
+        let mut m: Vec<u32> = self.matches.iter().copied().collect();
+        m.sort_unstable();
+        let matches_p50 = if m.is_empty() { Value::Null } else { json!(m[(m.len() - 1) / 2]) };
+        let num = |x: f64| if x.is_finite() { json!((x * 1e4).round() / 1e4) } else { Value::Null };
+        let (rot, sigma, axes) = match self.rotation() {
+            Some((om, cov)) => {
+                let s = Vector3::new(cov[(0, 0)].sqrt(), cov[(1, 1)].sqrt(), cov[(2, 2)].sqrt()).map(f64::to_degrees);
+                (
+                    json!([num(om.x.to_degrees()), num(om.y.to_degrees()), num(om.z.to_degrees())]),
+                    num(s.max()),
+                    json!([num(s.x), num(s.y), num(s.z)]),
+                )
+            }
+            None => (Value::Null, Value::Null, Value::Null),
+        };
+        json!({
+            "frames": self.frames,
+            "frames_skipped": self.skipped,
+            "frames_unfitted": self.frames_unfitted,
+            "frames_failed": self.failed,
+            "matches_p50": matches_p50,
+            "vertical_px": { "p50": num(self.vertical_quantile(0.5)), "p95": num(self.vertical_quantile(0.95)) },
+            "rotation_error_deg": rot,
+            "rotation_sigma_deg": sigma,
+            "rotation_sigma_axes_deg": axes,
+            "warnings": self.warnings,
+            "check_ms": { "p50": num(self.check_time.ms(0.5)), "p99": num(self.check_time.ms(0.99)) },
+            "check_cpu_ms": { "p50": num(self.check_cpu.ms(0.5)), "p99": num(self.check_cpu.ms(0.99)) },
+        })
+    }
+}
+
+/// One line for the table `abvs run` prints, from the stats' `self_check` object.
+pub fn summary_line(v: &Value) -> String {
+    let f = |x: &Value| x.as_f64().map(|x| format!("{x:.3}")).unwrap_or_else(|| "-".into());
+    let r = |k: usize| f(&v["rotation_error_deg"][k]);
+    format!(
+        "self-check: {} frames ({} skipped), matches p50 {}, |vertical| p50 {} p95 {} px, rotation error [{}, {}, {}] \
+         deg (sigma {} deg), warnings {}",
+        v["frames"],
+        v["frames_skipped"],
+        v["matches_p50"],
+        f(&v["vertical_px"]["p50"]),
+        f(&v["vertical_px"]["p95"]),
+        r(0),
+        r(1),
+        r(2),
+        f(&v["rotation_sigma_deg"]),
+        v["warnings"]
+    )
+}
+
+/// The CSV log's header.
+pub const LOG_HEADER: &str = "seq,t_ns,l1_deg,l2_deg,l3_deg,r1_deg,r2_deg,r3_deg,matches,vertical_p50_px,\
+                              vertical_p95_px,rot_x_deg,rot_y_deg,rot_z_deg,rot_sigma_x_deg,rot_sigma_y_deg,\
+                              rot_sigma_z_deg";
+
+pub(super) fn log_row(c: &FrameCheck) -> String {
+    let t = &c.theta;
+    let f = |x: f64| if x.is_finite() { format!("{x:.6}") } else { String::new() };
+    let (om, sg) = match &c.fit {
+        Some(fit) => (fit.omega.map(f64::to_degrees), fit.sigma.map(f64::to_degrees)),
+        None => (Vector3::repeat(f64::NAN), Vector3::repeat(f64::NAN)),
+    };
+    format!(
+        "{},{},{:.6},{:.6},{:.6},{:.6},{:.6},{:.6},{},{},{},{},{},{},{},{},{}",
+        c.seq,
+        c.t_frame_ns,
+        t[0][0],
+        t[0][1],
+        t[0][2],
+        t[1][0],
+        t[1][1],
+        t[1][2],
+        c.matches,
+        f(c.vertical_p50),
+        f(c.vertical_p95),
+        f(om.x),
+        f(om.y),
+        f(om.z),
+        f(sg.x),
+        f(sg.y),
+        f(sg.z)
+    )
+}

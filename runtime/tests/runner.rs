@@ -1,0 +1,163 @@
+//! The generic runner takes new sinks and side stages from the outside: a test sink and two side stages
+//! (one appended to an existing lane, one on a lane of its own) join the standard graph without any change
+//! to the runner, see every frame, and leave the published depth unchanged. Descriptions that do not name
+//! the stages given, or put the depth stage before the output lane, are refused with the reason.
+use std::path::{Path, PathBuf};
+use std::sync::{Arc, Mutex};
+
+use abvs_camera::StereoCalibration;
+use abvs_runtime::messages::Work;
+use abvs_runtime::pipeline::{self, Graph, Lane, PipelineConfig, Published, Sink};
+use abvs_runtime::runner;
+use abvs_runtime::session::Session;
+use abvs_runtime::sources::replay::ReplaySource;
+use abvs_runtime::stage::{Stage, StageContext};
+use abvs_runtime::stats::RunStats;
+use abvs_runtime::tasks::depth::{DepthConfig, DepthStage};
+use abvs_runtime::tasks::disparity;
+use abvs_runtime::tasks::kinematics::{EyeFk, StereoKinematics};
+
+const FRAMES: u64 = 20;
+
+fn fixture() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../fixtures/session")
+}
+
+fn cfg() -> PipelineConfig {
+    PipelineConfig { lossless: true, paced: false, frames: Some(FRAMES), ..Default::default() }
+}
+
+/// The standard graph over the fixture session with SGBM and no sinks.
+fn standard() -> Graph<ReplaySource> {
+    let session = Session::open(&fixture()).unwrap();
+    let stereo = StereoCalibration::read_yaml(session.path(&session.meta.stereo)).unwrap();
+    let kin = StereoKinematics::new(
+        EyeFk::load(&session.path(&session.meta.fk[0])).unwrap(),
+        EyeFk::load(&session.path(&session.meta.fk[1])).unwrap(),
+        stereo.rotation,
+        stereo.translation_mm / 1000.0,
+    );
+    let c = cfg();
+    let eng = disparity::engine("sgbm", None, (c.out.width, c.out.height), 48.0, 2).unwrap();
+    let source = ReplaySource::open(session).unwrap();
+    pipeline::graph(source, kin, (stereo.left, stereo.right), eng, Vec::new(), &c).unwrap()
+}
+
+/// A side stage: the mean gray level of each rectified left image it sees, by frame seq.
+struct Brightness {
+    name: &'static str,
+    seen: Arc<Mutex<Vec<(u64, f64)>>>,
+    started: bool,
+}
+
+impl Stage for Brightness {
+    fn name(&self) -> &'static str {
+        self.name
+    }
+    fn start(&mut self, ctx: &mut StageContext) -> abvs_runtime::Result<()> {
+        assert_eq!((ctx.out.width, ctx.out.height), (320, 240));
+        self.started = true;
+        Ok(())
+    }
+    fn process(&mut self, w: &mut Work) -> abvs_runtime::Result<()> {
+        assert!(self.started && w.rectified.rect.is_some(), "runs after rectification");
+        let l = &w.rectified.left;
+        let mean = l.iter().map(|&v| v as f64).sum::<f64>() / l.len() as f64;
+        self.seen.lock().unwrap().push((w.seq, mean));
+        Ok(())
+    }
+    fn finish(&mut self, stats: &mut RunStats) {
+        stats.extra.insert(format!("{}_frames", self.name), serde_json::json!(self.seen.lock().unwrap().len()));
+    }
+}
+
+/// A sink recording the seq and point count of every published frame.
+struct Recorder(Arc<Mutex<Vec<(u64, usize)>>>);
+
+impl Sink for Recorder {
+    fn name(&self) -> &'static str {
+        "recorder"
+    }
+    fn consume(&mut self, out: &Published) -> abvs_runtime::Result<()> {
+        self.0.lock().unwrap().push((out.seq, out.depth.n_points));
+        Ok(())
+    }
+}
+
+#[test]
+fn a_sink_and_side_stages_join_the_graph_without_touching_the_runner() {
+    let plain = runner::run(standard(), &cfg().run_config()).unwrap();
+    assert_eq!(plain.frames_published, FRAMES);
+
+    let mut g = standard();
+    let (in_lane, own_lane, sunk) = (Arc::default(), Arc::default(), Arc::default());
+    // appended to the rectify lane (same thread as rectification)
+    let side = Brightness { name: "brightness", seen: Arc::clone(&in_lane), started: false };
+    g.add_stage("rectify", Box::new(side)).unwrap();
+    // on a lane (thread) of its own, between disparity and the output
+    let own = Brightness { name: "brightness_lane", seen: Arc::clone(&own_lane), started: false };
+    let at = g.lanes.len() - 1;
+    g.lanes.insert(at, Lane { name: "check", stages: vec![Box::new(own)] });
+    g.add_sink(Box::new(Recorder(Arc::clone(&sunk))));
+    assert_eq!(g.stage_names(), ["source", "rectify", "disparity", "check", "output"]);
+    let stats = runner::run(g, &cfg().run_config()).unwrap();
+
+    // every frame went through both side stages and reached the sink, in order
+    let seqs = |v: &[(u64, f64)]| v.iter().map(|x| x.0).collect::<Vec<_>>();
+    let sunk = sunk.lock().unwrap();
+    let published: Vec<u64> = sunk.iter().map(|x| x.0).collect();
+    assert_eq!(published.len() as u64, FRAMES);
+    assert_eq!(seqs(&in_lane.lock().unwrap()), published);
+    assert_eq!(seqs(&own_lane.lock().unwrap()), published);
+    assert_eq!(*in_lane.lock().unwrap(), *own_lane.lock().unwrap(), "both saw the same rectified images");
+    assert!(sunk.iter().all(|x| x.1 > 1000), "frames carry depth");
+    // their statistics: the side stages' counts, the new lane's latency histogram
+    assert_eq!(stats.extra["brightness_frames"], serde_json::json!(FRAMES));
+    assert_eq!(stats.extra["brightness_lane_frames"], serde_json::json!(FRAMES));
+    let check = stats.stages.iter().find(|s| s.0 == "check").expect("the lane's latency");
+    assert_eq!(check.1.count(), FRAMES);
+    // and the published result is what the standard graph publishes
+    assert_eq!(stats.frames_published, FRAMES);
+    assert!(stats.frames_failed.is_empty(), "{:?}", stats.frames_failed);
+    assert_eq!(stats.output_digest, plain.output_digest);
+    assert_eq!(stats.points_total, plain.points_total);
+}
+
+/// A stage that does nothing, under any name.
+struct Named(&'static str);
+
+impl Stage for Named {
+    fn name(&self) -> &'static str {
+        self.0
+    }
+    fn process(&mut self, _: &mut Work) -> abvs_runtime::Result<()> {
+        Ok(())
+    }
+}
+
+fn build(description: &'static str, stages: Vec<Box<dyn Stage>>) -> String {
+    let source = ReplaySource::open(Session::open(&fixture()).unwrap()).unwrap();
+    match Graph::from_description(source, cfg().out, description, stages, Vec::new()) {
+        Ok(g) => format!("ok: {:?}", g.stage_names()),
+        Err(e) => e.to_string(),
+    }
+}
+
+#[test]
+fn descriptions_must_place_exactly_the_stages_given() {
+    let ok = build("a = x, y; output = z", vec![Box::new(Named("z")), Box::new(Named("x")), Box::new(Named("y"))]);
+    assert_eq!(ok, r#"ok: ["source", "a", "output"]"#);
+    let e = build("a = x, w; output = z", vec![Box::new(Named("x")), Box::new(Named("z"))]);
+    assert!(e.contains("no stage `w`"), "{e}");
+    let e = build("a = x; output = z", vec![Box::new(Named("x")), Box::new(Named("z")), Box::new(Named("y"))]);
+    assert!(e.contains("stage `y` is given but not placed"), "{e}");
+    let e = build("a = x; a = z", vec![Box::new(Named("x")), Box::new(Named("z"))]);
+    assert!(e.contains("lane name `a` used twice"), "{e}");
+    let e = build("a x", vec![]);
+    assert!(e.contains("has no `=`"), "{e}");
+    // depth is filled on the output lane only (its buffer is lent there)
+    let depth = || -> Box<dyn Stage> { Box::new(DepthStage::new(DepthConfig::default())) };
+    let e = build("a = depth; output = z", vec![depth(), Box::new(Named("z"))]);
+    assert!(e.contains("stage `depth` writes depth and must be on the output lane, not `a`"), "{e}");
+    assert!(build("a = x; output = depth", vec![depth(), Box::new(Named("x"))]).starts_with("ok"));
+}
