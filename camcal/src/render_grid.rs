@@ -308,3 +308,101 @@ pub fn write_sim_session(
     ds.write(&dir.join("truth.csv"))?;
     Ok(ds)
 }
+
+/// What to render in a simulated stereo calibration session at home.
+#[derive(Debug, Clone)]
+pub struct StereoSessionSpec {
+    pub grid: AprilGridSpec,
+    /// The head turns through `n x n` orientations (alpha, gamma in +-`half_range_deg`, with a
+    /// little roll) and both cameras move with it, as on a rig turned in front of the boards.
+    pub n: usize,
+    pub half_range_deg: f64,
+    pub noise_sigma: f64,
+    pub blur_sigma: f64,
+    pub supersample: u32,
+    pub seed: u64,
+}
+
+impl Default for StereoSessionSpec {
+    fn default() -> Self {
+        StereoSessionSpec {
+            grid: AprilGridSpec::default(),
+            n: 3,
+            half_range_deg: 20.0,
+            noise_sigma: 1.0,
+            blur_sigma: 0.6,
+            supersample: 2,
+            seed: 0,
+        }
+    }
+}
+
+/// Renders the four-board scene seen by both cameras of `truth` (intrinsics and T_lH^rH) from
+/// the spec's head orientations and writes a stereo session (`stereo.toml`, `pairs.csv`,
+/// `images/`) for `abvs calib stereo`, with the truth beside it as `truth.yaml`. Returns the
+/// number of pairs.
+pub fn write_stereo_sim_session(
+    dir: &std::path::Path,
+    truth: &abvs_camera::StereoCalibration,
+    spec: &StereoSessionSpec,
+    mut progress: impl FnMut(usize, usize),
+) -> Result<usize> {
+    use crate::session::{write_stereo_session, StereoMeta, STEREO_FORMAT};
+    if spec.n < 2 {
+        return Err(CamcalError::Invalid(format!("stereo session: {} orientations per axis (at least 2)", spec.n)));
+    }
+    // The lens model `abvs calib stereo` fits (one for both cameras).
+    let model = |c: &Camera| match c.distortion {
+        abvs_camera::Distortion::Fisheye(_) => "fisheye",
+        abvs_camera::Distortion::Rational(_) => "rational",
+        _ => "pinhole",
+    };
+    if model(&truth.left) != model(&truth.right) {
+        return Err(CamcalError::Invalid("stereo session: both cameras must share one lens model".into()));
+    }
+    std::fs::create_dir_all(dir.join("images"))?;
+    let grid = GridScene::paper(spec.grid);
+    let scene = grid.scene()?;
+    let rays = [
+        abvs_render::RayTable::new(&truth.left).map_err(render_err)?,
+        abvs_render::RayTable::new(&truth.right).map_err(render_err)?,
+    ];
+    // x_r = R x_l + T: the right camera in the left camera's frame.
+    let rt = truth.rotation.transpose();
+    let right_in_left = Pose::new(rt, -(rt * truth.translation_mm));
+    let n = spec.n;
+    let mut pairs = Vec::new();
+    for k in 0..n * n {
+        progress(k, n * n);
+        let at = |i: usize| -spec.half_range_deg + 2.0 * spec.half_range_deg * i as f64 / (n - 1) as f64;
+        let (alpha, gamma) = (at(k / n), at(k % n));
+        let head = Pose::new(abvs_eye::Fick::from_deg([alpha, 0.15 * gamma, gamma]).to_matrix(), Vector3::zeros());
+        let mut names = Vec::new();
+        for (side, pose) in [(0, head), (1, head.compose(&right_in_left))] {
+            let opts = RenderOptions {
+                supersample: spec.supersample,
+                blur_sigma: spec.blur_sigma,
+                noise_sigma: spec.noise_sigma,
+                seed: spec.seed.wrapping_mul(1_000_003).wrapping_add((2 * k + side) as u64),
+                ..Default::default()
+            };
+            let img =
+                abvs_render::render_with_rays(&scene, &rays[side], &to_iso_m(&pose), &opts).map_err(render_err)?;
+            let name = format!("images/{}{:03}.png", ["left", "right"][side], k);
+            let path = dir.join(&name);
+            img.gray_image().save(&path).map_err(|e| CamcalError::File { path: path.clone(), msg: e.to_string() })?;
+            names.push(name);
+        }
+        pairs.push((names[0].clone(), names[1].clone()));
+    }
+    progress(n * n, n * n);
+    let meta = StereoMeta {
+        format: STEREO_FORMAT.into(),
+        target: crate::target::Target::AprilGrid(spec.grid).to_string(),
+        model: model(&truth.left).into(),
+    };
+    write_stereo_session(dir, &meta, &pairs)?;
+    let tp = dir.join("truth.yaml");
+    truth.write_yaml(&tp).map_err(|e| CamcalError::File { path: tp.clone(), msg: e.to_string() })?;
+    Ok(pairs.len())
+}

@@ -16,14 +16,6 @@ use nalgebra::{Matrix3, Vector3};
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
-fn parse_detector(s: &str) -> anyhow::Result<AprilDetector> {
-    match s {
-        "opencv" => Ok(AprilDetector::OpenCv),
-        "aprilgrid" => Ok(AprilDetector::AprilGridCrate),
-        _ => bail!("detector '{s}': expected aprilgrid or opencv"),
-    }
-}
-
 #[derive(Args)]
 pub struct IntrinsicsArgs {
     /// Images: a glob pattern (quote it), e.g. 'calib/left*.png'.
@@ -32,14 +24,13 @@ pub struct IntrinsicsArgs {
     /// aprilgrid[:COLSxROWS:TAG_MM:SPACING] or chessboard:COLSxROWS:SQUARE_MM.
     #[arg(long, default_value = "aprilgrid")]
     target: String,
-    /// fisheye, pinhole or rational.
-    #[arg(long, default_value = "fisheye")]
-    model: String,
+    #[arg(long, value_enum, default_value_t = Model::Fisheye)]
+    model: Model,
     #[arg(long)]
     out: PathBuf,
     /// AprilGrid detector: aprilgrid (the aprilgrid crate) or opencv (aruco).
-    #[arg(long, default_value = "aprilgrid")]
-    detector: String,
+    #[arg(long, value_enum, default_value_t = AprilDetector::AprilGridCrate)]
+    detector: AprilDetector,
     /// Fewest corners of one board in one image for it to be used.
     #[arg(long, default_value_t = 12)]
     min_corners: usize,
@@ -88,9 +79,9 @@ fn name(p: &Path) -> String {
 
 pub fn intrinsics(a: IntrinsicsArgs) -> anyhow::Result<ExitCode> {
     let target: Target = a.target.parse()?;
-    let model: Model = a.model.parse()?;
+    let model = a.model;
     let files = expand(&a.images)?;
-    let dets = detect_all(&files, &target, parse_detector(&a.detector)?);
+    let dets = detect_all(&files, &target, a.detector);
     let Some((w, h)) = dets.iter().flatten().map(|d| (d.width, d.height)).next() else {
         bail!("no board found in any of {} images", files.len());
     };
@@ -131,8 +122,8 @@ pub struct MeasureArgs {
     /// Dataset file to write (dataset.md).
     #[arg(long)]
     out: PathBuf,
-    #[arg(long, default_value = "aprilgrid")]
-    detector: String,
+    #[arg(long, value_enum, default_value_t = AprilDetector::AprilGridCrate)]
+    detector: AprilDetector,
     /// Fewest corners (all boards) for an image to be measured.
     #[arg(long, default_value_t = 20)]
     min_corners: usize,
@@ -145,7 +136,7 @@ pub fn measure(a: MeasureArgs) -> anyhow::Result<ExitCode> {
     let s = Session::read(&a.session)?;
     let opts = SolveOptions { min_corners: a.min_corners, ..Default::default() };
     let pb = crate::progress_bar(s.rows.len() as u64, "detecting");
-    let (ds, rep, solved) = measure_session(&s, parse_detector(&a.detector)?, &opts, |k, _| pb.set_position(k as u64))?;
+    let (ds, rep, solved) = measure_session(&s, a.detector, &opts, |k, _| pb.set_position(k as u64))?;
     pb.finish_and_clear();
     ds.write(&a.out)?;
     let c = rep.failure_counts();
@@ -180,8 +171,8 @@ pub struct StereoArgs {
     session: PathBuf,
     #[arg(long)]
     out: PathBuf,
-    #[arg(long, default_value = "aprilgrid")]
-    detector: String,
+    #[arg(long, value_enum, default_value_t = AprilDetector::AprilGridCrate)]
+    detector: AprilDetector,
     #[arg(long, default_value_t = 12)]
     min_corners: usize,
 }
@@ -190,7 +181,7 @@ pub fn stereo(a: StereoArgs) -> anyhow::Result<ExitCode> {
     let (meta, pairs) = read_stereo_session(&a.session)?;
     let target: Target = meta.target.parse()?;
     let model: Model = meta.model.parse()?;
-    let det = parse_detector(&a.detector)?;
+    let det = a.detector;
     let left: Vec<PathBuf> = pairs.iter().map(|p| p.0.clone()).collect();
     let right: Vec<PathBuf> = pairs.iter().map(|p| p.1.clone()).collect();
     let (dl, dr) = (detect_all(&left, &target, det), detect_all(&right, &target, det));
@@ -281,5 +272,52 @@ pub fn sim_session(a: SimSessionArgs) -> anyhow::Result<ExitCode> {
     })?;
     pb.finish_and_clear();
     println!("wrote {} ({} images + {} home; truth.csv, camera.yaml)", a.out.display(), truth.len() - a.home, a.home);
+    Ok(ExitCode::SUCCESS)
+}
+
+#[derive(Args)]
+pub struct SimStereoArgs {
+    /// The pair to render (OpenCV YAML of `abvs calib stereo`: both intrinsics and T_lH^rH).
+    #[arg(long)]
+    truth: PathBuf,
+    #[arg(long)]
+    out: PathBuf,
+    /// n x n head orientations (alpha, gamma over +-range). On the fixture's 800x600 fisheye pair,
+    /// 3 x 3 over 20 deg leaves 0.08 deg of rotation error, 5 x 5 over 25 deg 0.02 deg.
+    #[arg(long, default_value_t = 5)]
+    n: usize,
+    #[arg(long, default_value_t = 25.0)]
+    range_deg: f64,
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// Image noise sigma (grey levels), blur sigma (px), supersampling (n x n per pixel).
+    #[arg(long, default_value_t = 1.0)]
+    noise: f64,
+    #[arg(long, default_value_t = 0.6)]
+    blur: f64,
+    #[arg(long, default_value_t = 2)]
+    supersample: u32,
+}
+
+/// `abvs sim stereo-session`: a stereo calibration session at home rendered for a known pair.
+pub fn sim_stereo(a: SimStereoArgs) -> anyhow::Result<ExitCode> {
+    use abvs_camcal::render_grid::{write_stereo_sim_session, StereoSessionSpec};
+    let truth = StereoCalibration::read_yaml(&a.truth)?;
+    let spec = StereoSessionSpec {
+        n: a.n,
+        half_range_deg: a.range_deg,
+        noise_sigma: a.noise,
+        blur_sigma: a.blur,
+        supersample: a.supersample,
+        seed: a.seed,
+        ..Default::default()
+    };
+    let pb = crate::progress_bar(0, "rendering");
+    let n = write_stereo_sim_session(&a.out, &truth, &spec, |k, n| {
+        pb.set_length(n as u64);
+        pb.set_position(k as u64)
+    })?;
+    pb.finish_and_clear();
+    println!("wrote {} ({n} pairs; stereo.toml, pairs.csv, truth.yaml)", a.out.display());
     Ok(ExitCode::SUCCESS)
 }

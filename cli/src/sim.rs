@@ -15,6 +15,8 @@ pub enum SimCmd {
     Dataset(DatasetArgs),
     /// Render an AprilGrid image session (four boards, OV8856 fisheye) with ground truth.
     AprilgridSession(crate::camcal::SimSessionArgs),
+    /// Render a stereo calibration session at home (AprilGrid pairs) for a known pair of cameras.
+    StereoSession(crate::camcal::SimStereoArgs),
     /// Act as a drive board: stream encoder frames to a serial port (e.g. a pseudo-terminal).
     Board(BoardArgs),
     /// Render a stereo session with ground truth (textured scene, two units, saccades and pursuit).
@@ -38,9 +40,9 @@ pub struct SessionArgs {
     width: u32,
     #[arg(long, default_value_t = 600)]
     height: u32,
-    /// FK calibration method fitted for each eye on a simulated calibration dataset (mh, hybrid, m2, ...).
-    #[arg(long, default_value = "hybrid")]
-    fk_method: String,
+    /// FK calibration method fitted for each eye on a simulated calibration dataset.
+    #[arg(long, value_enum, default_value_t = abvs_calib::methods::Method::Hybrid)]
+    fk_method: abvs_calib::methods::Method,
     /// Grid step (deg) of that calibration dataset.
     #[arg(long, default_value_t = 6.0)]
     calib_step_deg: f64,
@@ -179,6 +181,7 @@ fn session_board(a: BoardArgs) -> anyhow::Result<ExitCode> {
 pub fn run(cmd: SimCmd) -> anyhow::Result<ExitCode> {
     match cmd {
         SimCmd::AprilgridSession(a) => crate::camcal::sim_session(a),
+        SimCmd::StereoSession(a) => crate::camcal::sim_stereo(a),
         SimCmd::Repeatability(a) => crate::repeat::sim(a),
         SimCmd::Board(a) if a.serve => crate::saccade::serve_board(&a.port, a.seed, a.rate_hz, a.seconds),
         SimCmd::Board(a) if a.session.is_some() => session_board(a),
