@@ -65,6 +65,24 @@ fn calibrated_fk_gives_far_better_depth_than_nominal_and_replays_are_identical()
     }
 }
 
+/// The default engine (the shipped network, hitnet-s at 320x240) end to end, as `abvs run` runs
+/// without flags: its depth error is bounded, and it beats SGBM on the fixture in the same run
+/// (abs_rel 0.037 vs 0.041, valid 0.81 vs 0.66 when written).
+#[test]
+fn the_default_engine_end_to_end_bounds_its_depth_error_and_beats_sgbm() {
+    let s = fixture();
+    let net = run(&s, &["--lossless"]).unwrap();
+    let sgbm = run(&s, &["--lossless", "--engine", "sgbm"]).unwrap();
+    assert_eq!(net["frames_published"], 50, "{net:#}");
+    assert_eq!(net["engine"], "onnx:hitnet-s");
+    let (n, g) = (depth_err(&net), depth_err(&sgbm));
+    eprintln!("abs_rel / rmse / valid: default {n:?} sgbm {g:?}");
+    assert!(n.0 < 0.045 && n.2 > 0.75, "default engine: {n:?}");
+    assert!(n.0 < g.0 && n.1 < g.1 && n.2 > g.2, "default {n:?} vs sgbm {g:?}");
+    // the same frames, by seq: lossless replays of one session
+    assert_eq!(net["frames_published"], sgbm["frames_published"]);
+}
+
 #[test]
 fn the_session_loops_with_increasing_timestamps() {
     let v = run(&fixture(), &["--engine", "sgbm", "--lossless", "--frames", "120", "--truth-stride", "0"]).unwrap();
