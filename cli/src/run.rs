@@ -470,6 +470,19 @@ pub fn run_config(c: &RuntimeConfig) -> anyhow::Result<ExitCode> {
         if let Some(v) = stats.extra.get("self_check") {
             println!("{}", abvs_runtime::sinks::self_check::summary_line(v));
         }
+        for k in ["zenoh", "mcap"] {
+            if let Some(v) = stats.extra.get(k) {
+                let n = |f: &str| v[f].as_u64().unwrap_or(0);
+                let err = v["last_error"].as_str().map(|e| format!(", first error: {e}")).unwrap_or_default();
+                println!(
+                    "{k}: {} of {} frames written, {} dropped (queue full), {} failed{err}",
+                    n("frames_written"),
+                    n("frames_in"),
+                    n("frames_dropped"),
+                    n("frames_failed")
+                );
+            }
+        }
     }
     if let Some(p) = &c.sinks.stats_json {
         std::fs::write(p, serde_json::to_string_pretty(&stats.json(elapsed))? + "\n")

@@ -300,13 +300,14 @@ impl FrameSnapshot {
         self.depth.clear();
         self.depth.extend_from_slice(&out.depth.depth);
         let n = out.depth.n_points;
-        self.cloud.clear();
-        self.cloud.reserve(n * POINT_STEP);
-        for (p, g) in out.depth.points[..n].iter().zip(&out.depth.intensity[..n]) {
-            self.cloud.extend_from_slice(&p.x.to_le_bytes());
-            self.cloud.extend_from_slice(&p.y.to_le_bytes());
-            self.cloud.extend_from_slice(&p.z.to_le_bytes());
-            self.cloud.extend_from_slice(&gray_rgb(*g).to_le_bytes());
+        // sized once, then written in place: this runs on the pipeline's output thread
+        self.cloud.resize(n * POINT_STEP, 0);
+        let pts = out.depth.points[..n].iter().zip(&out.depth.intensity[..n]);
+        for (dst, (p, g)) in self.cloud.chunks_exact_mut(POINT_STEP).zip(pts) {
+            let words = [p.x.to_bits(), p.y.to_bits(), p.z.to_bits(), gray_rgb(*g)];
+            for (d, w) in dst.chunks_exact_mut(4).zip(words) {
+                d.copy_from_slice(&w.to_le_bytes());
+            }
         }
     }
 
