@@ -18,42 +18,8 @@ use std::time::Instant;
 /// Fewest samples any method accepts: below this no fit is meaningful.
 pub const MIN_SAMPLES: usize = 16;
 
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Method {
-    Mh,
-    M1,
-    M2,
-    M1f,
-    M2f,
-    M4f,
-    Hybrid,
-}
-
-impl Method {
-    pub fn parse(s: &str) -> Result<Method> {
-        Ok(match s {
-            "mh" => Method::Mh,
-            "m1" => Method::M1,
-            "m2" => Method::M2,
-            "m1f" => Method::M1f,
-            "m2f" => Method::M2f,
-            "m4f" => Method::M4f,
-            "hybrid" => Method::Hybrid,
-            _ => return Err(CalibError::Invalid(format!("unknown method '{s}' (mh, m1, m2, m1f, m2f, m4f, hybrid)"))),
-        })
-    }
-    pub fn name(self) -> &'static str {
-        match self {
-            Method::Mh => "mh",
-            Method::M1 => "m1",
-            Method::M2 => "m2",
-            Method::M1f => "m1f",
-            Method::M2f => "m2f",
-            Method::M4f => "m4f",
-            Method::Hybrid => "hybrid",
-        }
-    }
-}
+/// The methods are named in abvs-fk (manifests carry them); re-exported for the callers here.
+pub use abvs_fk::method::Method;
 
 /// Training settings shared by the methods (the paper's defaults).
 #[derive(Debug, Clone)]
@@ -179,7 +145,7 @@ fn single_net(
     cfg: &FitConfig,
     t0: Instant,
 ) -> ModelParts {
-    let mut m = Manifest::new(method.name());
+    let mut m = Manifest::new(method);
     m.training.epochs = vec![epochs];
     m.training.base = base;
     let (xv, yv) = xy(va);
@@ -240,7 +206,7 @@ fn physics(
     progress("physics", 1, 1, fit.rms_rot_deg, fit.rms_trans_mm);
     let mut unit = fit.unit;
     unit.name = format!("{} fit", method.name());
-    let mut m = Manifest::new(method.name());
+    let mut m = Manifest::new(method);
     m.held_parameters =
         fit.held.iter().map(|h| format!("{} (confounded with {:?})", h.name, h.confounded_with)).collect();
     m.training.base = base;
@@ -327,8 +293,13 @@ pub fn finetune(
             physics(method, &start, &static_effects(), data, val, cfg, base_id, progress)
         }
         Method::M1f | Method::M2f => {
-            let want = if method == Method::M1f { "m1" } else { "m2" };
-            if !base.method().starts_with(want) {
+            // A fine-tuned base (m1f, m2f) fine-tunes again like its origin.
+            let (want, ok) = if method == Method::M1f {
+                ("m1", matches!(base.method(), Method::M1 | Method::M1f))
+            } else {
+                ("m2", matches!(base.method(), Method::M2 | Method::M2f))
+            };
+            if !ok {
                 return Err(CalibError::Mismatch(format!(
                     "{} fine-tunes an {want} model, base is {}",
                     method.name(),
@@ -342,7 +313,7 @@ pub fn finetune(
             Ok(single_net(method, net, epochs, base_id, &tr, &va, cfg, t0))
         }
         Method::M4f => {
-            if !base.method().starts_with("m2") {
+            if !matches!(base.method(), Method::M2 | Method::M2f) {
                 return Err(CalibError::Mismatch(format!("m4f fine-tunes an m2 model, base is {}", base.method())));
             }
             let net = base_net()?;
@@ -428,7 +399,7 @@ fn m4f(
     }
     let (mse, split, ni, no, epochs) =
         best.ok_or_else(|| CalibError::Data("m4f: too few samples on one side of every PSC split".into()))?;
-    let mut m = Manifest::new("m4f");
+    let mut m = Manifest::new(Method::M4f);
     m.psc = Some(split);
     m.training.epochs = epochs;
     m.training.base = base_id;

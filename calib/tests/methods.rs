@@ -107,7 +107,7 @@ fn bad_inputs_are_clear_errors() {
     let mh = FkModel::load(&dir.path().join("mh")).unwrap();
     for (m, base) in [(Method::M2f, &m1), (Method::M4f, &m1), (Method::Hybrid, &m1), (Method::M1f, &mh)] {
         match finetune(m, base, &data, None, &cfg, &mut quiet()) {
-            Err(CalibError::Mismatch(msg)) => assert!(msg.contains(base.method()), "{msg}"),
+            Err(CalibError::Mismatch(msg)) => assert!(msg.contains(base.method().name()), "{msg}"),
             other => panic!("{} on {}: expected a mismatch, got {:?}", m.name(), base.method(), other.map(|_| ())),
         }
     }

@@ -562,7 +562,7 @@ fn foreign_network_drops_into_a_model_directory() {
     let (ni, no) = norms();
     let net = Net::m1(16, 4, ni, no, 5);
     let path = write(dir.path(), "net.onnx", &torch_m1(&net, "Sigmoid"));
-    let mut m = Manifest::new("m1");
+    let mut m = Manifest::new(abvs_calib::methods::Method::M1);
     m.networks.insert("net".into(), "net.onnx".into());
     std::fs::write(dir.path().join(MANIFEST), serde_json::to_string(&m).unwrap()).unwrap();
     let model = FkModel::load(dir.path()).unwrap();

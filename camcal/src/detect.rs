@@ -43,13 +43,16 @@ impl Detection {
 
 /// Which AprilTag detector to use.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
 pub enum AprilDetector {
     /// OpenCV aruco (DICT_APRILTAG_36h11, 2-bit border, AprilTag quad finder) + cornerSubPix on
     /// the saddle points.
+    #[cfg_attr(feature = "clap", value(name = "opencv"))]
     OpenCv,
     /// The crates.io `aprilgrid` crate (pure Rust, saddle-point based): the default, it finds
     /// every tag of a Kalibr grid (see camcal/README.md).
     #[default]
+    #[cfg_attr(feature = "clap", value(name = "aprilgrid"))]
     AprilGridCrate,
 }
 

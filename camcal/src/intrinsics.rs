@@ -12,12 +12,15 @@ use std::str::FromStr;
 
 /// Lens model of a calibration.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
 pub enum Model {
     /// OpenCV fisheye (Kannala-Brandt, k1..k4).
     Fisheye,
     /// OpenCV pinhole with plumb-bob distortion (k1, k2, p1, p2, k3).
+    #[cfg_attr(feature = "clap", value(alias = "plumb_bob"))]
     Pinhole,
     /// OpenCV rational model (k1, k2, p1, p2, k3, k4, k5, k6).
+    #[cfg_attr(feature = "clap", value(alias = "rational_polynomial"))]
     Rational,
 }
 

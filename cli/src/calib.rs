@@ -41,8 +41,8 @@ pub enum CalibCmd {
 
 #[derive(Args)]
 pub struct Common {
-    #[arg(long)]
-    method: String,
+    #[arg(long, value_enum)]
+    method: Method,
     #[arg(long)]
     train: PathBuf,
     #[arg(long)]
@@ -161,7 +161,7 @@ pub fn run(cmd: CalibCmd) -> anyhow::Result<ExitCode> {
     match cmd {
         CalibCmd::Paper(a) => crate::paper::run(a),
         CalibCmd::Fit(FitArgs { c }) => {
-            let method = Method::parse(&c.method)?;
+            let method = c.method;
             let train = Dataset::read(&c.train)?;
             let val = c.val.as_ref().map(|p| Dataset::read(p)).transpose()?;
             let mut bars = Bars { stage: String::new(), bar: None };
@@ -171,7 +171,7 @@ pub fn run(cmd: CalibCmd) -> anyhow::Result<ExitCode> {
             report(&parts, &c)
         }
         CalibCmd::Finetune(FinetuneArgs { base, c }) => {
-            let method = Method::parse(&c.method)?;
+            let method = c.method;
             let base = FkModel::load(&base)?;
             let train = Dataset::read(&c.train)?;
             let val = c.val.as_ref().map(|p| Dataset::read(p)).transpose()?;

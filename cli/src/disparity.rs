@@ -10,6 +10,7 @@ use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::time::Instant;
 
+use abvs_runtime::config::EngineKind;
 use abvs_runtime::tasks::disparity::{self, DisparityEngine};
 use anyhow::{bail, Context};
 use clap::Args;
@@ -29,8 +30,8 @@ pub struct DisparityArgs {
     /// Model directory or .onnx (default: the shipped hitnet-s).
     #[arg(long)]
     model: Option<PathBuf>,
-    #[arg(long, default_value = "onnx")]
-    engine: String,
+    #[arg(long, value_enum, default_value_t = EngineKind::Onnx)]
+    engine: EngineKind,
     #[arg(long, default_value_t = 2)]
     threads: usize,
 }
@@ -192,10 +193,9 @@ pub fn run_disparity(a: DisparityArgs) -> anyhow::Result<ExitCode> {
     let onnx = disparity::OnnxEngine::load(&model, a.threads)?;
     let (mw, mh) = (onnx.manifest.width, onnx.manifest.height);
     let max = onnx.manifest.max_disparity;
-    let mut engine: Box<dyn DisparityEngine> = match a.engine.as_str() {
-        "onnx" => Box::new(onnx),
-        "sgbm" => Box::new(disparity::SgbmEngine::new(mw, mh, max)?),
-        other => bail!("--engine `{other}`: expected onnx or sgbm"),
+    let mut engine: Box<dyn DisparityEngine> = match a.engine {
+        EngineKind::Onnx => Box::new(onnx),
+        EngineKind::Sgbm => Box::new(disparity::SgbmEngine::new(mw, mh, max)?),
     };
     let d = compute(engine.as_mut(), &resize_to(&l, mw as i32, mh as i32)?, &resize_to(&r, mw as i32, mh as i32)?)?;
     // back to the input resolution, values scaled by the width ratio
@@ -255,28 +255,9 @@ fn load_gt(path: &Path, scale: f64, w: u32, h: u32) -> anyhow::Result<(usize, us
 
 /// EPE over pixels with both values; bad-k over valid ground truth (no estimate = bad).
 fn score(d: &[f32], gt: &[f32], max_disp: f64) -> serde_json::Value {
-    let (mut n, mut both, mut sum, mut bad) = (0usize, 0usize, 0f64, [0usize; 3]);
-    for (p, g) in d.iter().zip(gt) {
-        if !(g.is_finite() && (*g as f64) < max_disp) {
-            continue;
-        }
-        n += 1;
-        if !p.is_finite() {
-            bad.iter_mut().for_each(|b| *b += 1);
-            continue;
-        }
-        let e = (p - g).abs() as f64;
-        both += 1;
-        sum += e;
-        for (k, b) in bad.iter_mut().enumerate() {
-            if e > (k + 1) as f64 {
-                *b += 1;
-            }
-        }
-    }
-    let pct = |b: usize| 100.0 * b as f64 / n.max(1) as f64;
-    serde_json::json!({ "epe_px": sum / both.max(1) as f64, "bad1_pct": pct(bad[0]), "bad2_pct": pct(bad[1]),
-        "bad3_pct": pct(bad[2]), "valid_fraction": both as f64 / n.max(1) as f64, "gt_pixels": n })
+    let s = abvs_sim::disparity_score::score_disparity(d, gt, max_disp);
+    serde_json::json!({ "epe_px": s.epe_px, "bad1_pct": s.bad_pct[0], "bad2_pct": s.bad_pct[1],
+        "bad3_pct": s.bad_pct[2], "valid_fraction": s.valid_fraction, "gt_pixels": s.gt_pixels })
 }
 
 pub fn run_eval(a: EvalArgs) -> anyhow::Result<ExitCode> {

@@ -65,22 +65,8 @@ fn score(dir: &Path, engine: &str, model: Option<&Path>, (gw, gh): (usize, usize
     let (w, h, disp) = read_pfm(&out);
     assert_eq!((w, h), (gw, gh));
     assert!(disp.iter().all(|v| !v.is_nan()), "invalid is written as inf, never NaN");
-    let (mut sum, mut n, mut bad2, mut total) = (0f64, 0usize, 0usize, 0usize);
-    for (p, g) in disp.iter().zip(gt) {
-        if !(g.is_finite() && *g < max_d) {
-            continue;
-        }
-        total += 1;
-        if p.is_finite() {
-            let e = (p - g).abs() as f64;
-            sum += e;
-            n += 1;
-            bad2 += (e > 2.0) as usize;
-        } else {
-            bad2 += 1;
-        }
-    }
-    let r = [sum / n.max(1) as f64, 100.0 * bad2 as f64 / total as f64, n as f64 / total as f64];
+    let s = abvs_sim::disparity_score::score_disparity(&disp, gt, max_d as f64);
+    let r = [s.epe_px, s.bad_pct[1], s.valid_fraction];
     eprintln!("{engine} {model:?} {gw}x{gh}: EPE {:.3} px, bad-2 {:.1}%, valid {:.3}", r[0], r[1], r[2]);
     r
 }

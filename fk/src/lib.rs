@@ -7,6 +7,7 @@
 //! - [`net`]: the paper's networks (plain MLP, shared trunk + branches) evaluated natively
 //!   (AVX2/FMA kernels at batch 1, GEMM for batches; [`batch`] is the batched pass training
 //!   shares);
+//! - [`method`]: the calibration methods by name (manifest, command line);
 //! - [`onnx_io`]: networks as ONNX files and plain-MLP ONNX graphs as networks.
 //!
 //! abvs-calib trains and fits what this crate evaluates; the runtime links only this.
@@ -15,8 +16,10 @@
 
 pub mod batch;
 pub mod error;
+pub mod method;
 pub mod model;
 pub mod net;
 pub mod onnx_io;
 
 pub use error::{FkError, Result};
+pub use method::Method;

@@ -7,6 +7,7 @@
 //! in, raw P out), so a network trained elsewhere drops in: plain MLP graphs run natively
 //! (fast), anything else through ONNX Runtime.
 use crate::error::{FkError as CalibError, Result};
+use crate::method::Method;
 use crate::net::Net;
 use crate::onnx_io::{export_onnx, import_onnx};
 use abvs_eye::dataset::Dataset;
@@ -21,7 +22,6 @@ use std::sync::Mutex;
 
 pub const MODEL_FORMAT: &str = "abvs-fk-model/1";
 pub const MANIFEST: &str = "manifest.json";
-pub const METHODS: [&str; 7] = ["mh", "m1", "m2", "m1f", "m2f", "m4f", "hybrid"];
 
 /// The PSC split of an M4 model.
 #[derive(Debug, Clone, Copy, Serialize, Deserialize, PartialEq)]
@@ -53,7 +53,7 @@ pub struct TrainingInfo {
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct Manifest {
     pub format: String,
-    pub method: String,
+    pub method: Method,
     pub abvs_version: String,
     /// Input columns (deg) and output columns (deg, mm) of the model.
     pub inputs: Vec<String>,
@@ -79,10 +79,10 @@ pub struct Manifest {
 }
 
 impl Manifest {
-    pub fn new(method: &str) -> Self {
+    pub fn new(method: Method) -> Self {
         Manifest {
             format: MODEL_FORMAT.into(),
-            method: method.into(),
+            method,
             abvs_version: env!("CARGO_PKG_VERSION").into(),
             inputs: ["theta1_deg", "theta2_deg", "theta3_deg"].map(String::from).to_vec(),
             outputs: ["alpha_deg", "beta_deg", "gamma_deg", "x_mm", "y_mm", "z_mm"].map(String::from).to_vec(),
@@ -257,9 +257,6 @@ impl FkModel {
         if manifest.format != MODEL_FORMAT {
             return Err(CalibError::model(&mp, format!("format '{}', expected '{MODEL_FORMAT}'", manifest.format)));
         }
-        if !METHODS.contains(&manifest.method.as_str()) {
-            return Err(CalibError::model(&mp, format!("unknown method '{}'", manifest.method)));
-        }
         let net = |role: &str| -> Result<NetRunner> {
             let f = manifest
                 .networks
@@ -267,27 +264,27 @@ impl FkModel {
                 .ok_or_else(|| CalibError::model(&mp, format!("method {} needs network '{role}'", manifest.method)))?;
             NetRunner::load(&dir.join(f))
         };
-        let kind = match manifest.method.as_str() {
-            "mh" | "hybrid" => {
+        let kind = match manifest.method {
+            Method::Mh | Method::Hybrid => {
                 let f =
                     manifest.physics.as_ref().ok_or_else(|| CalibError::model(&mp, "no physics (unit model) file"))?;
                 let unit = UnitModel::load(&dir.join(f))?;
                 let residual = if manifest.networks.contains_key("residual") { Some(net("residual")?) } else { None };
                 Kind::Physics { fk: unit.compile()?, residual }
             }
-            "m4f" => Kind::Split {
+            Method::M4f => Kind::Split {
                 internal: net("internal")?,
                 external: net("external")?,
                 split: manifest.psc.ok_or_else(|| CalibError::model(&mp, "m4f model without PSC thresholds"))?,
                 margin: psc_margin(),
             },
-            _ => Kind::Net(net("net")?),
+            Method::M1 | Method::M2 | Method::M1f | Method::M2f => Kind::Net(net("net")?),
         };
         Ok(FkModel { manifest, dir: dir.into(), kind, nominal: SpmGeometry::nominal() })
     }
 
-    pub fn method(&self) -> &str {
-        &self.manifest.method
+    pub fn method(&self) -> Method {
+        self.manifest.method
     }
 
     /// The network of a role when it runs natively (for fine-tuning).

@@ -156,7 +156,7 @@ impl Ctx<'_> {
             label: label.into(),
             unit: test.unit.clone(),
             model: t.name.clone(),
-            method: t.model.method().into(),
+            method: t.model.method(),
             trained_on: t.trained_on.clone(),
             train_samples: t.samples,
             train_seconds: t.seconds,

@@ -12,7 +12,7 @@ pub struct ModelResult {
     pub unit: String,
     /// Model directory name under `<out>/models/`.
     pub model: String,
-    pub method: String,
+    pub method: abvs_calib::methods::Method,
     /// Unit and size of the data the model was trained / fine-tuned on.
     pub trained_on: String,
     pub train_samples: usize,

@@ -5,8 +5,10 @@
 //! a rendered scene, with their calibration) and the depth error of a run against that truth
 //! ([`truth`], a sink of the runtime's pipeline), and simulated drive boards ([`board`]; [`servo_board`]
 //! executes move commands).
+//! [`disparity_score`] is the one EPE / bad-k score of a disparity map against ground truth.
 //! `abvs sim session`, `abvs sim board` and `abvs run` use them.
 pub mod board;
+pub mod disparity_score;
 pub mod servo_board;
 pub mod synth;
 pub mod truth;

@@ -136,8 +136,8 @@ pub struct SessionSpec {
     pub width: u32,
     pub height: u32,
     pub encoder_hz: f64,
-    /// FK calibration method fitted for each eye ("mh", "hybrid", ...).
-    pub fk_method: String,
+    /// FK calibration method fitted for each eye.
+    pub fk_method: Method,
     /// Grid step (deg) of the simulated calibration dataset.
     pub calib_step_deg: f64,
     pub supersample: u32,
@@ -155,7 +155,7 @@ impl Default for SessionSpec {
             width: 800,
             height: 600,
             encoder_hz: 1000.0,
-            fk_method: "hybrid".into(),
+            fk_method: Method::Hybrid,
             calib_step_deg: 6.0,
             supersample: 2,
             noise_sigma: 1.5,
@@ -367,7 +367,7 @@ pub fn generate(spec: &SessionSpec, dir: &Path, progress: &mut dyn FnMut(&str, u
     std::fs::write(&tp, truth_rows).map_err(|e| io(&tp, &e))?;
 
     // ---- each eye's FK calibrated as a user would: a simulated calibration dataset of the same unit, fitted
-    let method = Method::parse(&spec.fk_method).map_err(inv)?;
+    let method = spec.fk_method;
     for (eye, unit) in units.iter().enumerate() {
         progress("calibrate", eye, 2);
         let sim = SimSpec {
