@@ -12,6 +12,7 @@
 //! reported with the parameters they are confounded with, worst first, one at a time.
 use crate::error::{CalibError, Result};
 use abvs_eye::dataset::Dataset;
+use abvs_eye::lm::{levenberg_marquardt, Damping, LmProblem};
 use abvs_eye::pose::rotation_vector;
 use abvs_eye::unit::{Effect, UnitModel};
 use abvs_eye::Pose;
@@ -234,6 +235,54 @@ fn std_errors(j: &DMatrix<f64>) -> Option<(DVector<f64>, DMatrix<f64>)> {
     Some((cov.diagonal().map(|v| v.max(0.0).sqrt()), cov))
 }
 
+/// [`fit_params`]'s problem for the shared LM loop: the current point and its residuals, the
+/// last linearisation (its Jacobian also gives the standard errors), one candidate step.
+struct Fit<'p, 'a> {
+    prob: &'p Problem<'a>,
+    x: Vec<f64>,
+    r: DVector<f64>,
+    jac: DMatrix<f64>,
+    jtj: DMatrix<f64>,
+    g: DVector<f64>,
+    cand: Option<(Vec<f64>, DVector<f64>)>,
+}
+
+impl LmProblem for Fit<'_, '_> {
+    type Error = CalibError;
+
+    fn linearise(&mut self) -> Result<()> {
+        self.jac = self.prob.jacobian(&self.x, &self.r)?;
+        self.jtj = self.jac.transpose() * &self.jac;
+        self.g = self.jac.transpose() * &self.r;
+        Ok(())
+    }
+
+    fn try_step(&mut self, lambda: f64) -> Result<Option<f64>> {
+        let mut a = self.jtj.clone();
+        for k in 0..a.nrows() {
+            a[(k, k)] += lambda * self.jtj[(k, k)].max(1e-12);
+        }
+        let Some(step) = a.cholesky().map(|c| c.solve(&(-&self.g))) else {
+            return Ok(None);
+        };
+        let xn: Vec<f64> = self.x.iter().zip(step.iter()).map(|(a, b)| a + b).collect();
+        // A step out of the valid region (e.g. near-singular) is refused: a shorter one follows.
+        let Ok(rn) = self.prob.resid(&xn) else {
+            return Ok(None);
+        };
+        let c = rn.norm_squared();
+        self.cand = Some((xn, rn));
+        Ok(Some(c))
+    }
+
+    fn accept(&mut self) {
+        if let Some((x, r)) = self.cand.take() {
+            self.x = x;
+            self.r = r;
+        }
+    }
+}
+
 /// Fits the parameters of `effects` (switched on if they are not) starting from `start`.
 pub fn fit_unit(start: &UnitModel, effects: &[Effect], data: &Dataset, opts: &FitOptions) -> Result<FitResult> {
     fit_params(start, &params_of(effects), data, opts)
@@ -295,58 +344,16 @@ pub fn fit_params(start: &UnitModel, params: &[Param], data: &Dataset, opts: &Fi
         }
     }
 
-    // Levenberg-Marquardt (Marquardt's diagonal scaling).
-    let mut x = get(&base, &prob.free);
-    let mut r = prob.resid(&x)?;
-    let mut cost = r.norm_squared();
-    let mut lambda = 1e-3;
-    let mut iterations = 0;
-    let mut jac = DMatrix::zeros(r.len(), prob.free.len());
-    for it in 0..opts.max_iter {
-        if prob.free.is_empty() {
-            break;
-        }
-        iterations = it + 1;
-        jac = prob.jacobian(&x, &r)?;
-        let jtj = jac.transpose() * &jac;
-        let g = jac.transpose() * &r;
-        let mut improved = false;
-        for _ in 0..10 {
-            let mut a = jtj.clone();
-            for k in 0..a.nrows() {
-                a[(k, k)] += lambda * jtj[(k, k)].max(1e-12);
-            }
-            let Some(step) = a.cholesky().map(|c| c.solve(&(-&g))) else {
-                lambda *= 10.0;
-                continue;
-            };
-            let xn: Vec<f64> = x.iter().zip(step.iter()).map(|(a, b)| a + b).collect();
-            let rn = match prob.resid(&xn) {
-                Ok(v) => v,
-                Err(_) => {
-                    lambda *= 10.0; // left the valid region (e.g. near-singular): shorter step
-                    continue;
-                }
-            };
-            let cn = rn.norm_squared();
-            if cn < cost {
-                let rel = (cost - cn) / cost.max(1e-300);
-                x = xn;
-                r = rn;
-                cost = cn;
-                lambda = (lambda / 10.0).max(1e-12);
-                improved = true;
-                if rel < 1e-12 {
-                    improved = false;
-                }
-                break;
-            }
-            lambda *= 10.0;
-        }
-        if !improved {
-            break;
-        }
-    }
+    // Levenberg-Marquardt (Marquardt's diagonal scaling, factor 10 both ways): the shared loop.
+    let x = get(&base, &prob.free);
+    let r = prob.resid(&x)?;
+    let cost0 = r.norm_squared();
+    let jac = DMatrix::zeros(r.len(), prob.free.len());
+    let mut fit = Fit { prob: &prob, x, r, jac, jtj: DMatrix::zeros(0, 0), g: DVector::zeros(0), cand: None };
+    let max_iter = if prob.free.is_empty() { 0 } else { opts.max_iter };
+    let out = levenberg_marquardt(&mut fit, cost0, max_iter, &Damping::default())?;
+    let (iterations, cost) = (out.iterations, out.cost);
+    let Fit { x, r, jac, .. } = fit;
     let unit = prob.unit_at(&x);
     // Standard errors at the solution, scaled by the achieved residual level.
     let dof = (r.len() as f64 - x.len() as f64).max(1.0);

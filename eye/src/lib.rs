@@ -12,6 +12,7 @@
 //! - [`unit`]: a real unit = nominal geometry + named physical effects (effects.md); its true FK.
 //! - [`dataset`]: calibration dataset files (dataset.md).
 //! - [`sim`]: draws plausible units and reproduces the paper's data collection.
+//! - [`lm`]: the Levenberg-Marquardt loop both calibrations (FK, camera poses) run.
 //!
 //! Conventions (frames, angles, units) are those of `shared/spec/conventions.md`: degrees and
 //! millimetres in files and on the command line, radians and metres-or-millimetres inside.
@@ -21,6 +22,7 @@
 pub mod dataset;
 pub mod encoder;
 pub mod error;
+pub mod lm;
 pub mod pose;
 pub mod psc;
 pub mod saccade;
