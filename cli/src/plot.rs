@@ -1,8 +1,10 @@
-//! Workspace heatmaps (the paper's Fig. 8 layout: gamma across, alpha down) over abvs-plot.
-use abvs_plot::{grid_cells, heatmap, Heatmap, Reduce};
+//! Workspace heatmaps over abvs-plot's one workspace grid (the paper's Fig. 8 layout: gamma
+//! across, alpha up; cells tiling the workspace).
+use abvs_eye::WORKSPACE_DEG;
+use abvs_plot::{heatmap, Heatmap, Reduce, WorkspaceGrid};
 use std::path::Path;
 
-/// A heatmap of `(alpha, gamma, value)` points binned on `step` degree cells.
+/// A heatmap of `(alpha, gamma, value)` points binned on `step` degree cells of the workspace.
 pub fn workspace_map<'a>(
     title: &'a str,
     colorbar_label: &'a str,
@@ -10,18 +12,7 @@ pub fn workspace_map<'a>(
     step: f64,
     reduce: Reduce,
 ) -> Heatmap<'a> {
-    let pts: Vec<(f64, f64, f64)> = points.iter().map(|&(a, g, v)| (g, a, v)).collect();
-    let (x, y, values) = grid_cells(&pts, step, reduce);
-    Heatmap {
-        title,
-        x_label: "gamma (yaw), deg",
-        y_label: "alpha (pitch), deg",
-        colorbar_label,
-        x,
-        y,
-        values,
-        range: None,
-    }
+    WorkspaceGrid::new(step, WORKSPACE_DEG[0], WORKSPACE_DEG[2]).heatmap(title, colorbar_label, points, reduce)
 }
 
 /// Writes [`workspace_map`] as a PNG.

@@ -5,7 +5,8 @@ use crate::error::Result;
 use crate::run::{Scored, TestSet};
 use crate::summary::{Fig7Point, Fig8Map};
 use abvs_eye::WORKSPACE_DEG;
-use abvs_plot::{Heatmap, Series, SeriesStyle, XyPlot};
+use abvs_plot::workspace::{ALPHA_LABEL, GAMMA_LABEL};
+use abvs_plot::{Heatmap, Reduce, Series, SeriesStyle, WorkspaceGrid, XyPlot};
 use std::path::Path;
 
 /// Fig. 8 cell size (deg).
@@ -50,23 +51,12 @@ pub(crate) fn plot_fig7(out: &Path, pts: &[Fig7Point], cfg: &PaperConfig) -> Res
     Ok(files)
 }
 
-/// Mean of per-sample values binned over commanded alpha (x) x gamma (y), `CELL_DEG` cells
-/// spanning the workspace (the edge poses at +-30 join the outermost cells).
+/// Mean of per-sample values over the workspace grid (`CELL_DEG` cells; the edge poses at +-30
+/// join the outermost cells): gamma centres, alpha centres, values.
 fn cells(test: &TestSet, v: &[f64]) -> (Vec<f64>, Vec<f64>, Vec<f64>) {
-    let (ra, rg) = (WORKSPACE_DEG[0], WORKSPACE_DEG[2]);
-    let (na, ng) = ((2.0 * ra / CELL_DEG).round() as usize, (2.0 * rg / CELL_DEG).round() as usize);
-    let idx = |c: f64, r: f64, n: usize| (((c + r) / CELL_DEG).floor().max(0.0) as usize).min(n - 1);
-    let mut acc = vec![(0.0, 0usize); na * ng];
-    for (c, &x) in test.cmd.iter().zip(v) {
-        if x.is_finite() && c[0].is_finite() && c[2].is_finite() {
-            let cell = &mut acc[idx(c[2], rg, ng) * na + idx(c[0], ra, na)];
-            cell.0 += x;
-            cell.1 += 1;
-        }
-    }
-    let centres = |r: f64, n: usize| (0..n).map(|k| -r + CELL_DEG * (k as f64 + 0.5)).collect();
-    let values = acc.iter().map(|&(s, n)| if n == 0 { f64::NAN } else { s / n as f64 }).collect();
-    (centres(ra, na), centres(rg, ng), values)
+    let grid = WorkspaceGrid::new(CELL_DEG, WORKSPACE_DEG[0], WORKSPACE_DEG[2]);
+    let pts: Vec<(f64, f64, f64)> = test.cmd.iter().zip(v).map(|(c, &x)| (c[0], c[2], x)).collect();
+    grid.cells(&pts, Reduce::Mean)
 }
 
 pub(crate) fn plot_fig8(
@@ -102,8 +92,8 @@ pub(crate) fn plot_fig8(
         let (centre, outer) = (region(&|m| m <= CENTRE_DEG), region(&|m| m > OUTER_DEG));
         let h = Heatmap {
             title: &title,
-            x_label: "commanded alpha (deg)",
-            y_label: "commanded gamma (deg)",
+            x_label: GAMMA_LABEL,
+            y_label: ALPHA_LABEL,
             colorbar_label: "MPE (px)",
             x,
             y,

@@ -15,8 +15,10 @@ use plotters::prelude::*;
 mod canvas;
 mod font;
 mod ticks;
+pub mod workspace;
 
 pub use font::font_warning;
+pub use workspace::WorkspaceGrid;
 
 /// Size of single plots ([`heatmap`], [`xy_plot`]).
 pub const PLOT_SIZE: (u32, u32) = (800, 600);
