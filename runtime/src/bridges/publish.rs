@@ -4,8 +4,9 @@ use abvs_eye::Pose;
 
 use crate::bridges::iceoryx::{check_shm_space, BridgeConfig, CloudPoint, FrameHeader, Publisher};
 use crate::error::{Result, RuntimeError};
-use crate::pipeline::{Published, Sink};
-use crate::sinks::stats::RunStats;
+use crate::messages::Published;
+use crate::sinks::Sink;
+use crate::stats::RunStats;
 
 pub struct PublishSink {
     depth: Publisher<f32>,

@@ -3,7 +3,8 @@
 use std::path::PathBuf;
 
 use crate::error::{Result, RuntimeError};
-use crate::pipeline::{Published, Sink};
+use crate::messages::Published;
+use crate::sinks::Sink;
 
 pub struct DumpSink {
     pub dir: PathBuf,

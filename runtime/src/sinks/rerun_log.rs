@@ -17,8 +17,9 @@ use abvs_eye::Pose;
 use rerun::{RecordingStream, RecordingStreamBuilder};
 
 use crate::error::{Result, RuntimeError};
-use crate::pipeline::{Published, Sink};
-use crate::sinks::stats::RunStats;
+use crate::messages::Published;
+use crate::sinks::Sink;
+use crate::stats::RunStats;
 
 pub struct RerunSink {
     rec: RecordingStream,
