@@ -16,8 +16,7 @@ use nalgebra::{Matrix3, Vector3};
 #[test]
 fn stereo_at_home_from_rendered_fisheye_pairs() {
     let left = Camera::ov8856();
-    let right =
-        Camera { fx: left.fx * 1.004, fy: left.fy * 1.004, cx: left.cx + 3.0, cy: left.cy - 2.0, ..left.clone() };
+    let right = Camera { fx: left.fx * 1.004, fy: left.fy * 1.004, cx: left.cx + 3.0, cy: left.cy - 2.0, ..left };
     // x_r = R x_l + T (mm)
     let r_true: Matrix3<f64> = Fick::from_deg([0.3, -0.2, 0.4]).to_matrix();
     let t_true = Vector3::new(-65.0, 0.6, -0.4);

@@ -9,6 +9,7 @@ mod explain;
 mod explain_plots;
 mod gaze;
 mod kin;
+mod logger;
 mod paper;
 mod plot;
 mod record;
@@ -29,6 +30,8 @@ struct Cli {
     cmd: Cmd,
 }
 
+// Parsed once per process: the size of the largest variant does not matter.
+#[allow(clippy::large_enum_variant)]
 #[derive(Subcommand)]
 enum Cmd {
     /// Simulate units and the paper's data collection.
@@ -60,6 +63,7 @@ enum Cmd {
 }
 
 fn main() -> ExitCode {
+    logger::init();
     // The matches tell `abvs run` which flags were given (they override its --config file).
     let matches = Cli::command().get_matches();
     let cli = Cli::from_arg_matches(&matches).unwrap_or_else(|e| e.exit());

@@ -123,17 +123,17 @@ pub fn summary(s: &RecordStats) -> String {
     let c = &s.capture.pairing;
     format!(
         "pairs: {} in, {} written, {} before homing, {} dropped (writer behind), {} write errors\n\
-         capture: {} unpaired, {} out of order, {} dropped by the driver, {} bad frames (left, right as [l, r])\n\
+         capture: {:?} unpaired, {:?} out of order, {:?} dropped by the driver, {:?} bad frames (left, right as [l, r])\n\
          encoders: {} rows; homed after {}; link {} frames, {} CRC errors, {} lost, {} resets; {} homing refusals\n",
         s.pairs_in,
         s.pairs_written,
         s.pairs_before_homing,
         s.pairs_dropped_writer,
         s.write_errors,
-        format!("{:?}", c.unpaired),
-        format!("{:?}", c.out_of_order),
-        format!("{:?}", c.dropped),
-        format!("{:?}", s.capture.errors),
+        c.unpaired,
+        c.out_of_order,
+        c.dropped,
+        s.capture.errors,
         s.encoder_rows,
         s.homed_after_s.map(|t| format!("{t:.2} s")).unwrap_or_else(|| "never".into()),
         e.link.frames,

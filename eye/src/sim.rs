@@ -130,9 +130,9 @@ pub fn commanded_poses(spec: &SimSpec) -> Vec<[f64; 3]> {
     let mut out = Vec::with_capacity(al.len() * be.len() * ga.len());
     let mut row = 0usize;
     for (ia, a) in al.iter().enumerate() {
-        let bs: Vec<f64> = if ia.is_multiple_of(2) { be.clone() } else { be.iter().rev().copied().collect() };
+        let bs: Vec<f64> = if ia % 2 == 0 { be.clone() } else { be.iter().rev().copied().collect() };
         for b in bs {
-            let gs: Vec<f64> = if row.is_multiple_of(2) { ga.clone() } else { ga.iter().rev().copied().collect() };
+            let gs: Vec<f64> = if row % 2 == 0 { ga.clone() } else { ga.iter().rev().copied().collect() };
             row += 1;
             for g in gs {
                 out.push([*a, b, g]);

@@ -112,8 +112,6 @@ impl PaperConfig {
     }
 }
 
-/// The scores of one model on one unit's test set.
-
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -4,6 +4,7 @@ use crate::config::PaperConfig;
 use abvs_calib::metrics::EvalReport;
 use serde::Serialize;
 
+/// The scores of one model on one unit's test set.
 #[derive(Debug, Clone, Serialize)]
 pub struct ModelResult {
     /// Row label in the report ("M2", "M4f", "M2 of C0 as is", ...).

@@ -20,13 +20,12 @@ const SYSTEM_FONTS: [&str; 3] = [
 static FONT: OnceLock<Result<FontRef<'static>, String>> = OnceLock::new();
 
 /// The font for plot text, `None` if there is none (plots are then drawn without text). The
-/// first call loads and registers it, and prints a warning on stderr (once per process) if
-/// there is none.
+/// first call loads and registers it, and logs a warning (once per process) if there is none.
 pub(crate) fn font() -> Option<&'static FontRef<'static>> {
     FONT.get_or_init(|| {
         let r = load();
         if let Err(w) = &r {
-            eprintln!("warning: abvs-plot: {w}");
+            log::warn!("abvs-plot: {w}");
         }
         r
     })

@@ -196,7 +196,7 @@ pub fn candidates(d: &Design, o: &SelectOptions) -> Vec<(Effect, Option<Cand>)> 
             cols.remove(worst);
             params.remove(worst);
         }
-        let cand = (!cols.is_empty()).then(|| Cand { effect: e, cols, params });
+        let cand = (!cols.is_empty()).then_some(Cand { effect: e, cols, params });
         out.push((e, cand));
     }
     out
