@@ -1,0 +1,64 @@
+#!/usr/bin/env bash
+# The ROS 2 outputs' cost on the critical path: paced replays of the fixture (25 fps, default ONNX engine,
+# iceoryx2 publishing on as in the default run) without them, with --zenoh (connected to a Python listener
+# on loopback that receives every key), with --mcap, and with both, interleaved in rotating order ROUNDS
+# times; prints each configuration's median end-to-end latency p50, the median of its ratio to the paired
+# run without, the stage p50s and what the outputs counted (frames written / dropped, write ms a frame).
+#   cargo build --release -p abvs && scripts/setup.sh && scripts/bench_ros2_outputs.sh [ROUNDS=8] [FRAMES=125] [flags]
+set -euo pipefail
+cd "$(dirname "${BASH_SOURCE[0]}")/.."
+ROUNDS=${1:-8}
+FRAMES=${2:-125}
+shift $(( $# < 2 ? $# : 2 ))
+BIN=${ABVS:-target/release/abvs}
+PY=${ABVS_PYTHON:-.deps/python/bin/python3}
+OUT=$(mktemp -d)
+PORT=$(( 20000 + RANDOM % 20000 ))
+# the consumer: counts bytes per key (decoding is the consumer's business, not the runtime's)
+"$PY" - "tcp/127.0.0.1:$PORT" <<'PY' &
+import json, sys, threading, zenoh
+c = zenoh.Config()
+c.insert_json5("mode", '"peer"')
+c.insert_json5("listen/endpoints", json.dumps([sys.argv[1]]))
+c.insert_json5("scouting/multicast/enabled", "false")
+s = zenoh.open(c)
+n = {}
+subs = [s.declare_subscriber(k, lambda x: n.__setitem__(str(x.key_expr), n.get(str(x.key_expr), 0) + 1))
+        for k in ["abvs/depth", "abvs/camera_info", "abvs/points", "tf", "abvs/joint_states"]]
+threading.Event().wait()
+PY
+LISTENER=$!
+trap 'kill $LISTENER 2>/dev/null; rm -rf "$OUT"' EXIT
+sleep 2
+cfgs=(off zenoh mcap both)
+for i in $(seq 1 "$ROUNDS"); do
+  for j in 0 1 2 3; do
+    m=${cfgs[$(( (i + j) % 4 ))]}
+    case $m in
+      off) extra=() ;;
+      zenoh) extra=(--zenoh-connect "tcp/127.0.0.1:$PORT") ;;
+      mcap) extra=(--mcap "$OUT/run.mcap") ;;
+      both) extra=(--zenoh-connect "tcp/127.0.0.1:$PORT" --mcap "$OUT/run.mcap") ;;
+    esac
+    "$BIN" run --quiet --truth-stride 0 --frames "$FRAMES" --service-prefix "abvs-bench-$$" "${extra[@]}" "$@" \
+      --stats-json "$OUT/$m-$i.json" >/dev/null 2>&1
+    rm -f "$OUT/run.mcap"
+  done
+done
+python3 - "$OUT" "$ROUNDS" <<'PY'
+import json, statistics as st, sys
+out, n = sys.argv[1], int(sys.argv[2])
+load = lambda m: [json.load(open(f"{out}/{m}-{i}.json")) for i in range(1, n + 1)]
+off = load("off")
+for m in ["off", "zenoh", "mcap", "both"]:
+    vs = load(m)
+    e = [v["latency_ms"]["p50"] for v in vs]
+    r = [v["latency_ms"]["p50"] / o["latency_ms"]["p50"] for v, o in zip(vs, off)]
+    line = (f"{m:6} end-to-end p50 median {st.median(e):6.2f} ms, paired ratio median {st.median(r):.3f}; stage p50 "
+            + " ".join(f"{k} {st.median([v['stages'][k]['p50'] for v in vs]):.2f}" for k in ["rectify", "disparity", "output"]))
+    for k in ["zenoh", "mcap"]:
+        if k in vs[0]:
+            line += (f"; {k} written {sum(v[k]['frames_written'] for v in vs)} dropped {sum(v[k]['frames_dropped'] for v in vs)}"
+                     f" of {sum(v[k]['frames_in'] for v in vs)}, {st.median([v[k]['write_ms_p50'] for v in vs]):.2f} ms a frame")
+    print(line)
+PY
