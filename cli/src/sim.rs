@@ -154,7 +154,7 @@ fn session_board(a: BoardArgs) -> anyhow::Result<ExitCode> {
         drop_every: a.drop_every,
         ..abvs_sim::board::SessionBoard::from_seed(a.seed)
     };
-    let script = board.script(&session.encoders).map_err(anyhow::Error::msg)?;
+    let script = board.script(&session.encoders)?;
     let t_first = session.encoders.iter().map(|r| r.t_ns).min().expect("a session has encoder samples");
     let now = monotonic_ns();
     let t_roll = script.first().map(|x| x.0).unwrap_or(t_first);

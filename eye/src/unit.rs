@@ -349,6 +349,11 @@ impl std::fmt::Display for Effect {
     }
 }
 
+/// Why [`UnitModel::validate`] refuses a unit model: the field and its implausible value.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("{0}")]
+pub struct ImplausibleUnit(pub String);
+
 /// A unit (one real eye), as stored in its TOML file.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -391,7 +396,7 @@ impl UnitModel {
     pub fn from_toml_str(text: &str, path: &Path) -> Result<Self> {
         let u: UnitModel =
             toml::from_str(text).map_err(|e| EyeError::Unit { path: path.into(), msg: e.to_string() })?;
-        u.validate().map_err(|msg| EyeError::Unit { path: path.into(), msg })?;
+        u.validate().map_err(|e| EyeError::Unit { path: path.into(), msg: e.0 })?;
         Ok(u)
     }
 
@@ -408,7 +413,11 @@ impl UnitModel {
     }
 
     /// Plausibility limits: values far outside any physical unit are refused with the field.
-    pub fn validate(&self) -> std::result::Result<(), String> {
+    pub fn validate(&self) -> std::result::Result<(), ImplausibleUnit> {
+        self.check_plausible().map_err(ImplausibleUnit)
+    }
+
+    fn check_plausible(&self) -> std::result::Result<(), String> {
         if self.format != FORMAT {
             return Err(format!("format is '{}', expected '{FORMAT}'", self.format));
         }
@@ -653,7 +662,7 @@ pub struct UnitFk {
 
 impl UnitFk {
     pub fn new(model: &UnitModel) -> Result<Self> {
-        model.validate().map_err(EyeError::Invalid)?;
+        model.validate().map_err(|e| EyeError::Invalid(e.0))?;
         let e = &model.effects;
         let g = &model.geometry;
         let mut legs = [LegParams::nominal(0), LegParams::nominal(1), LegParams::nominal(2)];

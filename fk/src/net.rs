@@ -268,6 +268,11 @@ impl Affine {
     }
 }
 
+/// Why [`Net::validate`] refuses a network: which layer or normalisation, and how.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("{0}")]
+pub struct InvalidNet(pub String);
+
 /// A trunk with optional heads (see the module doc).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Net {
@@ -344,7 +349,11 @@ impl Net {
     }
 
     /// Structural check: consistent widths, finite parameters and normalisations.
-    pub fn validate(&self) -> std::result::Result<(), String> {
+    pub fn validate(&self) -> std::result::Result<(), InvalidNet> {
+        self.check_structure().map_err(InvalidNet)
+    }
+
+    fn check_structure(&self) -> std::result::Result<(), String> {
         if self.trunk.is_empty() && self.heads.is_empty() {
             return Err("the net has no layers".into());
         }

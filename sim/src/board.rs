@@ -3,6 +3,19 @@
 //! ([`BoardSim`]), or from a recorded session after a start-up roll through the index markers
 //! ([`SessionBoard`]). Offline: the runtime only decodes what a board sends.
 use abvs_runtime::session::EncoderRecord;
+
+/// Why a session cannot be scripted as a board's frame stream.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum ScriptError {
+    #[error("the session has no encoder samples")]
+    NoEncoderSamples,
+    /// A count (origin + session count, or the roll's) does not fit the wire's i32.
+    #[error("{what}: raw count {value} exceeds i32")]
+    CountOverflow { what: &'static str, value: i64 },
+    /// An encoder row names an eye the board has no origin for.
+    #[error("eye {0} in the session")]
+    UnknownEye(u8),
+}
 use abvs_runtime::sources::encoder_link::BoardFrame;
 
 /// What a simulated board sends (for tests and `abvs sim board`).
@@ -94,14 +107,15 @@ impl SessionBoard {
     /// The frames to send, each with its send time on the session's clock (ns), in time order:
     /// the roll, then `settle_s` at rest, then the session's samples. Board time counts from 1 ms
     /// before the first frame.
-    pub fn script(&self, encoders: &[EncoderRecord]) -> Result<Vec<(i64, Vec<u8>)>, String> {
+    pub fn script(&self, encoders: &[EncoderRecord]) -> Result<Vec<(i64, Vec<u8>)>, ScriptError> {
         use abvs_eye::encoder::{deg_to_counts, StartupRoll, DEFAULT_TOLERANCE_COUNTS};
-        let t_first = encoders.iter().map(|r| r.t_ns).min().ok_or("the session has no encoder samples")?;
+        let t_first = encoders.iter().map(|r| r.t_ns).min().ok_or(ScriptError::NoEncoderSamples)?;
         let period_ns = (1e9 / self.rate_hz).round() as i64;
         let n_roll = deg_to_counts(self.roll_deg, 0) / self.step_counts.max(1);
         let n_settle = (self.settle_s * self.rate_hz).round() as i64;
         let t0 = t_first - (n_roll + n_settle + 1) * period_ns;
-        let raw = |v: i64, what: &str| i32::try_from(v).map_err(|_| format!("{what}: raw count {v} exceeds i32"));
+        let raw =
+            |v: i64, what: &'static str| i32::try_from(v).map_err(|_| ScriptError::CountOverflow { what, value: v });
         let mut timed: Vec<(i64, u8, [i32; 3], u8)> = vec![];
         for eye in 0..2 {
             let s = deg_to_counts(self.roll_start_deg[eye], 0);
@@ -126,7 +140,7 @@ impl SessionBoard {
             }
         }
         for r in encoders {
-            let o = self.origin.get(usize::from(r.eye)).ok_or(format!("eye {} in the session", r.eye))?;
+            let o = self.origin.get(usize::from(r.eye)).ok_or(ScriptError::UnknownEye(r.eye))?;
             let counts =
                 [raw(o[0] + r.count1, "session")?, raw(o[1] + r.count2, "session")?, raw(o[2] + r.count3, "session")?];
             timed.push((r.t_ns, r.eye, counts, 0));
