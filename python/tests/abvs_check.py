@@ -93,6 +93,45 @@ class IoxCollector:
         self.cloud.close()
 
 
+def quat_matrix(q):
+    x, y, z, w = q.x, q.y, q.z, q.w
+    return np.array([
+        [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+        [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+        [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+    ])
+
+
+def tf_consistency(decoded):
+    """Frames whose depth, unprojected with their CameraInfo K and moved by /tf from the depth's frame_id to
+    the cloud's, gives the cloud; returns (frames checked, largest point difference in m)."""
+    by = lambda k: {stamp_ns(m.header): m for m in decoded[k]}  # noqa: E731
+    depth, info, pts = by("abvs/depth"), by("abvs/camera_info"), by("abvs/points")
+    tfs = {stamp_ns(m.transforms[0].header): m for m in decoded["tf"] if len(m.transforms)}
+    checked, worst = 0, 0.0
+    for t in sorted(set(depth) & set(info) & set(pts) & set(tfs)):
+        dm, pm = depth[t], pts[t]
+        d = np.frombuffer(dm.data.tobytes(), dtype="<f4").reshape(dm.height, dm.width)
+        k = np.array(info[t].k).reshape(3, 3)
+        v, u = np.nonzero(np.isfinite(d))  # row-major, as the cloud is built
+        z = d[v, u].astype(np.float64)
+        p = np.stack([(u - k[0, 2]) / k[0, 0] * z, (v - k[1, 2]) / k[1, 1] * z, z], 1)
+        tr = [x for x in tfs[t].transforms if x.child_frame_id == dm.header.frame_id
+              and x.header.frame_id == pm.header.frame_id]
+        if len(tr) != 1:
+            return checked, float("inf")
+        r = quat_matrix(tr[0].transform.rotation)
+        tv = tr[0].transform.translation
+        q = p @ r.T + np.array([tv.x, tv.y, tv.z])
+        c = np.frombuffer(pm.data.tobytes(), dtype=abvs.CLOUD_DTYPE)
+        if len(c) != len(q):
+            return checked, float("inf")
+        cq = np.stack([c["x"], c["y"], c["z"]], 1).astype(np.float64)
+        worst = max(worst, float(np.abs(q - cq).max()) if len(q) else 0.0)
+        checked += 1
+    return checked, worst
+
+
 def cmd_layout():
     print(json.dumps(abvs.layout()))
 
@@ -180,6 +219,7 @@ def cmd_zenoh(endpoint, prefix):
         for tr in m.transforms:
             tf_children.add((tr.header.frame_id, tr.child_frame_id))
     out["tf"] = sorted(f"{a}->{b}" for a, b in tf_children)
+    out["tf_checked"], out["tf_max_err_m"] = tf_consistency(decoded)
     out["joint_names"] = list(decoded["abvs/joint_states"][0].name) if decoded["abvs/joint_states"] else []
     print(json.dumps(out))
 
