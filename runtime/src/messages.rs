@@ -14,6 +14,8 @@ use abvs_eye::Pose;
 // ---------------------------------------------------------------- clock
 
 /// CLOCK_MONOTONIC in nanoseconds (the clock of `t_frame_ns` and `t_publish_ns`).
+// (time_t and c_long are 32-bit on 32-bit targets: the casts are not no-ops everywhere)
+#[allow(clippy::unnecessary_cast)]
 pub fn monotonic_ns() -> i64 {
     let mut ts = libc::timespec { tv_sec: 0, tv_nsec: 0 };
     // SAFETY: clock_gettime writes into the timespec we own; CLOCK_MONOTONIC always exists on Linux.

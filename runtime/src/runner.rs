@@ -426,7 +426,7 @@ impl WindowCounter {
         stats.window_s = self.len_ns as f64 / 1e9;
         let n = match duration {
             Some(d) => (d.as_nanos() / self.len_ns as u128) as usize + 2,
-            None => (3600_000_000_000 / self.len_ns) as usize + 2,
+            None => (3_600_000_000_000 / self.len_ns) as usize + 2,
         };
         stats.windows.reserve(n.min(1 << 16));
     }

@@ -26,7 +26,8 @@ impl Default for DepthConfig {
 
 impl DepthFrame {
     /// Fills depth and points from a disparity map; `valid` says which rectified pixels see the raw image.
-    #[allow(clippy::too_many_arguments)]
+    // the negated comparisons reject NaN disparities and depths too
+    #[allow(clippy::too_many_arguments, clippy::neg_cmp_op_on_partial_ord, clippy::nonminimal_bool)]
     pub fn compute(
         &mut self,
         disparity: &[f32],

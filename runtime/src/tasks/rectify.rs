@@ -23,6 +23,7 @@ pub use crate::messages::{Rectification, RectifiedCamera};
 /// Rectifying rotations for the extrinsic `left_to_right` (x_r = R x_l + t): the rectified x axis runs along
 /// the baseline from the left to the right centre (so disparity x_l - x_r is positive), z is the mean of the
 /// two optical axes made orthogonal to it, y = z x x (down, as in OpenCV).
+#[allow(clippy::neg_cmp_op_on_partial_ord)] // a NaN baseline is degenerate too
 pub fn rectify(left_to_right: &Pose) -> Result<Rectification> {
     let r = left_to_right.r;
     let c = -(r.transpose() * left_to_right.t); // right centre in the left frame
