@@ -3,8 +3,10 @@
 //! Grouped by role, data flowing one way: **sources** (frames, encoders) -> **tasks** (time alignment,
 //! per-eye FK and the moving extrinsic, rectification, disparity, depth and cloud) -> **sinks** (stats,
 //! truth scoring, dumps, MCAP recordings) and **bridges** (iceoryx2 and Zenoh publishing to other processes); [`ros2`]
-//! builds the ROS 2 messages of a frame. [`pipeline`] wires the stages
-//! on threads joined by bounded channels; [`session`] is the on-disk format of recorded sessions, which [`record`] writes from live sources.
+//! builds the ROS 2 messages of a frame. The roles share [`messages`] (and its clock); every task is a
+//! [`stage::Stage`]; [`runner`] runs any graph of them on threads joined by bounded channels, and
+//! [`pipeline`] declares the standard one. [`session`] is the on-disk format of recorded sessions, which
+//! [`record`] writes from live sources.
 pub mod bridges;
 pub mod config;
 pub mod error;
