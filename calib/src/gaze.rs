@@ -33,9 +33,13 @@ use nalgebra::Vector3;
 
 /// How torsion about the line of sight is chosen; see the module doc.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
 pub enum Torsion {
+    /// Listing's law.
     #[default]
     Listing,
+    /// Fick roll 0.
+    #[cfg_attr(feature = "clap", value(alias = "zero"))]
     ZeroFick,
 }
 

@@ -39,8 +39,8 @@ pub struct FixateArgs {
     #[arg(long, value_parser = crate::parse3, allow_hyphen_values = true, default_value = "0,0,0")]
     left_theta: [f64; 3],
     /// Torsion about the line of sight: listing (Listing's law) or zero-fick (Fick roll 0).
-    #[arg(long, default_value = "listing")]
-    torsion: String,
+    #[arg(long, value_enum, default_value_t = Torsion::Listing)]
+    torsion: Torsion,
     /// Gravity in both eyes' base frames (unit vector; default: head upright).
     #[arg(long, value_parser = crate::parse3, allow_hyphen_values = true, default_value = "0,1,0")]
     gravity: [f64; 3],
@@ -73,7 +73,7 @@ fn pixel(cam: &Camera, aim: &EyeAim) -> Option<Vector2<f64>> {
 }
 
 fn fixate(a: FixateArgs) -> anyhow::Result<ExitCode> {
-    let torsion = Torsion::parse(&a.torsion)?;
+    let torsion = a.torsion;
     let sp = a.calib.join("stereo.yaml");
     let stereo = StereoCalibration::read_yaml(&sp)?;
     let load = |e: &str| FkModel::load(&a.calib.join(e)).with_context(|| format!("{}: FK model", a.calib.display()));

@@ -123,8 +123,8 @@ pub struct SaccadeArgs {
     #[arg(long, allow_hyphen_values = true)]
     point: Option<String>,
     /// Torsion rule for --point: listing or zero-fick.
-    #[arg(long, default_value = "listing")]
-    torsion: String,
+    #[arg(long, value_enum, default_value_t = Torsion::Listing)]
+    torsion: Torsion,
     /// Peak link speed of the minimum-jerk moves (deg/s).
     #[arg(long, default_value_t = PEAK_SPEED_DEG_S)]
     peak_deg_s: f64,
@@ -246,7 +246,7 @@ pub fn saccade(a: SaccadeArgs) -> anyhow::Result<ExitCode> {
         (None, Some(p)) => parse_list(p)?,
         _ => bail!("give exactly one of --orientation and --point"),
     };
-    let torsion = Torsion::parse(&a.torsion)?;
+    let torsion = a.torsion;
     let stereo = StereoCalibration::read_yaml(a.calib.join("stereo.yaml"))?;
     let load = |e: &str| FkModel::load(&a.calib.join(e)).with_context(|| format!("{}: FK model", a.calib.display()));
     let models = [load("eye0")?, load("eye1")?];
