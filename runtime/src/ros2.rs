@@ -346,22 +346,37 @@ fn quaternion(r: &Matrix3<f64>) -> Quaternion {
     Quaternion { x: q.i, y: q.j, z: q.k, w: q.w }
 }
 
-fn encode_into<T: Serialize>(buf: &mut Vec<u8>, msg: &T) -> Result<(), String> {
+/// Why a frame's messages could not be encoded.
+#[derive(Debug, thiserror::Error)]
+pub enum EncodeError {
+    #[error("{type_name}: CDR encoding: {source}")]
+    Cdr {
+        type_name: &'static str,
+        #[source]
+        source: cdr::Error,
+    },
+    #[error("ROS 2 messages are built for little-endian machines only")]
+    BigEndian,
+}
+
+fn encode_into<T: Serialize>(buf: &mut Vec<u8>, type_name: &'static str, msg: &T) -> Result<(), EncodeError> {
     buf.clear();
-    cdr::serialize_into::<_, _, _, cdr::CdrLe>(&mut *buf, msg, cdr::Infinite).map_err(|e| e.to_string())
+    cdr::serialize_into::<_, _, _, cdr::CdrLe>(&mut *buf, msg, cdr::Infinite)
+        .map_err(|source| EncodeError::Cdr { type_name, source })
 }
 
 impl Encoded {
     /// Encodes the five messages of `s` (CDR, little-endian encapsulation).
-    pub fn encode(&mut self, s: &FrameSnapshot) -> Result<(), String> {
+    pub fn encode(&mut self, s: &FrameSnapshot) -> Result<(), EncodeError> {
         if cfg!(target_endian = "big") {
-            return Err("ROS 2 messages are built for little-endian machines only".into());
+            return Err(EncodeError::BigEndian);
         }
         let stamp = Time::from_ns(s.t_frame_ns);
         let header = |frame_id| Header { stamp, frame_id };
         let [depth, info, points, tf, joints] = &mut self.bufs;
         encode_into(
             depth,
+            TOPICS[0].type_name,
             &Image {
                 header: header(RECT_FRAME),
                 height: s.height,
@@ -375,6 +390,7 @@ impl Encoded {
         let k = s.k();
         encode_into(
             info,
+            TOPICS[1].type_name,
             &CameraInfo {
                 header: header(RECT_FRAME),
                 height: s.height,
@@ -393,6 +409,7 @@ impl Encoded {
         let n = s.n_points() as u32;
         encode_into(
             points,
+            TOPICS[2].type_name,
             &PointCloud2 {
                 header: header(HEAD_FRAME),
                 height: 1,
@@ -410,11 +427,12 @@ impl Encoded {
             child_frame_id: child,
             transform: Transform { translation: Vector3 { x: p.t.x, y: p.t.y, z: p.t.z }, rotation: quaternion(&p.r) },
         });
-        encode_into(tf, &TfMessage { transforms: &tfs })?;
+        encode_into(tf, TOPICS[3].type_name, &TfMessage { transforms: &tfs })?;
         let t = &s.theta;
         let position = [t[0][0], t[0][1], t[0][2], t[1][0], t[1][1], t[1][2]].map(f64::to_radians);
         encode_into(
             joints,
+            TOPICS[4].type_name,
             &JointState {
                 header: header(HEAD_FRAME),
                 name: &JOINT_NAMES,
@@ -441,7 +459,8 @@ mod tests {
         assert_eq!(Time::from_ns(1_500_000_000), Time { sec: 1, nanosec: 500_000_000 });
         assert_eq!(Time::from_ns(-1), Time { sec: -1, nanosec: 999_999_999 });
         let mut b = Vec::new();
-        encode_into(&mut b, &Header { stamp: Time { sec: 2, nanosec: 3 }, frame_id: "ab" }).unwrap();
+        encode_into(&mut b, "std_msgs/msg/Header", &Header { stamp: Time { sec: 2, nanosec: 3 }, frame_id: "ab" })
+            .unwrap();
         // encapsulation, sec, nanosec, string length (with NUL), "ab\0"
         assert_eq!(b, [0, 1, 0, 0, 2, 0, 0, 0, 3, 0, 0, 0, 3, 0, 0, 0, b'a', b'b', 0]);
     }

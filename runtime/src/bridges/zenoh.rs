@@ -14,9 +14,9 @@ use ::zenoh::pubsub::Publisher;
 use ::zenoh::qos::CongestionControl;
 use ::zenoh::{Config, Session, Wait};
 
-use crate::error::{Result, RuntimeError};
+use crate::error::RuntimeError;
 use crate::ros2::{Topic, TOPICS};
-use crate::sinks::ros2_out::{Ros2OutSink, Ros2Writer};
+use crate::sinks::ros2_out::{OutputError, Ros2OutSink, Ros2Writer};
 
 /// Frames the publisher may fall behind by before the oldest is dropped: the newest matter on a network.
 pub const DEFAULT_QUEUE: usize = 4;
@@ -31,7 +31,7 @@ fn err(what: &str, e: impl std::fmt::Display) -> RuntimeError {
 }
 
 /// The session's configuration: `config_file` (or Zenoh's defaults), then `connect` endpoints added.
-pub fn config(config_file: Option<&Path>, connect: &[String]) -> Result<Config> {
+pub fn config(config_file: Option<&Path>, connect: &[String]) -> crate::Result<Config> {
     let mut c = match config_file {
         Some(p) => Config::from_file(p).map_err(|e| err(&format!("configuration {}", p.display()), e))?,
         None => Config::default(),
@@ -45,7 +45,7 @@ pub fn config(config_file: Option<&Path>, connect: &[String]) -> Result<Config> 
 
 impl ZenohWriter {
     /// Opens the session and declares the five publishers.
-    pub fn open(config: Config) -> Result<ZenohWriter> {
+    pub fn open(config: Config) -> crate::Result<ZenohWriter> {
         let session = ::zenoh::open(config).wait().map_err(|e| err("opening the session", e))?;
         let mut publishers = Vec::with_capacity(TOPICS.len());
         for t in &TOPICS {
@@ -61,27 +61,26 @@ impl ZenohWriter {
 }
 
 impl Ros2Writer for ZenohWriter {
-    fn write(
-        &mut self,
-        topic: &'static Topic,
-        _seq: u64,
-        _stamp_ns: i64,
-        cdr: &[u8],
-    ) -> std::result::Result<(), String> {
-        let i = TOPICS.iter().position(|t| t == topic).ok_or_else(|| format!("unknown topic {}", topic.topic))?;
-        self.publishers[i].put(cdr).wait().map_err(|e| format!("{}: {e}", topic.key))
+    fn write(&mut self, topic: &'static Topic, _seq: u64, _stamp_ns: i64, cdr: &[u8]) -> Result<(), OutputError> {
+        let i = TOPICS.iter().position(|t| t == topic).ok_or(OutputError::UnknownTopic(topic.topic))?;
+        self.publishers[i].put(cdr).wait().map_err(|source| OutputError::Zenoh { key: topic.key, source })
     }
 
-    fn finish(&mut self) -> std::result::Result<serde_json::Value, String> {
+    fn finish(&mut self) -> Result<serde_json::Value, OutputError> {
         for p in self.publishers.drain(..) {
             let _ = p.undeclare().wait();
         }
-        self.session.close().wait().map_err(|e| format!("closing the session: {e}"))?;
+        self.session.close().wait().map_err(|source| OutputError::Zenoh { key: "(closing the session)", source })?;
         Ok(serde_json::Value::Null)
     }
 }
 
 /// The Zenoh publisher as a pipeline sink (stats key `zenoh`).
-pub fn sink(config_file: Option<&Path>, connect: &[String], queue: usize, blocking: bool) -> Result<Ros2OutSink> {
+pub fn sink(
+    config_file: Option<&Path>,
+    connect: &[String],
+    queue: usize,
+    blocking: bool,
+) -> crate::Result<Ros2OutSink> {
     Ros2OutSink::new("zenoh", ZenohWriter::open(config(config_file, connect)?)?, queue, blocking)
 }

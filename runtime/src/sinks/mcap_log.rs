@@ -6,9 +6,9 @@ use std::fs::File;
 use std::io::BufWriter;
 use std::path::Path;
 
-use crate::error::{Result, RuntimeError};
+use crate::error::RuntimeError;
 use crate::ros2::{Topic, TOPICS};
-use crate::sinks::ros2_out::{Ros2OutSink, Ros2Writer};
+use crate::sinks::ros2_out::{OutputError, Ros2OutSink, Ros2Writer};
 
 /// Frames the recorder may fall behind by before the oldest is dropped (about 0.6 s at 25 fps).
 pub const DEFAULT_QUEUE: usize = 16;
@@ -22,7 +22,7 @@ pub struct McapWriter {
 
 impl McapWriter {
     /// Creates `path` (replacing a file there) with the five channels and their schemas.
-    pub fn create(path: &Path) -> Result<McapWriter> {
+    pub fn create(path: &Path) -> crate::Result<McapWriter> {
         let name = path.display().to_string();
         let err = |what: &str, e: mcap::McapError| RuntimeError::Invalid(format!("--mcap {name}: {what}: {e}"));
         let file = File::create(path).map_err(|e| RuntimeError::Invalid(format!("--mcap {name}: {e}")))?;
@@ -44,9 +44,9 @@ impl McapWriter {
 }
 
 impl Ros2Writer for McapWriter {
-    fn write(&mut self, topic: &'static Topic, seq: u64, stamp_ns: i64, cdr: &[u8]) -> std::result::Result<(), String> {
-        let i = TOPICS.iter().position(|t| t == topic).ok_or_else(|| format!("unknown topic {}", topic.topic))?;
-        let w = self.writer.as_mut().ok_or("the file is closed")?;
+    fn write(&mut self, topic: &'static Topic, seq: u64, stamp_ns: i64, cdr: &[u8]) -> Result<(), OutputError> {
+        let i = TOPICS.iter().position(|t| t == topic).ok_or(OutputError::UnknownTopic(topic.topic))?;
+        let w = self.writer.as_mut().ok_or(OutputError::Closed)?;
         let t = stamp_ns.max(0) as u64;
         let header = mcap::records::MessageHeader {
             channel_id: self.channels[i],
@@ -54,17 +54,18 @@ impl Ros2Writer for McapWriter {
             log_time: t,
             publish_time: t,
         };
-        w.write_to_known_channel(&header, cdr).map_err(|e| format!("{}: {e}", self.path))?;
+        w.write_to_known_channel(&header, cdr)
+            .map_err(|source| OutputError::Mcap { path: self.path.clone(), source })?;
         self.counts[i] += 1;
         Ok(())
     }
 
-    fn finish(&mut self) -> std::result::Result<serde_json::Value, String> {
+    fn finish(&mut self) -> Result<serde_json::Value, OutputError> {
         if let Some(mut w) = self.writer.take() {
-            w.finish().map_err(|e| format!("{}: closing: {e}", self.path))?;
+            w.finish().map_err(|source| OutputError::Mcap { path: self.path.clone(), source })?;
             // the BufWriter flushes as it drops; flush explicitly to see the error
             use std::io::Write;
-            w.into_inner().flush().map_err(|e| format!("{}: {e}", self.path))?;
+            w.into_inner().flush().map_err(|source| OutputError::Io { path: self.path.clone(), source })?;
         }
         let per: serde_json::Map<_, _> =
             TOPICS.iter().zip(self.counts).map(|(t, n)| (t.topic.to_string(), serde_json::json!(n))).collect();
@@ -73,6 +74,6 @@ impl Ros2Writer for McapWriter {
 }
 
 /// The MCAP recorder as a pipeline sink (stats key `mcap`).
-pub fn sink(path: &Path, queue: usize, blocking: bool) -> Result<Ros2OutSink> {
+pub fn sink(path: &Path, queue: usize, blocking: bool) -> crate::Result<Ros2OutSink> {
     Ros2OutSink::new("mcap", McapWriter::create(path)?, queue, blocking)
 }

@@ -11,15 +11,50 @@ use serde::Serialize;
 
 use crate::error::{Result, RuntimeError};
 use crate::pipeline::{Published, Sink};
-use crate::ros2::{Encoded, FrameSnapshot, Topic};
+use crate::ros2::{EncodeError, Encoded, FrameSnapshot, Topic};
 use crate::sinks::stats::RunStats;
+
+/// Why a ROS 2 output could not encode or write a frame.
+#[derive(Debug, thiserror::Error)]
+pub enum OutputError {
+    #[error(transparent)]
+    Encode(#[from] EncodeError),
+    #[error("zenoh {key}: {source}")]
+    Zenoh {
+        key: &'static str,
+        #[source]
+        source: ::zenoh::Error,
+    },
+    #[error("{path}: {source}")]
+    Mcap {
+        path: String,
+        #[source]
+        source: mcap::McapError,
+    },
+    #[error("{path}: {source}")]
+    Io {
+        path: String,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error("{0}: not one of the ROS 2 outputs' topics")]
+    UnknownTopic(&'static str),
+    #[error("the output is closed")]
+    Closed,
+}
 
 /// Where encoded messages go.
 pub trait Ros2Writer: Send + 'static {
     /// Writes one message of the frame `seq` stamped `stamp_ns` (CLOCK_MONOTONIC).
-    fn write(&mut self, topic: &'static Topic, seq: u64, stamp_ns: i64, cdr: &[u8]) -> std::result::Result<(), String>;
+    fn write(
+        &mut self,
+        topic: &'static Topic,
+        seq: u64,
+        stamp_ns: i64,
+        cdr: &[u8],
+    ) -> std::result::Result<(), OutputError>;
     /// Ends the output (closes the file); what it reports goes into the stats.
-    fn finish(&mut self) -> std::result::Result<serde_json::Value, String> {
+    fn finish(&mut self) -> std::result::Result<serde_json::Value, OutputError> {
         Ok(serde_json::Value::Null)
     }
 }
@@ -103,7 +138,7 @@ fn worker<W: Ros2Writer>(
     // ends when the sink drops its sender (finish) and the queue is drained
     for snap in queue.iter() {
         let t0 = Instant::now();
-        let r = enc.encode(&snap).and_then(|()| {
+        let r = enc.encode(&snap).map_err(OutputError::from).and_then(|()| {
             for (topic, bytes) in enc.messages() {
                 writer.write(topic, snap.seq, snap.t_frame_ns, bytes)?;
                 st.messages += 1;
@@ -125,7 +160,7 @@ fn worker<W: Ros2Writer>(
     match writer.finish() {
         Ok(v) => st.writer = v,
         Err(e) => {
-            st.last_error.get_or_insert(e);
+            st.last_error.get_or_insert(e.to_string());
         }
     }
     times.sort_by(f64::total_cmp);
@@ -165,7 +200,6 @@ impl Sink for Ros2OutSink {
             return Ok(());
         };
         snap.fill(out);
-        let mut snap = snap;
         loop {
             match tx.try_send(snap) {
                 Ok(()) => return Ok(()),
