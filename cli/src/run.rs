@@ -160,6 +160,8 @@ fn rerun_sink(p: &Path) -> anyhow::Result<Box<dyn Sink>> {
 }
 
 /// What the pipeline runs on: a recorded session or the live devices.
+// One per run: the size of the replay variant does not matter.
+#[allow(clippy::large_enum_variant)]
 enum Input {
     Replay(Session, PathBuf),
     Live,

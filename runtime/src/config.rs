@@ -410,7 +410,7 @@ impl RuntimeConfig {
             }
         }
         let w = self.sinks.stats_window_s;
-        if !(w >= 0.01 && w <= 86400.0) {
+        if !(0.01..=86400.0).contains(&w) {
             return Err(format!("sinks.stats_window_s: {w} must be in [0.01, 86400]"));
         }
         match self.source.kind {

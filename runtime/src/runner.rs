@@ -359,7 +359,7 @@ pub fn run<S: PairSource>(graph: Graph<S>, cfg: &RunConfig) -> Result<RunStats> 
                 for sink in sinks.iter_mut() {
                     if let Err(e) = sink.consume(&published) {
                         ok = false;
-                        eprintln!("warning: frame {}: sink {}: {e}", w.seq, sink.name());
+                        log::warn!("frame {}: sink {}: {e}", w.seq, sink.name());
                         stats.fail("sink failed");
                     }
                 }

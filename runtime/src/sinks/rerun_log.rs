@@ -114,7 +114,7 @@ impl Sink for RerunSink {
     fn finish(&mut self, stats: &mut RunStats) {
         if let Err(e) = self.rec.flush_blocking() {
             self.errors += 1;
-            eprintln!("{}", err(&self.path, e));
+            log::error!("{}", err(&self.path, e));
         }
         stats.extra.insert(
             "rerun".into(),

@@ -205,7 +205,7 @@ fn decode_ahead(
                 fault.get_or_insert(f);
                 let mut bad = bad.lock().unwrap_or_else(|p| p.into_inner());
                 if !bad.iter().any(|(p, _)| *p == path) {
-                    eprintln!("warning: skipped unreadable frame {}: {e}", path.display());
+                    log::warn!("skipped unreadable frame {}: {e}", path.display());
                     bad.push((path, e));
                 }
             }

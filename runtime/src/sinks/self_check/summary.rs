@@ -83,11 +83,16 @@ impl Summary {
                         if !self.warned {
                             self.warned = true;
                             self.warnings += 1;
-                            eprintln!(
-                                "warning: self-check: stereo rotation error [{:.3}, {:.3}, {:.3}] deg (median of the \
+                            log::warn!(
+                                "self-check: stereo rotation error [{:.3}, {:.3}, {:.3}] deg (median of the \
                                  last {n} checked frames, up to frame {}; |vertical| p50 {:.2} px) exceeds {} deg: \
                                  the calibration may be off",
-                                m.x, m.y, m.z, c.seq, c.vertical_p50, cfg.threshold_deg
+                                m.x,
+                                m.y,
+                                m.z,
+                                c.seq,
+                                c.vertical_p50,
+                                cfg.threshold_deg
                             );
                         }
                     } else {

@@ -82,21 +82,21 @@ impl SelfCheckSink {
                             sum.add(&c, &matches, &wcfg);
                             if let Some((w, p)) = &mut log {
                                 if let Err(e) = writeln!(w, "{}", log_row(&c)) {
-                                    eprintln!("warning: self-check log {}: {e}", p.display());
+                                    log::warn!("self-check log {}: {e}", p.display());
                                     log = None;
                                 }
                             }
                         }
                         Err(e) => {
                             sum.failed += 1;
-                            eprintln!("warning: self-check, frame {}: {e}", job.seq);
+                            log::warn!("self-check, frame {}: {e}", job.seq);
                         }
                     }
                     let _ = free_tx.send(job);
                 }
                 if let Some((mut w, p)) = log {
                     if let Err(e) = w.flush() {
-                        eprintln!("warning: self-check log {}: {e}", p.display());
+                        log::warn!("self-check log {}: {e}", p.display());
                     }
                 }
                 sum
@@ -165,7 +165,7 @@ impl Sink for SelfCheckSink {
                 sum.skipped = self.skipped;
                 stats.extra.insert("self_check".into(), sum.json());
             }
-            Err(_) => eprintln!("warning: the self-check thread panicked"),
+            Err(_) => log::warn!("the self-check thread panicked"),
         }
     }
 }
