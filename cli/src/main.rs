@@ -67,6 +67,16 @@ fn main() -> ExitCode {
     // The matches tell `abvs run` which flags were given (they override its --config file).
     let matches = Cli::command().get_matches();
     let cli = Cli::from_arg_matches(&matches).unwrap_or_else(|e| e.exit());
+    // Rust ignores SIGPIPE, so a closed pipe (`abvs calib stereo ... | head -1`) made println! panic: the
+    // offline tools end as the pipe's reader asked, like other Unix tools. Not the processes that talk to
+    // sockets, serial links and subscribers (run, record, echo, gaze, sim): a consumer going away must be an
+    // error they handle, never a signal that kills them.
+    if !matches!(cli.cmd, Cmd::Run(_) | Cmd::Record(_) | Cmd::Echo(_) | Cmd::Gaze(_) | Cmd::Sim(_)) {
+        // SAFETY: before any thread is started; SIG_DFL is a valid disposition for SIGPIPE.
+        unsafe {
+            libc::signal(libc::SIGPIPE, libc::SIG_DFL);
+        }
+    }
     let r = match cli.cmd {
         Cmd::Sim(c) => sim::run(c),
         Cmd::Kin(c) => kin::run(c),

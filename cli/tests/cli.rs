@@ -281,3 +281,20 @@ fn calib_explain_default_start_on_independent_data() {
         }
     }
 }
+
+/// An offline tool whose reader closes the pipe ends by SIGPIPE like other Unix tools, not with a panic.
+#[test]
+fn a_closed_stdout_pipe_ends_an_offline_tool_quietly() {
+    use std::os::unix::process::ExitStatusExt;
+    let mut child = Command::new(env!("CARGO_BIN_EXE_abvs"))
+        .arg("doctor")
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    drop(child.stdout.take()); // the reader goes away before the tool writes
+    let o = child.wait_with_output().unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!err.contains("panicked"), "{err}");
+    assert_eq!(o.status.signal(), Some(13), "{:?}: {err}", o.status);
+}
