@@ -27,7 +27,8 @@ pub struct DisparityArgs {
     /// Output PFM (left-view disparity in pixels at the input resolution, invalid = inf).
     #[arg(long)]
     out: PathBuf,
-    /// Model directory or .onnx (default: the shipped hitnet-s).
+    /// Model directory or .onnx (default: the shipped model of the largest resolution that fits in the
+    /// input, so nothing is upsampled: hitnet-m (640x480) for inputs of at least 640x480, else hitnet-s).
     #[arg(long)]
     model: Option<PathBuf>,
     #[arg(long, value_enum, default_value_t = EngineKind::Onnx)]
@@ -176,6 +177,25 @@ fn default_models() -> Vec<PathBuf> {
         .collect()
 }
 
+/// The shipped model for an input of `w` x `h`: the largest resolution that fits in it (the network sees
+/// the most detail without inventing any by upsampling); the smallest when none fits.
+fn default_model_for(w: u32, h: u32) -> PathBuf {
+    let size = |p: &PathBuf| -> Option<(u32, u32)> {
+        let text = std::fs::read_to_string(p.join("manifest.json")).ok()?;
+        let m: disparity::DisparityManifest = serde_json::from_str(&text).ok()?;
+        Some((m.width, m.height))
+    };
+    let mut shipped: Vec<(PathBuf, (u32, u32))> =
+        default_models().into_iter().filter_map(|p| size(&p).map(|s| (p, s))).collect();
+    shipped.sort_by_key(|(_, (mw, mh))| mw * mh);
+    let fits = shipped.iter().rev().find(|(_, (mw, mh))| *mw <= w && *mh <= h);
+    match fits.or(shipped.first()) {
+        Some((p, _)) => p.clone(),
+        // none readable: the error names the expected path when it is loaded
+        None => crate::run::shipped("models/hitnet/hitnet-s"),
+    }
+}
+
 /// Runs an engine on a pair already at its resolution.
 fn compute(e: &mut dyn DisparityEngine, l: &[u8], r: &[u8]) -> anyhow::Result<Vec<f32>> {
     let (w, h) = e.size();
@@ -189,7 +209,7 @@ pub fn run_disparity(a: DisparityArgs) -> anyhow::Result<ExitCode> {
     if l.size()? != r.size()? {
         bail!("left {}x{} and right {}x{} differ in size", l.cols(), l.rows(), r.cols(), r.rows());
     }
-    let model = a.model.clone().unwrap_or_else(|| crate::run::shipped("models/hitnet/hitnet-s"));
+    let model = a.model.clone().unwrap_or_else(|| default_model_for(l.cols() as u32, l.rows() as u32));
     let onnx = disparity::OnnxEngine::load(&model, a.threads)?;
     let (mw, mh) = (onnx.manifest.width, onnx.manifest.height);
     let max = onnx.manifest.max_disparity;

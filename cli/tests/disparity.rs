@@ -157,3 +157,29 @@ fn a_model_with_the_wrong_inputs_is_refused() {
     let e = String::from_utf8_lossy(&o.stderr);
     assert!(e.contains(fk.file_name().unwrap().to_str().unwrap()) && e.contains("[1,2,H,W]"), "{e}");
 }
+
+/// Without --model, `abvs disparity` takes the shipped model of the largest resolution that fits in the input:
+/// hitnet-m (640x480) for the real Aloe pair (1282x1110), hitnet-s (320x240) for a 320x240 pair.
+#[test]
+fn the_default_model_suits_the_input_size() {
+    let data = Path::new("/usr/share/doc/opencv-doc/examples/data");
+    assert!(data.join("aloeL.jpg").exists(), "opencv-doc is not installed: run scripts/setup.sh");
+    let d = tempfile::tempdir().unwrap();
+    rendered_pair(d.path(), (320, 240));
+    for (l, r, want) in [
+        (data.join("aloeL.jpg"), data.join("aloeR.jpg"), "at 640x480"),
+        (d.path().join("left.png"), d.path().join("right.png"), "at 320x240"),
+    ] {
+        let o = abvs()
+            .args(["disparity", "--out"])
+            .arg(d.path().join("d.pfm"))
+            .arg("--left")
+            .arg(&l)
+            .arg("--right")
+            .arg(&r)
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(o.status.success() && err.contains(want), "{}: {err}", l.display());
+    }
+}
