@@ -35,6 +35,72 @@ pub struct DisparityArgs {
     engine: EngineKind,
     #[arg(long, default_value_t = 2)]
     threads: usize,
+    /// Left-right consistency check: the right view's disparity is computed too (the pair mirrored and
+    /// swapped) and a left pixel whose match disagrees by more than --lr-max-diff (px at the engine's
+    /// resolution) or falls outside the right image is invalid.
+    #[arg(long)]
+    lr_check: bool,
+    #[arg(long, default_value_t = 1.0)]
+    lr_max_diff: f32,
+    /// Per-pixel confidence in [0, 1] as PFM at the input resolution: exp(-|d_left - d_right|) of the
+    /// left-right check (implies it), 0 where invalid.
+    #[arg(long)]
+    confidence: Option<PathBuf>,
+    /// Why each pixel is invalid, as an 8-bit PNG at the input resolution: 0 valid, 1 no estimate from the
+    /// engine (e.g. beyond its disparity range), 2 its match falls outside the right image, 3 left-right
+    /// check failed (occlusion or mismatch). Implies the left-right check.
+    #[arg(long)]
+    invalid_reason: Option<PathBuf>,
+}
+
+/// Codes of `--invalid-reason`.
+const VALID: u8 = 0;
+const NO_ESTIMATE: u8 = 1;
+const OUTSIDE_RIGHT: u8 = 2;
+const LR_FAILED: u8 = 3;
+
+/// The left-right check at the engine's resolution: per pixel, the reason code and the confidence.
+fn lr_check(dl: &[f32], dr: &[f32], w: usize, max_diff: f32) -> (Vec<u8>, Vec<f32>) {
+    let mut reason = vec![VALID; dl.len()];
+    let mut conf = vec![0f32; dl.len()];
+    for (i, &d) in dl.iter().enumerate() {
+        let x = (i % w) as f32;
+        if !d.is_finite() {
+            reason[i] = NO_ESTIMATE;
+            continue;
+        }
+        let xr = (x - d).round();
+        if xr < 0.0 {
+            reason[i] = OUTSIDE_RIGHT;
+            continue;
+        }
+        let back = dr[i - (i % w) + xr as usize];
+        let diff = (d - back).abs();
+        if !back.is_finite() || diff > max_diff {
+            reason[i] = LR_FAILED;
+            continue;
+        }
+        conf[i] = (-diff).exp();
+    }
+    (reason, conf)
+}
+
+/// Each row of a `w`-wide image reversed (the mirror that turns a right view into a left one).
+fn mirror<T: Copy>(img: &[T], w: usize) -> Vec<T> {
+    img.chunks(w).flat_map(|row| row.iter().rev().copied()).collect()
+}
+
+/// Nearest-neighbour resample of a model-resolution map to the input resolution.
+fn to_input<T: Copy>(m: &[T], (mw, mh): (usize, usize), (iw, ih): (usize, usize), fill: T) -> Vec<T> {
+    let mut out = vec![fill; iw * ih];
+    for y in 0..ih {
+        let yy = (((y as f32 + 0.5) * mh as f32 / ih as f32) as usize).min(mh - 1);
+        for x in 0..iw {
+            let xx = (((x as f32 + 0.5) * mw as f32 / iw as f32) as usize).min(mw - 1);
+            out[y * iw + x] = m[yy * mw + xx];
+        }
+    }
+    out
 }
 
 #[derive(Args)]
@@ -217,18 +283,34 @@ pub fn run_disparity(a: DisparityArgs) -> anyhow::Result<ExitCode> {
         EngineKind::Onnx => Box::new(onnx),
         EngineKind::Sgbm => Box::new(disparity::SgbmEngine::new(mw, mh, max)?),
     };
-    let d = compute(engine.as_mut(), &resize_to(&l, mw as i32, mh as i32)?, &resize_to(&r, mw as i32, mh as i32)?)?;
-    // back to the input resolution, values scaled by the width ratio
-    let (iw, ih) = (l.cols() as usize, l.rows() as usize);
-    let sx = iw as f32 / mw as f32;
-    let mut out = vec![f32::NAN; iw * ih];
-    for y in 0..ih {
-        let yy = (((y as f32 + 0.5) * mh as f32 / ih as f32) as usize).min(mh as usize - 1);
-        for x in 0..iw {
-            let xx = (((x as f32 + 0.5) / sx) as usize).min(mw as usize - 1);
-            out[y * iw + x] = d[yy * mw as usize + xx] * sx;
+    let (lm, rm) = (resize_to(&l, mw as i32, mh as i32)?, resize_to(&r, mw as i32, mh as i32)?);
+    let mut d = compute(engine.as_mut(), &lm, &rm)?;
+    let (msize, isize) = ((mw as usize, mh as usize), (l.cols() as usize, l.rows() as usize));
+    if a.lr_check || a.confidence.is_some() || a.invalid_reason.is_some() {
+        // The right view's disparity: the mirrored right image is a left view of the mirrored left one.
+        let w = mw as usize;
+        let dr = mirror(&compute(engine.as_mut(), &mirror(&rm, w), &mirror(&lm, w))?, w);
+        let (reason, conf) = lr_check(&d, &dr, w, a.lr_max_diff);
+        for (v, &why) in d.iter_mut().zip(&reason) {
+            if why != VALID {
+                *v = f32::NAN;
+            }
+        }
+        if let Some(p) = &a.confidence {
+            write_pfm(p, isize.0, isize.1, &to_input(&conf, msize, isize, 0.0))?;
+        }
+        if let Some(p) = &a.invalid_reason {
+            let codes = to_input(&reason, msize, isize, NO_ESTIMATE);
+            image::GrayImage::from_raw(isize.0 as u32, isize.1 as u32, codes)
+                .context("reason map size")?
+                .save(p)
+                .with_context(|| format!("writing {}", p.display()))?;
         }
     }
+    // back to the input resolution, values scaled by the width ratio
+    let (iw, ih) = isize;
+    let sx = iw as f32 / mw as f32;
+    let out: Vec<f32> = to_input(&d, msize, isize, f32::NAN).into_iter().map(|v| v * sx).collect();
     write_pfm(&a.out, iw, ih, &out)?;
     let valid = out.iter().filter(|v| v.is_finite()).count();
     eprintln!(

@@ -183,3 +183,68 @@ fn the_default_model_suits_the_input_size() {
         assert!(o.status.success() && err.contains(want), "{}: {err}", l.display());
     }
 }
+
+/// Validity and confidence on the real Aloe pair: the left-right check removes pixels and those it keeps are
+/// more often right; the confidence ranks pixels by how often they are right; the reason map says why each
+/// removed pixel is invalid and nothing else.
+#[test]
+fn left_right_check_confidence_and_invalid_reasons_on_a_real_pair() {
+    let data = Path::new("/usr/share/doc/opencv-doc/examples/data");
+    assert!(data.join("aloeGT.png").exists(), "opencv-doc is not installed: run scripts/setup.sh");
+    let d = tempfile::tempdir().unwrap();
+    let run = |extra: &[&str], out: &str| {
+        let o = abvs()
+            .args(["disparity", "--left"])
+            .arg(data.join("aloeL.jpg"))
+            .arg("--right")
+            .arg(data.join("aloeR.jpg"))
+            .arg("--out")
+            .arg(d.path().join(out))
+            .args(extra)
+            .output()
+            .unwrap();
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        read_pfm(&d.path().join(out))
+    };
+    let (w, h, plain) = run(&[], "plain.pfm");
+    let (conf_p, why_p) = (d.path().join("conf.pfm"), d.path().join("why.png"));
+    let (_, _, checked) =
+        run(&["--confidence", conf_p.to_str().unwrap(), "--invalid-reason", why_p.to_str().unwrap()], "lr.pfm");
+    let (cw, ch, conf) = read_pfm(&conf_p);
+    let why = image::open(&why_p).unwrap().to_luma8();
+    assert_eq!((cw, ch, why.width() as usize, why.height() as usize), (w, h, w, h));
+    let gt = image::open(data.join("aloeGT.png")).unwrap().to_luma8();
+    assert_eq!((gt.width() as usize, gt.height() as usize), (w, h));
+    // bad-2 (%) over the ground-truth pixels a map answers, and the share of ground-truth pixels it answers
+    let bad2 = |m: &[f32], keep: &dyn Fn(usize) -> bool| {
+        let (mut n, mut bad, mut all) = (0usize, 0usize, 0usize);
+        for (i, g) in gt.as_raw().iter().enumerate() {
+            if *g == 0 {
+                continue;
+            }
+            all += 1;
+            if m[i].is_finite() && keep(i) {
+                n += 1;
+                bad += ((m[i] - *g as f32).abs() > 2.0) as usize;
+            }
+        }
+        (100.0 * bad as f64 / n.max(1) as f64, n as f64 / all as f64)
+    };
+    let (b_plain, f_plain) = bad2(&plain, &|_| true);
+    let (b_lr, f_lr) = bad2(&checked, &|_| true);
+    let (b_hi, f_hi) = bad2(&checked, &|i| conf[i] > 0.8);
+    eprintln!("bad-2 / answered: plain {b_plain:.1} % / {f_plain:.3}, left-right {b_lr:.1} % / {f_lr:.3}, confidence > 0.8 {b_hi:.1} % / {f_hi:.3}");
+    assert!(f_lr < f_plain && f_lr > 0.4, "answered {f_lr} vs {f_plain}");
+    assert!(b_lr < 0.7 * b_plain, "the check keeps bad pixels: {b_lr} vs {b_plain} %");
+    assert!(b_hi < b_lr && f_hi > 0.2, "confidence does not rank: {b_hi} % over {f_hi} vs {b_lr} %");
+    // reasons: 0 exactly where a disparity is given, confidence 0 elsewhere, every code known, occlusions found
+    let mut seen = [0usize; 4];
+    for (i, c) in why.as_raw().iter().enumerate() {
+        assert!(*c <= 3, "code {c}");
+        seen[*c as usize] += 1;
+        assert_eq!(*c == 0, checked[i].is_finite(), "pixel {i}: code {c}, disparity {}", checked[i]);
+        assert!((0.0..=1.0).contains(&conf[i]) && (*c == 0 || conf[i] == 0.0), "pixel {i}: confidence {}", conf[i]);
+    }
+    eprintln!("reasons (valid, no estimate, outside the right image, left-right): {seen:?}");
+    assert!(seen[3] > 0 && seen[2] > 0, "{seen:?}");
+}
