@@ -160,11 +160,16 @@ fn the_fixture_stereo_calibration_is_measured_by_the_calibration_tool() {
             .into_iter()
             .fold(0.0, f64::max)
     };
-    assert!(rot(&got, &fix) < 0.002 && dt(&got, &fix) < 0.05, "R {} deg, T {} mm", rot(&got, &fix), dt(&got, &fix));
-    assert!(dk(&got.left, &fix.left) < 0.02 && dk(&got.right, &fix.right) < 0.02, "intrinsics moved");
+    // The images are bit-identical from build to build, the adjustment's answer is not: T along the optical
+    // axis is weakly determined, and builds of the same code (and the Levenberg-Marquardt refactor) moved it by
+    // up to 0.07 mm and R by 0.0013 deg. The tolerances sit well inside the distance to the truth below.
+    let (r, t) = (rot(&got, &fix), dt(&got, &fix));
+    eprintln!("regenerated vs fixture: R {r:.4} deg, T {t:.3} mm");
+    assert!(r < 0.006 && t < 0.25, "R {r} deg, T {t} mm");
+    assert!(dk(&got.left, &fix.left) < 0.1 && dk(&got.right, &fix.right) < 0.1, "intrinsics moved");
     // Not the truth: a calibration's error (0.024 deg, 0.68 mm when it was generated).
     let (er, et) = (rot(&fix, &tru), dt(&fix, &tru));
     eprintln!("fixture vs truth: R {er:.4} deg, T {et:.3} mm");
-    assert!(er > 0.005 && er < 0.05 && et > 0.1 && et < 1.5, "R {er} deg, T {et} mm");
-    assert!(dk(&fix.left, &tru.left) > 0.01, "the fixture's intrinsics equal the truth");
+    assert!(er > 0.012 && er < 0.05 && et > 0.4 && et < 1.5, "R {er} deg, T {et} mm");
+    assert!(dk(&fix.left, &tru.left) > 0.1, "the fixture's intrinsics equal the truth");
 }
