@@ -159,27 +159,35 @@ pub fn grid_cells(points: &[(f64, f64, f64)], step: f64, reduce: Reduce) -> (Vec
         return (Vec::new(), Vec::new(), Vec::new());
     };
     let (nx, ny) = ((ix1 - ix0 + 1) as usize, (iy1 - iy0 + 1) as usize);
+    let values = reduce_cells(
+        nx * ny,
+        used.iter().map(|&(ix, iy, v)| ((iy - iy0) as usize * nx + (ix - ix0) as usize, v)),
+        reduce,
+    );
+    let centres = |i0: i64, n: usize| (0..n).map(|k| (i0 + k as i64) as f64 * step).collect();
+    (centres(ix0, nx), centres(iy0, ny), values)
+}
+
+/// Values of `n` cells from `(cell index, value)` items: their mean or max, NaN where a cell has none.
+pub(crate) fn reduce_cells(n: usize, items: impl Iterator<Item = (usize, f64)>, reduce: Reduce) -> Vec<f64> {
     // Per cell: (sum or max, count).
-    let mut acc = vec![(0.0f64, 0usize); nx * ny];
-    for &(ix, iy, v) in &used {
-        let (s, n) = &mut acc[(iy - iy0) as usize * nx + (ix - ix0) as usize];
-        *s = match (reduce, *n) {
+    let mut acc = vec![(0.0f64, 0usize); n];
+    for (i, v) in items {
+        let (s, k) = &mut acc[i];
+        *s = match (reduce, *k) {
             (Reduce::Max, 0) => v,
             (Reduce::Max, _) => s.max(v),
             (Reduce::Mean, _) => *s + v,
         };
-        *n += 1;
+        *k += 1;
     }
-    let values = acc
-        .into_iter()
-        .map(|(s, n)| match (n, reduce) {
+    acc.into_iter()
+        .map(|(s, k)| match (k, reduce) {
             (0, _) => f64::NAN,
-            (_, Reduce::Mean) => s / n as f64,
+            (_, Reduce::Mean) => s / k as f64,
             (_, Reduce::Max) => s,
         })
-        .collect();
-    let centres = |i0: i64, n: usize| (0..n).map(|k| (i0 + k as i64) as f64 * step).collect();
-    (centres(ix0, nx), centres(iy0, ny), values)
+        .collect()
 }
 
 /// Writes `p` as an 800x600 PNG: one colour per series, a legend when there is more than one,

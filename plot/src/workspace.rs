@@ -41,27 +41,11 @@ impl WorkspaceGrid {
     pub fn cells(&self, points: &[(f64, f64, f64)], reduce: Reduce) -> (Vec<f64>, Vec<f64>, Vec<f64>) {
         let (ra, rg) = (self.alpha_range_deg, self.gamma_range_deg);
         let ng = self.n(rg);
-        let mut acc = vec![(0.0f64, 0usize); self.n(ra) * ng];
-        for &(a, g, v) in points {
-            if !(a.is_finite() && g.is_finite() && v.is_finite()) {
-                continue;
-            }
-            let (s, n) = &mut acc[self.index(a, ra) * ng + self.index(g, rg)];
-            *s = match (reduce, *n) {
-                (Reduce::Max, 0) => v,
-                (Reduce::Max, _) => s.max(v),
-                (Reduce::Mean, _) => *s + v,
-            };
-            *n += 1;
-        }
-        let values = acc
-            .into_iter()
-            .map(|(s, n)| match (n, reduce) {
-                (0, _) => f64::NAN,
-                (_, Reduce::Max) => s,
-                (_, Reduce::Mean) => s / n as f64,
-            })
-            .collect();
+        let items = points
+            .iter()
+            .filter(|(a, g, v)| a.is_finite() && g.is_finite() && v.is_finite())
+            .map(|&(a, g, v)| (self.index(a, ra) * ng + self.index(g, rg), v));
+        let values = crate::reduce_cells(self.n(ra) * ng, items, reduce);
         (self.centres(rg), self.centres(ra), values)
     }
 
