@@ -57,4 +57,5 @@ fi
 "$py_dir/bin/python3" -c "import numpy, iceoryx2, zenoh, rosbags, mcap, mcap_ros2"
 echo "[setup] Python: $py_dir/bin/python3"
 "$root/scripts/fetch-apriltag-photos.sh"
+"$root/scripts/fetch-middlebury-motorcycle.sh"
 echo "[setup] done"

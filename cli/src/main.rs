@@ -4,6 +4,7 @@ mod calib;
 mod camcal;
 mod demo;
 mod disparity;
+mod disparity_eval;
 mod echo;
 mod explain;
 mod explain_plots;
@@ -11,6 +12,7 @@ mod gaze;
 mod kin;
 mod logger;
 mod paper;
+mod pfm;
 mod plot;
 mod record;
 mod repeat;
@@ -57,7 +59,7 @@ enum Cmd {
     /// Left-view disparity of a rectified pair with the shipped network or SGBM, written as PFM.
     Disparity(disparity::DisparityArgs),
     /// Score the disparity engines (each model variant and SGBM) against a ground-truth map, with timing.
-    DisparityEval(disparity::EvalArgs),
+    DisparityEval(disparity_eval::EvalArgs),
     /// Report what abvs found on this machine (ONNX Runtime library, version).
     Doctor,
 }
@@ -87,7 +89,7 @@ fn main() -> ExitCode {
         Cmd::Record(a) => record::run(a),
         Cmd::Echo(a) => echo::run(a),
         Cmd::Disparity(a) => disparity::run_disparity(a),
-        Cmd::DisparityEval(a) => disparity::run_eval(a),
+        Cmd::DisparityEval(a) => disparity_eval::run_eval(a),
         Cmd::Doctor => doctor(),
     };
     match r {

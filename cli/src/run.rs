@@ -365,7 +365,7 @@ pub fn run_config(c: &RuntimeConfig) -> anyhow::Result<ExitCode> {
     let max_disp = out.f * stereo.baseline_mm() / 1000.0 / c.disparity.min_depth_m;
     let model = match (&c.disparity.model, c.disparity.engine) {
         (Some(m), _) => Some(m.clone()),
-        (None, EngineKind::Onnx) => {
+        (None, EngineKind::Onnx | EngineKind::Fused) => {
             let variant = if w >= 640 { "hitnet-m" } else { "hitnet-s" };
             Some(shipped(&format!("models/hitnet/{variant}")))
         }

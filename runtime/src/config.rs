@@ -44,6 +44,9 @@ pub enum EngineKind {
     Onnx,
     /// OpenCV semi-global block matching.
     Sgbm,
+    /// SGBM where its own checks accept a match, the network elsewhere: the best depth on real images, at
+    /// about the cost of both (`tasks::disparity_fused`).
+    Fused,
 }
 
 impl EngineKind {
@@ -51,6 +54,7 @@ impl EngineKind {
         match self {
             EngineKind::Onnx => "onnx",
             EngineKind::Sgbm => "sgbm",
+            EngineKind::Fused => "fused",
         }
     }
 }

@@ -300,6 +300,17 @@ impl SgbmEngine {
                 .map_err(cv)?;
         Ok(SgbmEngine { width, height, num_disparities: num, sgbm, disp })
     }
+
+    /// Changes the search range (px, a positive multiple of 16); the left `range` columns get no match.
+    pub fn set_range(&mut self, range: i32) -> Result<()> {
+        use opencv::calib3d::StereoMatcherTrait;
+        if range < 16 || range % 16 != 0 {
+            return Err(RuntimeError::Invalid(format!("sgbm: range {range} is not a positive multiple of 16")));
+        }
+        self.sgbm.set_num_disparities(range).map_err(|e| RuntimeError::Invalid(format!("sgbm: {}", e.message)))?;
+        self.num_disparities = range;
+        Ok(())
+    }
 }
 
 impl DisparityEngine for SgbmEngine {
@@ -329,7 +340,7 @@ impl DisparityEngine for SgbmEngine {
     }
 }
 
-/// Builds an engine by name: "sgbm", or "onnx" with a model path.
+/// Builds an engine by name: "sgbm", or "onnx" / "fused" with a model path.
 pub fn engine(
     kind: &str,
     model: Option<&Path>,
@@ -337,11 +348,14 @@ pub fn engine(
     max_disparity: f64,
     threads: usize,
 ) -> Result<Box<dyn DisparityEngine>> {
+    let load = || {
+        let p = model.ok_or_else(|| RuntimeError::Invalid(format!("engine {kind} needs a model")))?;
+        OnnxEngine::load(p, threads).map(|e| (p, e))
+    };
     match kind {
         "sgbm" => Ok(Box::new(SgbmEngine::new(size.0, size.1, max_disparity)?)),
         "onnx" => {
-            let p = model.ok_or_else(|| RuntimeError::Invalid("engine onnx needs a model".into()))?;
-            let e = OnnxEngine::load(p, threads)?;
+            let (p, e) = load()?;
             if e.size() != size {
                 return Err(RuntimeError::Model {
                     path: p.to_path_buf(),
@@ -350,7 +364,9 @@ pub fn engine(
             }
             Ok(Box::new(e))
         }
-        other => Err(RuntimeError::Invalid(format!("unknown disparity engine `{other}` (onnx | sgbm)"))),
+        // the fused engine resizes the network's input, so any model size goes
+        "fused" => Ok(Box::new(super::disparity_fused::FusedEngine::new(load()?.1, size.0, size.1)?)),
+        other => Err(RuntimeError::Invalid(format!("unknown disparity engine `{other}` (onnx | sgbm | fused)"))),
     }
 }
 

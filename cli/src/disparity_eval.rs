@@ -1,0 +1,345 @@
+//! `abvs disparity-eval`: disparity engines scored against a ground-truth map (PFM, or PNG with a scale).
+//!
+//! EPE over the pixels an engine answers, bad-1/2/3 as % of valid ground-truth pixels (a pixel without an
+//! estimate counts as bad), and each engine's time (median of repeated runs). By default every model is
+//! scored at its own resolution against SGBM at the same one; `--native` scores what `abvs disparity` gives
+//! at the input's resolution, with the left-right check's density and the bad-2 against density curve.
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+use std::time::Instant;
+
+use abvs_runtime::config::EngineKind;
+use abvs_runtime::tasks::disparity::{self, DisparityEngine};
+use anyhow::{bail, Context};
+use clap::Args;
+use opencv::core::Mat;
+use opencv::imgcodecs;
+use opencv::prelude::*;
+
+use crate::disparity::{compute, default_model_for, default_models, estimate, gray, resize_to};
+use crate::pfm::read_pfm;
+
+#[derive(Args)]
+pub struct EvalArgs {
+    #[arg(long)]
+    left: PathBuf,
+    #[arg(long)]
+    right: PathBuf,
+    /// Ground truth: PFM (pixels, inf/NaN/0 = unknown) or an 8/16-bit PNG divided by --gt-scale (0 = unknown).
+    #[arg(long)]
+    gt: PathBuf,
+    #[arg(long, default_value_t = 1.0)]
+    gt_scale: f64,
+    /// Model directories or .onnx files to score (default: the shipped variants).
+    #[arg(long)]
+    model: Vec<PathBuf>,
+    /// Timed runs per engine (median reported).
+    #[arg(long, default_value_t = 20)]
+    runs: usize,
+    #[arg(long, default_value_t = 2)]
+    threads: usize,
+    /// Print JSON instead of the table.
+    #[arg(long)]
+    json: bool,
+    /// Score at the input's own resolution (the ground truth's) instead of each model's: the default
+    /// `abvs disparity` engine (fused), each shipped network (resampled to the input), and SGBM at the input
+    /// resolution with OpenCV's usual settings for the ground truth's disparity range. Adds the left-right
+    /// check's effect (density and bad-2 kept) for the default engine.
+    #[arg(long)]
+    native: bool,
+    /// With --native: bad-2 against density (pixels kept by confidence) as PNG, for the default engine and
+    /// the network alone.
+    #[arg(long, requires = "native")]
+    curve: Option<PathBuf>,
+}
+
+/// Ground truth at the engine resolution (nearest neighbour, values scaled by the width ratio; NaN unknown).
+fn load_gt(path: &Path, scale: f64, w: u32, h: u32) -> anyhow::Result<(usize, usize, Vec<f32>)> {
+    let (gw, gh, g) = if path.extension().is_some_and(|e| e.eq_ignore_ascii_case("pfm")) {
+        read_pfm(path)?
+    } else {
+        let m = imgcodecs::imread(path.to_str().context("path is not UTF-8")?, imgcodecs::IMREAD_UNCHANGED)?;
+        if m.empty() || m.channels() != 1 {
+            bail!("{}: not a single-channel ground-truth image", path.display());
+        }
+        let mut f = Mat::default();
+        m.convert_to(&mut f, opencv::core::CV_32F, 1.0 / scale, 0.0)?;
+        let v: Vec<f32> = f.data_typed::<f32>()?.iter().map(|x| if *x > 0.0 { *x } else { f32::NAN }).collect();
+        (m.cols() as usize, m.rows() as usize, v)
+    };
+    if gw == 0 || gh == 0 || g.len() < gw * gh {
+        bail!("{}: empty ground-truth image ({gw}x{gh})", path.display());
+    }
+    if w == 0 || h == 0 {
+        bail!("engine resolution {w}x{h} is empty");
+    }
+    let sx = w as f32 / gw as f32;
+    let mut out = vec![f32::NAN; w as usize * h as usize];
+    for y in 0..h as usize {
+        let yy = (((y as f32 + 0.5) * gh as f32 / h as f32) as usize).min(gh - 1);
+        for x in 0..w as usize {
+            let xx = (((x as f32 + 0.5) / sx) as usize).min(gw - 1);
+            let v = g[yy * gw + xx];
+            out[y * w as usize + x] = if v.is_finite() && v > 0.0 { v * sx } else { f32::NAN };
+        }
+    }
+    Ok((gw, gh, out))
+}
+
+/// EPE over pixels with both values; bad-k over valid ground truth (no estimate = bad).
+fn score(d: &[f32], gt: &[f32], max_disp: f64) -> serde_json::Value {
+    let s = abvs_sim::disparity_score::score_disparity(d, gt, max_disp);
+    serde_json::json!({ "epe_px": s.epe_px, "bad1_pct": s.bad_pct[0], "bad2_pct": s.bad_pct[1],
+        "bad3_pct": s.bad_pct[2], "valid_fraction": s.valid_fraction, "gt_pixels": s.gt_pixels })
+}
+
+pub fn run_eval(a: EvalArgs) -> anyhow::Result<ExitCode> {
+    let (l, r) = (gray(&a.left)?, gray(&a.right)?);
+    if a.native {
+        let rows = run_native(&a, &l, &r)?;
+        return print_rows(&rows, a.json);
+    }
+    let models = if a.model.is_empty() { default_models() } else { a.model.clone() };
+    if models.is_empty() {
+        bail!("no disparity model given and none shipped under models/hitnet/");
+    }
+    let mut rows = Vec::new();
+    for m in &models {
+        let onnx = disparity::OnnxEngine::load(m, a.threads)?;
+        let (w, h, max) = (onnx.manifest.width, onnx.manifest.height, onnx.manifest.max_disparity);
+        let (lv, rv) = (resize_to(&l, w as i32, h as i32)?, resize_to(&r, w as i32, h as i32)?);
+        let (_, _, gt) = load_gt(&a.gt, a.gt_scale, w, h)?;
+        let beyond = gt.iter().filter(|g| g.is_finite() && (**g as f64) >= max).count();
+        let engines: Vec<Box<dyn DisparityEngine>> =
+            vec![Box::new(onnx), Box::new(disparity::SgbmEngine::new(w, h, max)?)];
+        for mut e in engines {
+            let d = compute(e.as_mut(), &lv, &rv)?;
+            let mut times = Vec::with_capacity(a.runs);
+            let mut buf = d.clone();
+            for _ in 0..a.runs.max(1) {
+                let t = Instant::now();
+                e.compute(&lv, &rv, &mut buf)?;
+                times.push(t.elapsed().as_secs_f64() * 1e3);
+            }
+            times.sort_by(f64::total_cmp);
+            let mut s = score(&d, &gt, max);
+            s["engine"] = serde_json::json!(e.name());
+            s["resolution"] = serde_json::json!(format!("{w}x{h}"));
+            s["max_disparity"] = serde_json::json!(max);
+            s["gt_pixels_beyond_max_disparity"] = serde_json::json!(beyond);
+            s["ms_median"] = serde_json::json!(times[times.len() / 2]);
+            rows.push(s);
+        }
+    }
+    print_rows(&rows, a.json)
+}
+
+fn print_rows(rows: &[serde_json::Value], json: bool) -> anyhow::Result<ExitCode> {
+    if json {
+        println!("{}", serde_json::to_string_pretty(rows)?);
+    } else {
+        println!(
+            "{:<18} {:>9} {:>8} {:>8} {:>8} {:>8} {:>7} {:>9}",
+            "engine", "res", "EPE px", "bad-1 %", "bad-2 %", "bad-3 %", "valid", "ms"
+        );
+        for s in rows {
+            println!(
+                "{:<18} {:>9} {:>8.3} {:>8.2} {:>8.2} {:>8.2} {:>7.3} {:>9.2}",
+                s["engine"].as_str().unwrap_or(""),
+                s["resolution"].as_str().unwrap_or(""),
+                s["epe_px"].as_f64().unwrap_or(f64::NAN),
+                s["bad1_pct"].as_f64().unwrap_or(f64::NAN),
+                s["bad2_pct"].as_f64().unwrap_or(f64::NAN),
+                s["bad3_pct"].as_f64().unwrap_or(f64::NAN),
+                s["valid_fraction"].as_f64().unwrap_or(f64::NAN),
+                s["ms_median"].as_f64().unwrap_or(f64::NAN)
+            );
+        }
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+/// Median of `runs` timed calls (ms).
+fn median_ms(runs: usize, mut f: impl FnMut() -> anyhow::Result<()>) -> anyhow::Result<f64> {
+    let mut t = Vec::with_capacity(runs.max(1));
+    for _ in 0..runs.max(1) {
+        let s = Instant::now();
+        f()?;
+        t.push(s.elapsed().as_secs_f64() * 1e3);
+    }
+    t.sort_by(f64::total_cmp);
+    Ok(t[t.len() / 2])
+}
+
+/// bad-2 (% of the ground-truth pixels kept) against density (fraction of ground-truth pixels kept), keeping
+/// pixels in order of falling confidence; 0-confidence (invalid) pixels are never kept.
+pub fn density_curve(d: &[f32], conf: &[f32], gt: &[f32], max_disp: f64) -> Vec<(f64, f64)> {
+    let mut px: Vec<(f32, bool)> = Vec::new();
+    let mut n = 0usize;
+    for ((p, c), g) in d.iter().zip(conf).zip(gt) {
+        if !(g.is_finite() && (*g as f64) < max_disp) {
+            continue;
+        }
+        n += 1;
+        if p.is_finite() && *c > 0.0 {
+            px.push((*c, (p - g).abs() > 2.0));
+        }
+    }
+    px.sort_by(|a, b| b.0.total_cmp(&a.0));
+    let mut out = Vec::new();
+    let mut bad = 0usize;
+    let step = (n / 200).max(1);
+    for (i, (_, b)) in px.iter().enumerate() {
+        bad += *b as usize;
+        if (i + 1) % step == 0 || i + 1 == px.len() {
+            out.push(((i + 1) as f64 / n as f64, 100.0 * bad as f64 / (i + 1) as f64));
+        }
+    }
+    out
+}
+
+/// The engines at the input's resolution; see `--native`.
+fn run_native(a: &EvalArgs, l: &Mat, r: &Mat) -> anyhow::Result<Vec<serde_json::Value>> {
+    let (iw, ih) = (l.cols() as u32, l.rows() as u32);
+    let (_, _, gt) = load_gt(&a.gt, a.gt_scale, iw, ih)?;
+    let gt_max = gt.iter().filter(|g| g.is_finite()).fold(0f32, |m, g| m.max(*g)) as f64;
+    if gt_max <= 0.0 {
+        bail!("{}: no known ground-truth disparity", a.gt.display());
+    }
+    // nothing is beyond the range here: SGBM searches the ground truth's whole range
+    let max = f64::INFINITY;
+    let (lb, rb) = (l.data_bytes()?.to_vec(), r.data_bytes()?.to_vec());
+    let mut rows = Vec::new();
+    let mut curves = Vec::new();
+    let default_model = default_model_for(iw, ih);
+    let mut nets: Vec<PathBuf> = if a.model.is_empty() { default_models() } else { a.model.clone() };
+    nets.retain(|m| m != &default_model);
+    let mut cases = vec![(EngineKind::Fused, default_model.clone(), true), (EngineKind::Onnx, default_model, true)];
+    cases.extend(nets.into_iter().map(|m| (EngineKind::Onnx, m, false)));
+    for (kind, model, default) in cases {
+        let est = estimate(l, r, kind, &model, a.threads, None)?;
+        let mut s = score(&est.disparity, &gt, max);
+        // time: the engine on the pair, resizing and resampling included, model loading not
+        let ms = {
+            let onnx = disparity::OnnxEngine::load(&model, a.threads)?;
+            let (mw, mh) = onnx.size();
+            if kind == EngineKind::Fused {
+                let mut e = abvs_runtime::tasks::disparity_fused::FusedEngine::new(onnx, iw, ih)?;
+                let mut out = vec![0f32; (iw * ih) as usize];
+                median_ms(a.runs, || Ok(e.compute(&lb, &rb, &mut out)?))?
+            } else {
+                let mut e = onnx;
+                let mut up = vec![0f32; (iw * ih) as usize];
+                median_ms(a.runs, || {
+                    let (lm, rm) = (resize_to(l, mw as i32, mh as i32)?, resize_to(r, mw as i32, mh as i32)?);
+                    let d = compute(&mut e, &lm, &rm)?;
+                    abvs_runtime::tasks::disparity_fused::upsample_disparity(
+                        &d,
+                        (mw as usize, mh as usize),
+                        &mut up,
+                        (iw as usize, ih as usize),
+                    );
+                    Ok(())
+                })?
+            }
+        };
+        if default {
+            // the left-right check: what it keeps, and bad-2 against density by confidence
+            let chk = estimate(l, r, kind, &model, a.threads, Some(1.0))?;
+            let (conf, _) = chk.checked.as_ref().context("left-right check")?;
+            let kept = score(&chk.disparity, &gt, max);
+            let curve = density_curve(&chk.disparity, conf, &gt, max);
+            let at = |density: f64| curve.iter().rev().find(|(dn, _)| *dn <= density).map(|(dn, b)| (*dn, *b));
+            let full_bad = s["bad2_pct"].as_f64().unwrap_or(f64::NAN);
+            // bad-2 counts unanswered pixels as bad: over the kept ones it is (bad - dropped) / kept
+            let v = kept["valid_fraction"].as_f64().unwrap_or(0.0);
+            let bad_kept = (kept["bad2_pct"].as_f64().unwrap_or(0.0) - 100.0 * (1.0 - v)) / v.max(1e-9);
+            s["lr_check"] = serde_json::json!({
+                "density": v,
+                "bad2_pct_of_kept": bad_kept,
+                "at_85pct_density": at(0.85).map(|(dn, b)| serde_json::json!({
+                    "density": dn, "bad2_pct_of_kept": b,
+                    // share of the full-density bad-2 pixels that the 15 % removed took away
+                    "bad2_removed_fraction": 1.0 - b * dn / full_bad,
+                })),
+            });
+            curves.push((est.engine.clone(), curve));
+        }
+        s["engine"] = serde_json::json!(est.engine);
+        s["default"] = serde_json::json!(default && kind == EngineKind::Fused);
+        s["resolution"] = serde_json::json!(format!("{iw}x{ih}"));
+        s["network_resolution"] = serde_json::json!(format!("{}x{}", est.model_size.0, est.model_size.1));
+        s["ms_median"] = serde_json::json!(ms);
+        rows.push(s);
+    }
+    // SGBM as users run it: the input resolution, the ground truth's range
+    let mut sgbm = disparity::SgbmEngine::new(iw, ih, gt_max + 1.0)?;
+    let d = compute(&mut sgbm, &lb, &rb)?;
+    let mut s = score(&d, &gt, max);
+    let mut buf = d.clone();
+    s["ms_median"] = serde_json::json!(median_ms(a.runs, || Ok(sgbm.compute(&lb, &rb, &mut buf)?))?);
+    s["engine"] = serde_json::json!(format!("sgbm (range {})", sgbm.max_disparity()));
+    s["default"] = serde_json::json!(false);
+    s["resolution"] = serde_json::json!(format!("{iw}x{ih}"));
+    s["network_resolution"] = serde_json::json!("-");
+    rows.push(s);
+    if let Some(p) = &a.curve {
+        let series = curves
+            .iter()
+            .map(|(name, c)| abvs_plot::Series {
+                label: name,
+                points: c.iter().map(|(dn, b)| (100.0 * dn, *b)).collect(),
+                style: abvs_plot::SeriesStyle::Line,
+            })
+            .collect();
+        abvs_plot::xy_plot(
+            p,
+            &abvs_plot::XyPlot {
+                title: "bad-2 of the pixels kept by confidence (left-right check)",
+                x_label: "density (% of ground-truth pixels kept)",
+                y_label: "bad-2 (%)",
+                series,
+                log_y: false,
+            },
+        )?;
+    }
+    Ok(rows)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn load_gt_refuses_an_empty_image_instead_of_underflowing() {
+        let dir = tempfile::tempdir().unwrap();
+        // a PFM cannot be empty (its reader refuses 0), a PNG can be 0 pixels only by not decoding: both errors
+        let p = dir.path().join("gt.pfm");
+        std::fs::write(&p, b"Pf\n0 0\n-1.0\n").unwrap();
+        assert!(load_gt(&p, 1.0, 8, 8).is_err());
+        let p = dir.path().join("gt.png");
+        std::fs::write(&p, b"").unwrap();
+        assert!(load_gt(&p, 1.0, 8, 8).is_err());
+        // a 1x1 ground truth scales to any size
+        let p = dir.path().join("one.pfm");
+        std::fs::write(&p, pfm_bytes(1, 1, &[2.0])).unwrap();
+        let (_, _, g) = load_gt(&p, 1.0, 4, 3).unwrap();
+        assert_eq!(g, vec![8.0; 12]);
+        assert!(load_gt(&p, 1.0, 0, 3).is_err());
+    }
+
+    fn pfm_bytes(w: usize, h: usize, data: &[f32]) -> Vec<u8> {
+        let mut b = format!("Pf\n{w} {h}\n-1.0\n").into_bytes();
+        data.iter().for_each(|v| b.extend_from_slice(&v.to_le_bytes()));
+        b
+    }
+
+    #[test]
+    fn density_curve_keeps_the_most_confident_first() {
+        let gt = [10.0, 10.0, 10.0, 10.0];
+        let d = [10.0, 15.0, 10.5, f32::NAN];
+        let conf = [0.9, 0.1, 0.5, 0.0];
+        let c = density_curve(&d, &conf, &gt, 100.0);
+        assert_eq!(c, vec![(0.25, 0.0), (0.5, 0.0), (0.75, 100.0 / 3.0)]);
+    }
+}
