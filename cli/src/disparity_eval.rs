@@ -1,9 +1,10 @@
 //! `abvs disparity-eval`: disparity engines scored against a ground-truth map (PFM, or PNG with a scale).
 //!
 //! EPE over the pixels an engine answers, bad-1/2/3 as % of valid ground-truth pixels (a pixel without an
-//! estimate counts as bad), and each engine's time (median of repeated runs). By default every model is
-//! scored at its own resolution against SGBM at the same one; `--native` scores what `abvs disparity` gives
-//! at the input's resolution, with the left-right check's density and the bad-2 against density curve.
+//! estimate counts as bad), and each engine's time (median of repeated runs). By default it scores what
+//! `abvs disparity` gives at the input's resolution (the default engine, each network, SGBM with the ground
+//! truth's range), with the left-right check's density and the bad-2 against density curve;
+//! `--at-model-resolution` scores every model at its own resolution against SGBM at the same one.
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::time::Instant;
@@ -41,15 +42,19 @@ pub struct EvalArgs {
     /// Print JSON instead of the table.
     #[arg(long)]
     json: bool,
-    /// Score at the input's own resolution (the ground truth's) instead of each model's: the default
-    /// `abvs disparity` engine (fused), each shipped network (resampled to the input), and SGBM at the input
-    /// resolution with OpenCV's usual settings for the ground truth's disparity range. Adds the left-right
-    /// check's effect (density and bad-2 kept) for the default engine.
+    /// Score each model at its own resolution against SGBM at the same one (the networks' training
+    /// protocol) instead of what `abvs disparity` gives at the input's resolution.
     #[arg(long)]
+    at_model_resolution: bool,
+    /// The default (kept for scripts): score at the input's own resolution (the ground truth's): the default
+    /// `abvs disparity` engine (fused), each shipped network (resampled to the input), and SGBM at the input
+    /// resolution with OpenCV's usual settings for the ground truth's disparity range, plus the left-right
+    /// check's effect (density and bad-2 kept) for the default engine.
+    #[arg(long, hide = true, conflicts_with = "at_model_resolution")]
     native: bool,
-    /// With --native: bad-2 against density (pixels kept by confidence) as PNG, for the default engine and
-    /// the network alone.
-    #[arg(long, requires = "native")]
+    /// bad-2 against density (pixels kept by confidence) as PNG, for the default engine and the network
+    /// alone (not with --at-model-resolution).
+    #[arg(long, conflicts_with = "at_model_resolution")]
     curve: Option<PathBuf>,
 }
 
@@ -95,7 +100,7 @@ fn score(d: &[f32], gt: &[f32], max_disp: f64) -> serde_json::Value {
 
 pub fn run_eval(a: EvalArgs) -> anyhow::Result<ExitCode> {
     let (l, r) = (gray(&a.left)?, gray(&a.right)?);
-    if a.native {
+    if !a.at_model_resolution {
         let rows = run_native(&a, &l, &r)?;
         return print_rows(&rows, a.json);
     }
@@ -198,7 +203,7 @@ pub fn density_curve(d: &[f32], conf: &[f32], gt: &[f32], max_disp: f64) -> Vec<
     out
 }
 
-/// The engines at the input's resolution; see `--native`.
+/// The engines at the input's resolution (the default mode).
 fn run_native(a: &EvalArgs, l: &Mat, r: &Mat) -> anyhow::Result<Vec<serde_json::Value>> {
     let (iw, ih) = (l.cols() as u32, l.rows() as u32);
     let (_, _, gt) = load_gt(&a.gt, a.gt_scale, iw, ih)?;

@@ -100,7 +100,7 @@ fn disparity_eval_scores_both_engines_on_the_real_aloe_pair() {
         panic!("opencv-doc is not installed: run scripts/setup.sh (it provides the Middlebury Aloe pair)");
     }
     let o = abvs()
-        .args(["disparity-eval", "--json", "--runs", "3", "--left"])
+        .args(["disparity-eval", "--at-model-resolution", "--json", "--runs", "3", "--left"])
         .arg(data.join("aloeL.jpg"))
         .arg("--right")
         .arg(data.join("aloeR.jpg"))

@@ -122,11 +122,11 @@ fn default_disparity(p: &Pair, dir: &Path) -> (Vec<f32>, Vec<f32>, Vec<f32>) {
     (plain, checked, read_pfm(&conf_p).2)
 }
 
-/// `abvs disparity-eval --native` on the pair: its rows (JSON) and the curve PNG.
-fn native_eval(p: &Pair, dir: &Path) -> Vec<serde_json::Value> {
+/// `abvs disparity-eval` (default: at the input resolution) on the pair: its rows (JSON) and the curve PNG.
+fn eval_rows(p: &Pair, dir: &Path) -> Vec<serde_json::Value> {
     let curve = dir.join("curve.png");
     let o = abvs()
-        .args(["disparity-eval", "--native", "--json", "--runs", "1", "--left"])
+        .args(["disparity-eval", "--json", "--runs", "1", "--left"])
         .arg(&p.left)
         .arg("--right")
         .arg(&p.right)
@@ -147,7 +147,7 @@ fn native_eval(p: &Pair, dir: &Path) -> Vec<serde_json::Value> {
 fn check(p: Pair) {
     let dir = tempfile::tempdir().unwrap();
     let (plain, checked, conf) = default_disparity(&p, dir.path());
-    let rows = native_eval(&p, dir.path());
+    let rows = eval_rows(&p, dir.path());
     let row = |prefix: &str| {
         rows.iter().find(|r| r["engine"].as_str().unwrap().starts_with(prefix)).unwrap_or_else(|| panic!("{prefix}"))
     };
