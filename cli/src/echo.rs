@@ -1,20 +1,24 @@
-//! `abvs echo depth|cloud`: subscribes to the runtime's iceoryx2 bridge and prints rate and end-to-end
+//! `abvs echo depth|confidence|cloud`: subscribes to the runtime's iceoryx2 bridge and prints rate and end-to-end
 //! latency (now - t_frame_ns, CLOCK_MONOTONIC).
 use std::process::ExitCode;
 use std::time::{Duration, Instant};
 
-use abvs_runtime::bridges::iceoryx::{monotonic_ns, BridgeConfig, BridgePayload, CloudPoint, FrameHeader, Subscriber};
+use abvs_runtime::bridges::iceoryx::{
+    monotonic_ns, BridgeConfig, BridgeError, BridgePayload, CloudPoint, FrameHeader, Subscriber,
+};
 use clap::{Args, ValueEnum};
 
 #[derive(Clone, Copy, Debug, ValueEnum)]
 pub enum Topic {
     Depth,
+    /// The depth's per-pixel confidence (published by `abvs run --confidence`).
+    Confidence,
     Cloud,
 }
 
 #[derive(Args)]
 pub struct EchoArgs {
-    /// What to receive: depth maps or point clouds.
+    /// What to receive: depth maps, their confidence, or point clouds.
     topic: Topic,
     /// Exit after this many samples.
     #[arg(long)]
@@ -41,8 +45,9 @@ pub struct EchoArgs {
 
 pub fn run(a: EchoArgs) -> anyhow::Result<ExitCode> {
     match a.topic {
-        Topic::Depth => echo::<f32>(&a),
-        Topic::Cloud => echo::<CloudPoint>(&a),
+        Topic::Depth => echo(&a, Subscriber::<f32>::new),
+        Topic::Confidence => echo(&a, Subscriber::<f32>::confidence),
+        Topic::Cloud => echo(&a, Subscriber::<CloudPoint>::new),
     }
 }
 
@@ -61,12 +66,15 @@ struct Window {
     points: u64,
 }
 
-fn echo<T: BridgePayload>(a: &EchoArgs) -> anyhow::Result<ExitCode> {
+fn echo<T: BridgePayload>(
+    a: &EchoArgs,
+    open: fn(&BridgeConfig) -> Result<Subscriber<T>, BridgeError>,
+) -> anyhow::Result<ExitCode> {
     if !(a.timeout_s > 0.0 && a.timeout_s.is_finite()) {
         anyhow::bail!("--timeout-s must be a positive number of seconds");
     }
     let cfg = BridgeConfig::default().with_prefix(a.prefix.clone());
-    let mut sub = Subscriber::<T>::new(&cfg)?;
+    let mut sub = open(&cfg)?;
     let service = sub.service_name().to_string();
     let timeout = Duration::from_secs_f64(a.timeout_s);
     let mut all_lat: Vec<f64> = Vec::new();

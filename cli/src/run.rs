@@ -82,6 +82,14 @@ pub struct RunArgs {
     /// Threads of the ONNX engine.
     #[arg(long, default_value_t = 2)]
     pub threads: usize,
+    /// Per-pixel confidence of the disparity by a left-right check (the engine runs a second time on the
+    /// mirrored pair: about doubles the disparity stage), published on the iceoryx2 service {prefix}/confidence.
+    #[arg(long)]
+    pub confidence: bool,
+    /// Drop the pixels that fail the left-right check (their match disagrees by more than
+    /// [disparity] lr_max_diff px, 1 by default, or leaves the right image) from depth and cloud.
+    #[arg(long)]
+    pub lr_check: bool,
     /// Score depth against the session's ground truth every N-th point (synthetic sessions; 0: off).
     #[arg(long, default_value_t = 8)]
     pub truth_stride: usize,
@@ -109,7 +117,8 @@ pub struct RunArgs {
     /// Do not publish over iceoryx2.
     #[arg(long)]
     pub no_publish: bool,
-    /// iceoryx2 service name prefix (services {prefix}/depth, {prefix}/cloud).
+    /// iceoryx2 service name prefix (services {prefix}/depth, {prefix}/cloud, with --confidence
+    /// {prefix}/confidence).
     #[arg(long, default_value = "abvs")]
     pub service_prefix: String,
     /// Do not print the latency table.
@@ -262,6 +271,12 @@ pub fn effective_config(a: &RunArgs, m: &ArgMatches) -> anyhow::Result<RuntimeCo
     if given("threads") {
         c.disparity.threads = a.threads;
     }
+    if a.confidence {
+        c.disparity.confidence = true;
+    }
+    if a.lr_check {
+        c.disparity.lr_check = true;
+    }
     if given("fk") {
         c.calibration.fk = a.fk;
     }
@@ -382,7 +397,11 @@ pub fn run_config(c: &RuntimeConfig) -> anyhow::Result<ExitCode> {
     if c.bridges.iceoryx.enabled {
         let cfg = abvs_runtime::bridges::iceoryx::BridgeConfig::for_resolution(w, h)
             .with_prefix(c.bridges.iceoryx.service_prefix.clone());
-        sinks.push(Box::new(abvs_runtime::bridges::publish::PublishSink::new(cfg)?));
+        sinks.push(Box::new(if c.disparity.confidence {
+            abvs_runtime::bridges::publish::PublishSink::with_confidence(cfg)?
+        } else {
+            abvs_runtime::bridges::publish::PublishSink::new(cfg)?
+        }));
     }
     // ROS 2 outputs: lossless runs wait for them, live ones drop their oldest queued frame
     if let Some(p) = &c.sinks.mcap.file {
@@ -431,6 +450,7 @@ pub fn run_config(c: &RuntimeConfig) -> anyhow::Result<ExitCode> {
                 frames: if c.source.looping { c.source.frames.or(Some(u64::MAX)) } else { c.source.frames },
                 duration,
                 window,
+                check: c.disparity.check_config(),
                 // from here Ctrl-C / SIGTERM stop the run cleanly (before it: the default, exit)
                 stop: Some(stop_on_signals()?),
                 ..Default::default()
@@ -451,6 +471,7 @@ pub fn run_config(c: &RuntimeConfig) -> anyhow::Result<ExitCode> {
                 frames: c.source.frames,
                 duration,
                 window,
+                check: c.disparity.check_config(),
                 // from here Ctrl-C / SIGTERM stop the run cleanly (before it: the default, exit)
                 stop: Some(stop_on_signals()?),
                 ..Default::default()
@@ -467,10 +488,37 @@ pub fn run_config(c: &RuntimeConfig) -> anyhow::Result<ExitCode> {
     let elapsed = stats.extra.get("elapsed_s").and_then(|v| v.as_f64()).unwrap_or(0.0);
     if !c.sinks.quiet {
         println!("session {source_name} ({description})");
-        println!("engine {engine_name} at {w}x{h}, fk {}", c.calibration.fk.as_str());
+        let d = &c.disparity;
+        let check = match (d.confidence, d.lr_check) {
+            (false, false) => String::new(),
+            (conf, lr) => format!(
+                ", left-right check ({}{}{}, {} px)",
+                if conf { "confidence" } else { "" },
+                if conf && lr { " + " } else { "" },
+                if lr { "inconsistent pixels dropped" } else { "" },
+                d.lr_max_diff
+            ),
+        };
+        println!("engine {engine_name} at {w}x{h}{check}, fk {}", c.calibration.fk.as_str());
         print!("{}", stats.table(elapsed));
         if let Some(v) = stats.extra.get("self_check") {
             println!("{}", abvs_runtime::sinks::self_check::summary_line(v));
+        }
+        if let Some(v) = stats.extra.get("depth_error_by_confidence") {
+            let part = |p: &serde_json::Value| {
+                format!(
+                    "abs rel {:.2} %, rmse {:.1} mm ({} points)",
+                    p["abs_rel"].as_f64().unwrap_or(f64::NAN) * 100.0,
+                    p["rmse_m"].as_f64().unwrap_or(f64::NAN) * 1000.0,
+                    p["points"].as_u64().unwrap_or(0)
+                )
+            };
+            let t = v["threshold"].as_f64().unwrap_or(f64::NAN);
+            println!(
+                "depth error vs truth by confidence: > {t:.1}: {}; <= {t:.1}: {}",
+                part(&v["above"]),
+                part(&v["at_most"])
+            );
         }
         for k in ["zenoh", "mcap"] {
             if let Some(v) = stats.extra.get(k) {

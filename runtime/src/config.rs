@@ -183,6 +183,31 @@ pub struct DisparityConfig {
     pub min_depth_m: f64,
     /// Threads of the ONNX engine.
     pub threads: usize,
+    /// Per-pixel confidence of the disparity by a left-right check (the engine run a second time on the
+    /// mirrored pair: about doubles the disparity stage), published on `{prefix}/confidence`.
+    #[serde(default)]
+    pub confidence: bool,
+    /// Drop the pixels that fail the left-right check (their depth and cloud points): runs the check.
+    #[serde(default)]
+    pub lr_check: bool,
+    /// Largest left/right disparity disagreement (px) of a consistent match.
+    #[serde(default = "default_lr_max_diff")]
+    pub lr_max_diff: f64,
+}
+
+fn default_lr_max_diff() -> f64 {
+    1.0
+}
+
+impl DisparityConfig {
+    /// The pipeline's left-right check as this section configures it.
+    pub fn check_config(&self) -> crate::tasks::confidence::CheckConfig {
+        crate::tasks::confidence::CheckConfig {
+            confidence: self.confidence,
+            invalidate: self.lr_check,
+            max_diff: self.lr_max_diff as f32,
+        }
+    }
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -335,6 +360,9 @@ impl RuntimeConfig {
                 rect_hfov_deg: 100.0,
                 min_depth_m: 0.2,
                 threads: 2,
+                confidence: false,
+                lr_check: false,
+                lr_max_diff: default_lr_max_diff(),
             },
             sinks: SinksConfig::default(),
             bridges: BridgesConfig::default(),
@@ -396,6 +424,10 @@ impl RuntimeConfig {
         }
         if d.threads == 0 || d.threads > 256 {
             return Err(format!("disparity.threads: {} must be in 1..=256", d.threads));
+        }
+        let limit = crate::tasks::confidence::MAX_DIFF_LIMIT as f64;
+        if !(d.lr_max_diff > 0.0 && d.lr_max_diff <= limit) {
+            return Err(format!("disparity.lr_max_diff: {} must be in (0, {limit}] px", d.lr_max_diff));
         }
         if let Some(t) = self.source.seconds {
             if !(t > 0.0 && t <= 1e7) {
@@ -471,6 +503,20 @@ mod tests {
         .unwrap_err()
         .to_string();
         assert!(e.contains("min_depth_m"), "{e}");
+        // the left-right check: absent fields take their defaults, a bad range is refused
+        let old = c.to_toml_string().replace("confidence = false\n", "").replace("lr_max_diff = 1.0\n", "");
+        assert!(!old.contains("lr_max_diff"), "{old}");
+        assert_eq!(RuntimeConfig::from_toml_str(&old, Path::new("/etc/abvs/r.toml")).unwrap(), c);
+        let on = c.to_toml_string().replace("confidence = false", "confidence = true");
+        let on = RuntimeConfig::from_toml_str(&on, Path::new("/etc/abvs/r.toml")).unwrap();
+        assert!(on.disparity.check_config().confidence && !on.disparity.check_config().invalidate);
+        let e = RuntimeConfig::from_toml_str(
+            &c.to_toml_string().replace("lr_max_diff = 1.0", "lr_max_diff = 0.0"),
+            Path::new("r.toml"),
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(e.contains("lr_max_diff"), "{e}");
         // Relative paths are the file's.
         let rel = c.to_toml_string().replace("/data/s", "sessions/a");
         let r = RuntimeConfig::from_toml_str(&rel, Path::new("/etc/abvs/r.toml")).unwrap();

@@ -3,7 +3,7 @@
 //!
 //! ```text
 //! source ─ SourcePair + EncoderSample ─> align ─ theta ─> kinematics ─ StereoPose ─> rectify ─ RectifiedPair ─>
-//!   disparity ─ disparity map ─> depth ─ DepthFrame ─> Published (sinks, bridges)
+//!   disparity ─ disparity map (+ confidence) ─> depth ─ DepthFrame ─> Published (sinks, bridges)
 //! ```
 //! A frame travels through the stages in one pooled [`Work`] holding every message of that frame.
 use glam::Vec3;
@@ -201,6 +201,9 @@ pub struct Work {
     pub rectified: RectifiedPair,
     /// Left-view disparity (px), NaN where there is none.
     pub disparity: Vec<f32>,
+    /// Per-pixel confidence of the disparity in [0, 1] (0 = invalid; `tasks::confidence`), at the output
+    /// resolution. Empty unless the disparity stage computes it (it sizes the pooled frames then).
+    pub confidence: Vec<f32>,
     /// Depth and cloud. Filled and published on the output lane, which lends its one buffer to the frame
     /// it is working on: a buffer per pooled frame would double the pool's memory (1.6 MB a frame at
     /// 320x240) for a message that never crosses a queue. Empty everywhere else.
@@ -223,6 +226,7 @@ impl Work {
             pose: None,
             rectified: RectifiedPair::new(out.0, out.1),
             disparity: vec![f32::NAN; no],
+            confidence: Vec::new(),
             depth: DepthFrame::empty(),
         })
     }
@@ -253,6 +257,7 @@ impl Work {
             left_rect: &self.rectified.left,
             right_rect: &self.rectified.right,
             disparity: &self.disparity,
+            confidence: (!self.confidence.is_empty()).then_some(&self.confidence[..]),
         })
     }
 }
@@ -271,4 +276,6 @@ pub struct Published<'a> {
     pub left_rect: &'a [u8],
     pub right_rect: &'a [u8],
     pub disparity: &'a [f32],
+    /// The disparity's confidence in [0, 1] per pixel (0 = invalid), when the run computes it.
+    pub confidence: Option<&'a [f32]>,
 }

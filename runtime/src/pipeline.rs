@@ -2,8 +2,8 @@
 //!
 //! ```text
 //! source ──q──> rectify lane ──q──> disparity lane ──q──> output lane ──> sinks and bridges
-//!               align, kinematics,   disparity            depth
-//!               rectify
+//!               align, kinematics,   disparity (+ its     depth
+//!               rectify              left-right check)
 //! ```
 //! [`STANDARD_GRAPH`] says which stage runs on which lane; [`graph`] builds it for a source, the calibration
 //! and an engine, and [`crate::runner`] runs it (queues, pooled buffers, drop-oldest, statistics). A
@@ -22,6 +22,7 @@ pub use crate::sources::{EncoderFeed, PairSource};
 use crate::stage::Stage;
 use crate::stats::RunStats;
 use crate::tasks::align::AlignStage;
+pub use crate::tasks::confidence::CheckConfig;
 use crate::tasks::depth::{DepthConfig, DepthStage};
 use crate::tasks::disparity::{DisparityEngine, DisparityStage};
 use crate::tasks::kinematics::{KinematicsStage, StereoKinematics};
@@ -42,6 +43,9 @@ pub struct PipelineConfig {
     /// Node spacing of the rectification map grid (px).
     pub grid_step: u32,
     pub depth: DepthConfig,
+    /// The disparity's left-right check: confidence per frame, inconsistent pixels invalidated (default:
+    /// neither, the check does not run).
+    pub check: CheckConfig,
     /// Capacity of each inter-stage queue.
     pub queue: usize,
     /// Block instead of dropping: every frame is processed (offline, reproducible).
@@ -66,6 +70,7 @@ impl Default for PipelineConfig {
             out: RectifiedCamera::with_hfov(320, 240, 100.0),
             grid_step: 8,
             depth: DepthConfig::default(),
+            check: CheckConfig::default(),
             queue: 2,
             lossless: false,
             paced: true,
@@ -106,7 +111,7 @@ pub fn graph<S: PairSource>(
         Box::new(AlignStage::new(kinematics.encoder_latency_s())),
         Box::new(kinematics),
         Box::new(RectifyStage::new(cams, cfg.grid_step)),
-        Box::new(DisparityStage::new(engine)),
+        Box::new(DisparityStage::with_check(engine, cfg.check)?),
         Box::new(DepthStage::new(cfg.depth)),
     ];
     Graph::from_description(source, cfg.out, STANDARD_GRAPH, stages, sinks)

@@ -239,7 +239,11 @@ pub fn run<S: PairSource>(graph: Graph<S>, cfg: &RunConfig) -> Result<RunStats> 
     let pool = n * q + 2 * (n - 1) + 2;
     let free: Queue = bounded::<Box<Work>>(pool);
     for _ in 0..pool {
-        free.0.send(Work::new((rw, rh), out)).expect("free list has room");
+        let mut w = Work::new((rw, rh), out);
+        for s in lanes.iter().flat_map(|l| l.stages.iter()) {
+            s.prepare_work(&mut w);
+        }
+        free.0.send(w).expect("free list has room");
     }
     // queue i feeds lane i (queue 0 from the source)
     let queues: Vec<Queue> = (0..n).map(|_| bounded::<Box<Work>>(q)).collect();

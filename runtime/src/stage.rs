@@ -26,6 +26,10 @@ pub trait Stage: Send {
     fn start(&mut self, _ctx: &mut StageContext) -> Result<()> {
         Ok(())
     }
+    /// Sizes the buffers this stage writes in one pooled frame beyond those every frame has (e.g. the
+    /// disparity stage's confidence, when it computes one). Called once per pooled frame at start-up, before
+    /// [`Stage::start`]; the default adds nothing.
+    fn prepare_work(&self, _w: &mut Work) {}
     /// Reads the messages of earlier stages from `w` and writes its own. An error drops the frame, counted
     /// under [`Stage::failure`].
     fn process(&mut self, w: &mut Work) -> Result<()>;

@@ -6,7 +6,9 @@
 //! point with that true surface point: `abs_rel` = |r_est - r_true| / r_true (ranges from the true optical
 //! centre) and `rmse_m` = RMS of the 3D distance. Points are scored on a fixed pixel stride (casting every
 //! point would cost more than the pipeline). Frames are matched to their truth by `seq` (the first column of
-//! the truth's poses file), never by position: a frame the replay could not read shifts nothing.
+//! the truth's poses file), never by position: a frame the replay could not read shifts nothing. When the run
+//! computes a confidence, the points are also scored apart by it (above and at most [`HIGH_CONFIDENCE`]):
+//! stats `depth_error_by_confidence`.
 use abvs_camera::{Camera, StereoCalibration};
 use abvs_eye::{Pose, UnitModel};
 use abvs_render::Scene;
@@ -17,6 +19,9 @@ use abvs_runtime::pipeline::{Published, Sink};
 use abvs_runtime::session::Session;
 use abvs_runtime::sinks::stats::{DepthError, RunStats};
 
+/// The confidence above which a point counts as confident in `depth_error_by_confidence`.
+pub const HIGH_CONFIDENCE: f32 = 0.8;
+
 pub struct TruthSink {
     scene: Scene,
     camera: Camera,
@@ -24,6 +29,8 @@ pub struct TruthSink {
     poses: Vec<(u64, Pose)>,
     stride: usize,
     err: DepthError,
+    /// The same over the points of confidence above [`HIGH_CONFIDENCE`], and the others (runs with one).
+    by_confidence: Option<[DepthError; 2]>,
     /// Frames published without a truth row for their seq (not scored).
     unscored: u64,
 }
@@ -69,7 +76,15 @@ impl TruthSink {
             poses.push((seq, Pose::new(p.r, p.t * 1e-3)));
         }
         let camera = abvs_runtime::pipeline::camera_for_frames(&stereo.left, session.meta.width, session.meta.height)?;
-        Ok(Some(TruthSink { scene, camera, poses, stride: stride.max(1), err: DepthError::default(), unscored: 0 }))
+        Ok(Some(TruthSink {
+            scene,
+            camera,
+            poses,
+            stride: stride.max(1),
+            err: DepthError::default(),
+            by_confidence: None,
+            unscored: 0,
+        }))
     }
 
     /// What was measured so far (sums over the frames scored).
@@ -108,9 +123,17 @@ impl Sink for TruthSink {
             let est = Vector3::new(p.x as f64, p.y as f64, p.z as f64);
             let r_true = (hit.point - origin).norm();
             let r_est = (est - origin.coords).norm();
-            self.err.abs_rel_sum += (r_est - r_true).abs() / r_true;
-            self.err.sq_sum += (est - hit.point.coords).norm_squared();
+            let (abs_rel, sq) = ((r_est - r_true).abs() / r_true, (est - hit.point.coords).norm_squared());
+            self.err.abs_rel_sum += abs_rel;
+            self.err.sq_sum += sq;
             self.err.points += 1;
+            if let Some(conf) = out.confidence {
+                let e = &mut self.by_confidence.get_or_insert_with(Default::default)
+                    [if conf[i] > HIGH_CONFIDENCE { 0 } else { 1 }];
+                e.abs_rel_sum += abs_rel;
+                e.sq_sum += sq;
+                e.points += 1;
+            }
         }
         Ok(())
     }
@@ -118,6 +141,12 @@ impl Sink for TruthSink {
     fn finish(&mut self, stats: &mut RunStats) {
         // valid_fraction over the scored pixel stride
         stats.depth_error = Some(self.err);
+        if let Some([hi, lo]) = &self.by_confidence {
+            stats.extra.insert(
+                "depth_error_by_confidence".into(),
+                serde_json::json!({ "threshold": HIGH_CONFIDENCE, "above": hi.json(), "at_most": lo.json() }),
+            );
+        }
         stats.extra.insert("truth_frames_unscored".into(), serde_json::json!(self.unscored));
     }
 }

@@ -1,8 +1,9 @@
-//! The pipeline's publishing sink: each finished frame goes out as a depth map and a point cloud on the
-//! iceoryx2 services of [`crate::bridges::iceoryx`], written straight into the loaned shared memory.
+//! The pipeline's publishing sink: each finished frame goes out as a depth map, its confidence (when the run
+//! computes one and the sink was made [`PublishSink::with_confidence`]) and a point cloud on the iceoryx2
+//! services of [`crate::bridges::iceoryx`], written straight into the loaned shared memory.
 use abvs_eye::Pose;
 
-use crate::bridges::iceoryx::{check_shm_space, BridgeConfig, CloudPoint, FrameHeader, Publisher};
+use crate::bridges::iceoryx::{check_shm_space, BridgeConfig, CloudPoint, FrameHeader, Publisher, CONFIDENCE_TOPIC};
 use crate::error::{Result, RuntimeError};
 use crate::messages::Published;
 use crate::sinks::Sink;
@@ -10,19 +11,36 @@ use crate::stats::RunStats;
 
 pub struct PublishSink {
     depth: Publisher<f32>,
+    confidence: Option<Publisher<f32>>,
     cloud: Publisher<CloudPoint>,
     pub config: BridgeConfig,
 }
 
 impl PublishSink {
+    /// Depth and cloud.
     pub fn new(config: BridgeConfig) -> Result<PublishSink> {
+        Self::open(config, false)
+    }
+
+    /// Depth, confidence and cloud: every frame must carry a confidence (the pipeline's
+    /// `PipelineConfig::check` with `confidence`), a frame without one fails this sink.
+    pub fn with_confidence(config: BridgeConfig) -> Result<PublishSink> {
+        Self::open(config, true)
+    }
+
+    fn open(config: BridgeConfig, confidence: bool) -> Result<PublishSink> {
         let err = |e: crate::bridges::iceoryx::BridgeError| RuntimeError::Invalid(e.to_string());
-        // both topics' shared memory at once (each publisher checks its own as it is created)
-        let both = config.publisher_bytes::<f32>() + config.publisher_bytes::<CloudPoint>();
-        check_shm_space(&format!("{} and {}", config.service_name("depth"), config.service_name("cloud")), both)
-            .map_err(err)?;
+        // every topic's shared memory at once (each publisher checks its own as it is created)
+        let maps = if confidence { 2 } else { 1 };
+        let all = maps * config.publisher_bytes::<f32>() + config.publisher_bytes::<CloudPoint>();
+        let mut names = vec![config.service_name("depth"), config.service_name("cloud")];
+        if confidence {
+            names.insert(1, config.service_name(CONFIDENCE_TOPIC));
+        }
+        check_shm_space(&names.join(", "), all).map_err(err)?;
         Ok(PublishSink {
             depth: Publisher::new(&config).map_err(err)?,
+            confidence: if confidence { Some(Publisher::confidence(&config).map_err(err)?) } else { None },
             cloud: Publisher::new(&config).map_err(err)?,
             config,
         })
@@ -53,6 +71,12 @@ impl Sink for PublishSink {
         h.valid = out.depth.n_points as u32;
         let depth = &out.depth.depth;
         self.depth.publish_depth(&h, |s| s.extend_from_slice(depth)).map_err(err)?;
+        if let Some(p) = &mut self.confidence {
+            let c = out.confidence.ok_or_else(|| {
+                RuntimeError::Invalid(format!("frame {}: no confidence to publish (the run computes none)", out.seq))
+            })?;
+            p.publish_depth(&h, |s| s.extend_from_slice(c)).map_err(err)?;
+        }
         let n = out.depth.n_points;
         let (pts, gray) = (&out.depth.points[..n], &out.depth.intensity[..n]);
         self.cloud
@@ -68,6 +92,10 @@ impl Sink for PublishSink {
 
     fn finish(&mut self, stats: &mut RunStats) {
         let (d, c) = (self.depth.stats(), self.cloud.stats());
-        stats.extra.insert("publish".into(), serde_json::json!({ "depth": d, "cloud": c }));
+        let mut p = serde_json::json!({ "depth": d, "cloud": c });
+        if let Some(k) = &self.confidence {
+            p["confidence"] = serde_json::json!(k.stats());
+        }
+        stats.extra.insert("publish".into(), p);
     }
 }

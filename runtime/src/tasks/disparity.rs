@@ -17,6 +17,8 @@ use crate::error::{Result, RuntimeError};
 use crate::messages::Work;
 use crate::stage::{Stage, StageContext};
 
+use super::confidence::{CheckConfig, LrCheck};
+
 pub const DISPARITY_FORMAT: &str = "abvs-disparity-model/1";
 
 /// manifest.json of a disparity model directory.
@@ -370,14 +372,23 @@ pub fn engine(
     }
 }
 
-/// The disparity stage: left-view disparity ([`Work::disparity`]) of the rectified pair, by any engine.
+/// The disparity stage: left-view disparity ([`Work::disparity`]) of the rectified pair, by any engine; with
+/// a left-right check ([`super::confidence`]) also its confidence ([`Work::confidence`]) and, if asked, the
+/// inconsistent pixels invalidated.
 pub struct DisparityStage {
     pub engine: Box<dyn DisparityEngine>,
+    check: Option<LrCheck>,
 }
 
 impl DisparityStage {
     pub fn new(engine: Box<dyn DisparityEngine>) -> Self {
-        DisparityStage { engine }
+        DisparityStage { engine, check: None }
+    }
+
+    /// The stage with the left-right check `cfg` (none when `cfg` enables nothing).
+    pub fn with_check(engine: Box<dyn DisparityEngine>, cfg: CheckConfig) -> Result<Self> {
+        let check = if cfg.enabled() { Some(LrCheck::new(cfg)?) } else { None };
+        Ok(DisparityStage { engine, check })
     }
 }
 
@@ -399,12 +410,25 @@ impl Stage for DisparityStage {
                 out.1
             )));
         }
+        if let Some(c) = &mut self.check {
+            c.start(out.0, out.1);
+        }
         Ok(())
+    }
+
+    fn prepare_work(&self, w: &mut Work) {
+        if let Some(c) = &self.check {
+            c.prepare_work(w);
+        }
     }
 
     fn process(&mut self, w: &mut Work) -> Result<()> {
         let Work { rectified, disparity, .. } = w;
-        self.engine.compute(&rectified.left, &rectified.right, disparity)
+        self.engine.compute(&rectified.left, &rectified.right, disparity)?;
+        if let Some(c) = &mut self.check {
+            c.process(self.engine.as_mut(), w)?;
+        }
+        Ok(())
     }
 
     fn failure(&self, _e: &RuntimeError) -> &'static str {

@@ -1,11 +1,17 @@
-//! Depth maps and point clouds to other processes on this computer over iceoryx2 shared memory, zero-copy.
+//! Depth maps, their confidence and point clouds to other processes on this computer over iceoryx2 shared
+//! memory, zero-copy.
 //!
 //! # Services
 //!
 //! | service | payload | user header | event service |
 //! | --- | --- | --- | --- |
 //! | `{prefix}/depth` | `[f32]`: row-major depth (m), `width * height` values, NaN = invalid | [`FrameHeader`] | `{prefix}/depth/event` |
+//! | `{prefix}/confidence` | `[f32]`: row-major confidence of each depth pixel in [0, 1], `width * height` values, 0 = invalid; only when the run computes it (`[disparity] confidence`) | [`FrameHeader`] (the depth sample's, same `seq`) | `{prefix}/confidence/event` |
 //! | `{prefix}/cloud` | `[CloudPoint]`: valid points only (m, left home camera frame) | [`FrameHeader`] | `{prefix}/cloud/event` |
+//!
+//! The confidence (`crate::tasks::confidence`: exp(-|left-right disparity disagreement|), 0 where the
+//! left-right check fails) is published before the cloud of the same frame; match it to its depth map by
+//! `seq`, never by arrival order (either subscriber may have dropped a sample).
 //!
 //! `prefix` is `abvs` unless [`BridgeConfig::prefix`] says otherwise (tests use a unique one). After every
 //! sample the publisher notifies the event service, so subscribers sleep in the kernel until a sample is
@@ -172,6 +178,10 @@ impl BridgePayload for f32 {
     const TRIM_TO_VALID: bool = false;
 }
 
+/// The confidence's topic: `[f32]` like depth, on its own service ([`Publisher::confidence`],
+/// [`Subscriber::confidence`]).
+pub const CONFIDENCE_TOPIC: &str = "confidence";
+
 impl BridgePayload for CloudPoint {
     const TOPIC: &'static str = "cloud";
     const INVALID: Self = CloudPoint { x: f32::NAN, y: f32::NAN, z: f32::NAN, rgba: 0 };
@@ -181,7 +191,8 @@ impl BridgePayload for CloudPoint {
 /// The one configuration of both sides (see the module docs for the values and why).
 #[derive(Debug, Clone, PartialEq)]
 pub struct BridgeConfig {
-    /// Service name prefix: services are `{prefix}/depth`, `{prefix}/cloud` and their `/event`s.
+    /// Service name prefix: services are `{prefix}/depth`, `{prefix}/confidence`, `{prefix}/cloud` and their
+    /// `/event`s.
     pub prefix: String,
     /// Largest depth map / organised cloud width the publisher sends (network resolution).
     pub max_width: u32,
@@ -242,7 +253,7 @@ impl BridgeConfig {
         self.publisher_samples() as u64 * sample + (1 << 20)
     }
 
-    /// Name of the publish-subscribe service of a topic ("depth" or "cloud").
+    /// Name of the publish-subscribe service of a topic ("depth", "confidence" or "cloud").
     pub fn service_name(&self, topic: &str) -> String {
         format!("{}/{}", self.prefix, topic)
     }

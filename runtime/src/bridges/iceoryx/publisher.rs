@@ -18,10 +18,13 @@ pub struct PublishStats {
     pub dead_nodes_cleaned: u64,
 }
 
-/// Publishes one topic: [`DepthPublisher`] or [`CloudPublisher`]. Create once at start-up.
+/// Publishes one topic: [`DepthPublisher`], [`CloudPublisher`] or the confidence ([`Publisher::confidence`]).
+/// Create once at start-up.
 pub struct Publisher<T: BridgePayload> {
     service: String,
     max: usize,
+    /// Written into the elements a fill leaves (the payload's [`BridgePayload::INVALID`], or the topic's).
+    invalid: T,
     stats: PublishStats,
     // field order is drop order: ports before the services and the node
     publisher: IoxPublisher<Ipc, [T], FrameHeader>,
@@ -40,11 +43,17 @@ impl<T: BridgePayload> Publisher<T> {
     /// Opens (or creates) the topic's services with `config` and a publisher sized for
     /// `config.max_width x config.max_height` elements.
     pub fn new(config: &BridgeConfig) -> Result<Self, BridgeError> {
+        Self::for_topic(config, T::TOPIC, T::INVALID)
+    }
+
+    /// A publisher of `T` on another topic than the payload's own (`{prefix}/{topic}`), elements a fill
+    /// leaves set to `invalid`.
+    pub(super) fn for_topic(config: &BridgeConfig, topic: &str, invalid: T) -> Result<Self, BridgeError> {
         config.check()?;
-        let service = config.service_name(T::TOPIC);
+        let service = config.service_name(topic);
         check_shm_space(&service, config.publisher_bytes::<T>())?;
-        let (node, cleaned) = node(config, T::TOPIC)?;
-        let (pubsub, event) = open_services::<T>(&node, config, &service)?;
+        let (node, cleaned) = node(config, topic)?;
+        let (pubsub, event) = open_services::<T>(&node, config, topic)?;
         let max = config.max_elements();
         let publisher = pubsub
             .publisher_builder()
@@ -61,7 +70,7 @@ impl<T: BridgePayload> Publisher<T> {
             })?;
         let notifier = event.notifier_builder().create().map_err(iox(&service, "creating the event notifier"))?;
         let stats = PublishStats { dead_nodes_cleaned: cleaned, ..Default::default() };
-        Ok(Self { service, max, stats, publisher, notifier, _pubsub: pubsub, _event: event, node })
+        Ok(Self { service, max, invalid, stats, publisher, notifier, _pubsub: pubsub, _event: event, node })
     }
 
     /// The publish-subscribe service's name.
@@ -80,7 +89,7 @@ impl<T: BridgePayload> Publisher<T> {
     }
 
     /// Loans `n_max` elements, lets `fill` append to the front of them through a [`SampleWriter`], writes
-    /// [`BridgePayload::INVALID`] into the rest, sets `header` (with `t_publish_ns` = now) as the user header,
+    /// the topic's invalid value ([`BridgePayload::INVALID`] but for the confidence, 0) into the rest, sets `header` (with `t_publish_ns` = now) as the user header,
     /// sends and notifies. Returns the number of subscribers the sample was delivered to. With
     /// `valid_from_fill`, `header.valid` becomes the number of elements written.
     pub(super) fn publish_impl<F>(
@@ -115,7 +124,7 @@ impl<T: BridgePayload> Publisher<T> {
             return Err(BridgeError::Overflow { service: self.service.clone(), capacity: n_max });
         }
         for p in &mut buf[n..] {
-            p.write(T::INVALID);
+            p.write(self.invalid);
         }
         // SAFETY: the writer wrote [..n] (it advances its count only after a `MaybeUninit::write`), the loop
         // above [n..]; both on this sample's payload (checked above).
@@ -238,9 +247,16 @@ impl<T: Copy> SampleWriter<'_, T> {
 }
 
 impl Publisher<f32> {
-    /// Publishes a depth map of `header.width x header.height` (row-major, metres, NaN = invalid): `fill`
-    /// writes it through the [`SampleWriter`] into the loaned shared memory (elements not written are NaN).
-    /// `header.valid` is sent as given.
+    /// The confidence publisher on `{prefix}/confidence` ([`CONFIDENCE_TOPIC`]): `[f32]` in [0, 1] per depth
+    /// pixel, 0 = invalid (also every element a fill leaves), sent with [`Publisher::publish_depth`] and
+    /// the depth map's header.
+    pub fn confidence(config: &BridgeConfig) -> Result<Self, BridgeError> {
+        Self::for_topic(config, CONFIDENCE_TOPIC, 0.0)
+    }
+
+    /// Publishes a depth map of `header.width x header.height` (row-major, metres, NaN = invalid), or on the
+    /// confidence topic the confidence map: `fill` writes it through the [`SampleWriter`] into the loaned
+    /// shared memory (elements not written are NaN, confidence 0). `header.valid` is sent as given.
     pub fn publish_depth<F>(&mut self, header: &FrameHeader, fill: F) -> Result<usize, BridgeError>
     where
         F: FnOnce(&mut SampleWriter<'_, f32>),

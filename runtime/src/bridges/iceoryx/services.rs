@@ -79,11 +79,14 @@ pub(super) type PubSubFactory<T> =
     iceoryx2::service::port_factory::publish_subscribe::PortFactory<Ipc, [T], FrameHeader>;
 pub(super) type EventFactory = iceoryx2::service::port_factory::event::PortFactory<Ipc>;
 
+/// The publish-subscribe service `{prefix}/{topic}` of `T` and its event service.
 pub(super) fn open_services<T: BridgePayload>(
     node: &Node<Ipc>,
     cfg: &BridgeConfig,
-    service: &str,
+    topic: &str,
 ) -> Result<(PubSubFactory<T>, EventFactory), BridgeError> {
+    let service_s = cfg.service_name(topic);
+    let service = service_s.as_str();
     let name = ServiceName::new(service).map_err(iox(service, "naming the service"))?;
     let pubsub = node
         .service_builder(&name)
@@ -102,7 +105,7 @@ pub(super) fn open_services<T: BridgePayload>(
             "opening or creating the publish-subscribe service (settings must match the other side's BridgeConfig)",
         ))?;
     check_pubsub_settings(service, pubsub.static_config(), cfg)?;
-    let ev_name_s = cfg.event_name(T::TOPIC);
+    let ev_name_s = cfg.event_name(topic);
     let ev_name = ServiceName::new(&ev_name_s).map_err(iox(service, "naming the event service"))?;
     let event = node
         .service_builder(&ev_name)

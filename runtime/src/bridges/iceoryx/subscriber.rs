@@ -53,7 +53,8 @@ pub fn payload_fits<T: BridgePayload>(h: &FrameHeader, len: usize) -> bool {
     }
 }
 
-/// Receives one topic: [`DepthSubscriber`] or [`CloudSubscriber`].
+/// Receives one topic: [`DepthSubscriber`], [`CloudSubscriber`] or the confidence
+/// ([`Subscriber::confidence`]).
 pub struct Subscriber<T: BridgePayload> {
     service: String,
     stats: SubscribeStats,
@@ -70,13 +71,25 @@ pub type DepthSubscriber = Subscriber<f32>;
 /// Point clouds from `{prefix}/cloud`.
 pub type CloudSubscriber = Subscriber<CloudPoint>;
 
+impl Subscriber<f32> {
+    /// Receives the confidence maps of `{prefix}/confidence` ([`CONFIDENCE_TOPIC`]): `width x height` values in
+    /// [0, 1] per sample (0 = invalid), with the header of the depth map of the same `seq`.
+    pub fn confidence(config: &BridgeConfig) -> Result<Self, BridgeError> {
+        Self::for_topic(config, CONFIDENCE_TOPIC)
+    }
+}
+
 impl<T: BridgePayload> Subscriber<T> {
     /// Opens (or creates, if no publisher is there yet) the topic's services with `config`.
     pub fn new(config: &BridgeConfig) -> Result<Self, BridgeError> {
+        Self::for_topic(config, T::TOPIC)
+    }
+
+    fn for_topic(config: &BridgeConfig, topic: &str) -> Result<Self, BridgeError> {
         config.check()?;
-        let service = config.service_name(T::TOPIC);
-        let (node, cleaned) = node(config, T::TOPIC)?;
-        let (pubsub, event) = open_services::<T>(&node, config, &service)?;
+        let service = config.service_name(topic);
+        let (node, cleaned) = node(config, topic)?;
+        let (pubsub, event) = open_services::<T>(&node, config, topic)?;
         let subscriber = pubsub
             .subscriber_builder()
             .buffer_size(config.subscriber_buffer)

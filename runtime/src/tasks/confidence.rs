@@ -1,0 +1,302 @@
+//! Per-pixel confidence of a disparity map by a left-right consistency check, for any
+//! [`DisparityEngine`].
+//!
+//! The right view's disparity comes from the same engine on the mirrored, swapped pair: each row of the right
+//! image mirrored is a left view of the mirrored left image, so `engine(mirror(right), mirror(left))`
+//! mirrored back is the disparity of every right pixel (its match lies `d` to the right, in the left image).
+//! A left pixel `x` with disparity `d` matches the right pixel `x - round(d)`; where both maps agree the match
+//! is consistent:
+//!
+//! ```text
+//! confidence(x) = exp(-|d_left(x) - d_right(x - round(d_left(x)))|)     in (0, 1]
+//! ```
+//! and 0 where the left disparity is NaN, its match falls outside the right image (`x - d < 0`), the right
+//! view has no disparity there, or the two differ by more than `max_diff` px (occlusions, mismatches). Pixels
+//! of the rectified left image that do not see the raw image get 0 too. With `invalidate`, every pixel of
+//! confidence 0 also loses its disparity (NaN), so depth and cloud drop it.
+//!
+//! The check runs the engine a second time (about doubling the disparity stage) on mirror buffers allocated
+//! at start: it does not allocate per frame. It runs inside the disparity stage
+//! ([`super::disparity::DisparityStage::with_check`]), which owns the engine; the confidence travels in
+//! [`Work::confidence`].
+use crate::error::{Result, RuntimeError};
+use crate::messages::Work;
+
+use super::disparity::DisparityEngine;
+
+/// Largest `max_diff` accepted (px): beyond it exp(-diff) comes close to f32's underflow, and a check that
+/// loose checks nothing.
+pub const MAX_DIFF_LIMIT: f32 = 50.0;
+
+/// What the left-right check does.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct CheckConfig {
+    /// Write the confidence into each frame ([`Work::confidence`], published by the bridges).
+    pub confidence: bool,
+    /// Set the disparity of every pixel of confidence 0 to NaN (depth and cloud drop it).
+    pub invalidate: bool,
+    /// Largest left/right disagreement (px) of a consistent match.
+    pub max_diff: f32,
+}
+
+impl Default for CheckConfig {
+    fn default() -> Self {
+        CheckConfig { confidence: false, invalidate: false, max_diff: 1.0 }
+    }
+}
+
+impl CheckConfig {
+    /// Whether the check runs at all (it has something to produce).
+    pub fn enabled(&self) -> bool {
+        self.confidence || self.invalidate
+    }
+
+    pub fn check(&self) -> Result<()> {
+        if !(self.max_diff > 0.0 && self.max_diff <= MAX_DIFF_LIMIT) {
+            return Err(RuntimeError::Invalid(format!(
+                "left-right check: max_diff {} px must be in (0, {MAX_DIFF_LIMIT}]",
+                self.max_diff
+            )));
+        }
+        Ok(())
+    }
+}
+
+/// Each row of a `width`-wide image reversed into `dst` (the mirror that turns a right view into a left one).
+pub fn mirror_rows<T: Copy>(src: &[T], width: usize, dst: &mut [T]) {
+    for (d, s) in dst.chunks_exact_mut(width).zip(src.chunks_exact(width)) {
+        for (a, b) in d.iter_mut().zip(s.iter().rev()) {
+            *a = *b;
+        }
+    }
+}
+
+/// The left-right check of a left-view disparity `left` against the right view's `right` (both
+/// `width`-wide, row-major): writes each pixel's confidence into `conf` (see the module docs) and returns
+/// how many pixels passed. With `invalidate`, the left disparity of every failing pixel becomes NaN.
+pub fn lr_check(
+    left: &mut [f32],
+    right: &[f32],
+    width: usize,
+    max_diff: f32,
+    invalidate: bool,
+    conf: &mut [f32],
+) -> usize {
+    let mut passed = 0;
+    for (row, (l_row, c_row)) in left.chunks_exact_mut(width).zip(conf.chunks_exact_mut(width)).enumerate() {
+        let r_row = &right[row * width..(row + 1) * width];
+        for (x, (d, c)) in l_row.iter_mut().zip(c_row.iter_mut()).enumerate() {
+            *c = 0.0;
+            if !d.is_finite() {
+                continue;
+            }
+            let xr = (x as f32 - *d).round();
+            let ok = if xr < 0.0 || xr >= width as f32 {
+                false
+            } else {
+                let diff = (*d - r_row[xr as usize]).abs();
+                // (a NaN right disparity fails the comparison)
+                if diff <= max_diff {
+                    *c = (-diff).exp();
+                    true
+                } else {
+                    false
+                }
+            };
+            if ok {
+                passed += 1;
+            } else if invalidate {
+                *d = f32::NAN;
+            }
+        }
+    }
+    passed
+}
+
+/// The check's buffers at the pipeline's output resolution, allocated once.
+pub struct LrCheck {
+    pub cfg: CheckConfig,
+    width: usize,
+    left_m: Vec<u8>,
+    right_m: Vec<u8>,
+    disp_m: Vec<f32>,
+    right_disp: Vec<f32>,
+    /// Where the confidence goes when the frames do not carry it (`invalidate` only).
+    scratch: Vec<f32>,
+}
+
+impl LrCheck {
+    pub fn new(cfg: CheckConfig) -> Result<LrCheck> {
+        cfg.check()?;
+        Ok(LrCheck {
+            cfg,
+            width: 0,
+            left_m: Vec::new(),
+            right_m: Vec::new(),
+            disp_m: Vec::new(),
+            right_disp: Vec::new(),
+            scratch: Vec::new(),
+        })
+    }
+
+    /// Allocates the buffers for `width` x `height` images (at start, before any frame).
+    pub fn start(&mut self, width: u32, height: u32) {
+        let n = (width * height) as usize;
+        self.width = width as usize;
+        self.left_m = vec![0; n];
+        self.right_m = vec![0; n];
+        self.disp_m = vec![f32::NAN; n];
+        self.right_disp = vec![f32::NAN; n];
+        self.scratch = if self.cfg.confidence { Vec::new() } else { vec![0.0; n] };
+    }
+
+    /// Sizes a pooled frame's confidence buffer (only when the frames carry it).
+    pub fn prepare_work(&self, w: &mut Work) {
+        if self.cfg.confidence {
+            w.confidence = vec![0.0; w.disparity.len()];
+        }
+    }
+
+    /// Runs the check on a frame whose left-view disparity `engine` just computed: the right view's
+    /// disparity through the same engine, then [`lr_check`]; confidence into [`Work::confidence`].
+    pub fn process(&mut self, engine: &mut dyn DisparityEngine, w: &mut Work) -> Result<()> {
+        let n = self.left_m.len();
+        let Work { rectified, disparity, confidence, .. } = w;
+        if n == 0 || disparity.len() != n || (self.cfg.confidence && confidence.len() != n) {
+            return Err(RuntimeError::Invalid("left-right check: buffers not sized (not started?)".into()));
+        }
+        let width = self.width;
+        mirror_rows(&rectified.right, width, &mut self.left_m);
+        mirror_rows(&rectified.left, width, &mut self.right_m);
+        engine.compute(&self.left_m, &self.right_m, &mut self.disp_m)?;
+        mirror_rows(&self.disp_m, width, &mut self.right_disp);
+        let conf: &mut [f32] = if self.cfg.confidence { confidence } else { &mut self.scratch };
+        lr_check(disparity, &self.right_disp, width, self.cfg.max_diff, self.cfg.invalidate, conf);
+        // a rectified pixel that does not see the raw image is matched on padding: no confidence
+        for ((c, v), d) in conf.iter_mut().zip(&rectified.valid).zip(disparity.iter_mut()) {
+            if *v == 0 {
+                *c = 0.0;
+                if self.cfg.invalidate {
+                    *d = f32::NAN;
+                }
+            }
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const NAN: f32 = f32::NAN;
+
+    #[test]
+    fn a_consistent_pair_has_confidence_one() {
+        // one row, a constant disparity of 2 px: left pixel x matches right pixel x - 2, which says 2 too
+        let mut left = [NAN, NAN, 2.0, 2.0, 2.0, 2.0];
+        let right = [2.0, 2.0, 2.0, 2.0, NAN, NAN];
+        let mut conf = [9.0; 6];
+        let passed = lr_check(&mut left, &right, 6, 1.0, true, &mut conf);
+        assert_eq!(passed, 4);
+        assert_eq!(conf, [0.0, 0.0, 1.0, 1.0, 1.0, 1.0]);
+        assert_eq!(&left[2..], &[2.0; 4]);
+        // a disagreement within max_diff is graded: exp(-0.5)
+        // (pixel 3 with 2.5 px matches x = round(0.5) = 1)
+        let mut left = [NAN, NAN, 2.0, 2.5];
+        let right = [2.0, 2.0, 2.0, 2.0];
+        let mut conf = [0.0; 4];
+        lr_check(&mut left, &right, 4, 1.0, true, &mut conf);
+        assert!((conf[3] - (-0.5f32).exp()).abs() < 1e-6, "{conf:?}");
+        assert_eq!(conf[2], 1.0);
+    }
+
+    #[test]
+    fn an_occlusion_gives_zero_and_is_invalidated_only_when_asked() {
+        // left pixel 3 says 1 px (matches right pixel 2), but right pixel 2 belongs to a nearer surface (3 px):
+        // the left pixel is occluded in the right view
+        let right = [3.0, 3.0, 3.0, 1.0, 1.0];
+        let mut left = [NAN, 3.0, 3.0, 1.0, 1.0];
+        let mut conf = [9.0; 5];
+        let passed = lr_check(&mut left, &right, 5, 1.0, false, &mut conf);
+        assert_eq!(conf[3], 0.0, "{conf:?}");
+        assert_eq!(passed, 1, "{conf:?}");
+        assert_eq!(left[3], 1.0, "kept without invalidate");
+        let mut conf = [9.0; 5];
+        lr_check(&mut left, &right, 5, 1.0, true, &mut conf);
+        assert!(left[3].is_nan() && conf[3] == 0.0);
+        // a right view without a disparity there fails too
+        let mut left = [NAN, 1.0];
+        let mut conf = [9.0; 2];
+        assert_eq!(lr_check(&mut left, &[NAN, NAN], 2, 1.0, true, &mut conf), 0);
+        assert_eq!(conf, [0.0, 0.0]);
+    }
+
+    #[test]
+    fn a_match_outside_the_right_image_gives_zero() {
+        // pixel 1 with 3 px matches x = -2; pixel 3 with 3 px matches x = 0, inside
+        let mut left = [0.0, 3.0, NAN, 3.0];
+        let right = [3.0, NAN, NAN, NAN];
+        let mut conf = [9.0; 4];
+        lr_check(&mut left, &right, 4, 1.0, true, &mut conf);
+        assert_eq!(conf, [0.0, 0.0, 0.0, 1.0]);
+        // pixel 0 with disparity 0 matches right pixel 0 (3 px there: inconsistent)
+        assert!(left[0].is_nan() && left[1].is_nan() && left[3] == 3.0);
+        // a negative disparity (a match to the right) past the edge, too
+        let mut left = [NAN, -1.0];
+        let mut conf = [9.0; 2];
+        assert_eq!(lr_check(&mut left, &[0.0, 0.0], 2, 1.0, false, &mut conf), 0);
+    }
+
+    #[test]
+    fn mirroring_reverses_each_row() {
+        let mut out = [0u8; 6];
+        mirror_rows(&[1, 2, 3, 4, 5, 6], 3, &mut out);
+        assert_eq!(out, [3, 2, 1, 6, 5, 4]);
+    }
+
+    #[test]
+    fn the_right_view_of_a_shifted_pair_agrees_through_a_real_engine() {
+        // a random texture, the right image the left shifted by 6 px: SGBM's left-right check passes
+        // wherever the left view has a match, and confidence is 0 at the left band without one
+        let (w, h, shift) = (96usize, 48usize, 6usize);
+        let mut s = 12345u32;
+        let mut tex = vec![0u8; (w + shift) * h];
+        for t in tex.iter_mut() {
+            s = s.wrapping_mul(1664525).wrapping_add(1013904223);
+            *t = (s >> 24) as u8;
+        }
+        // left(x) = tex(x), right(x) = tex(x + shift): left pixel x is right pixel x - shift
+        let mut left = vec![0u8; w * h];
+        let mut right = vec![0u8; w * h];
+        for y in 0..h {
+            for x in 0..w {
+                left[y * w + x] = tex[y * (w + shift) + x];
+                right[y * w + x] = tex[y * (w + shift) + x + shift];
+            }
+        }
+        let mut engine = super::super::disparity::SgbmEngine::new(w as u32, h as u32, 16.0).unwrap();
+        let mut work = Work::new((w as u32, h as u32), (w as u32, h as u32));
+        work.rectified.left.copy_from_slice(&left);
+        work.rectified.right.copy_from_slice(&right);
+        work.rectified.valid.fill(1);
+        let cfg = CheckConfig { confidence: true, invalidate: true, max_diff: 1.0 };
+        let mut check = LrCheck::new(cfg).unwrap();
+        check.start(w as u32, h as u32);
+        check.prepare_work(&mut work);
+        engine.compute(&work.rectified.left, &work.rectified.right, &mut work.disparity).unwrap();
+        check.process(&mut engine, &mut work).unwrap();
+        let interior: Vec<usize> = (8..h - 8).flat_map(|y| (24..w - 8).map(move |x| y * w + x)).collect();
+        let good = interior.iter().filter(|&&i| work.confidence[i] > 0.8).count();
+        assert!(good as f64 > 0.9 * interior.len() as f64, "{good} of {} confident", interior.len());
+        for &i in &interior {
+            if work.confidence[i] > 0.8 {
+                assert!((work.disparity[i] - shift as f32).abs() < 1.0, "pixel {i}: {}", work.disparity[i]);
+            }
+        }
+        for (c, d) in work.confidence.iter().zip(&work.disparity) {
+            assert!((0.0..=1.0).contains(c));
+            assert_eq!(*c == 0.0, d.is_nan(), "confidence 0 exactly where the disparity was invalidated");
+        }
+    }
+}
