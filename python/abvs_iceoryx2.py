@@ -1,10 +1,14 @@
-"""Depth maps and point clouds of a running `abvs run`, received in Python over iceoryx2 shared memory.
+"""Depth maps, their confidence and point clouds of a running `abvs run`, received in Python over iceoryx2
+shared memory.
 
-The runtime publishes two iceoryx2 publish-subscribe services (runtime/src/bridges/iceoryx.rs), each
+The runtime publishes these iceoryx2 publish-subscribe services (runtime/src/bridges/iceoryx/), each
 with a ``FrameHeader`` user header and an event service notified after every sample::
 
-    {prefix}/depth   [f32]         row-major depth (m), width x height, NaN = invalid
-    {prefix}/cloud   [CloudPoint]  valid points only: x, y, z (m, left home camera frame), rgba
+    {prefix}/depth       [f32]         row-major depth (m), width x height, NaN = invalid
+    {prefix}/confidence  [f32]         row-major confidence of each depth pixel in [0, 1], width x height,
+                                       0 = invalid; only with `abvs run --confidence`; the header is the
+                                       depth sample's (match the two by ``header.seq``)
+    {prefix}/cloud       [CloudPoint]  valid points only: x, y, z (m, left home camera frame), rgba
 
 ``prefix`` is ``abvs`` unless ``abvs run --service-prefix`` says otherwise. Needs the ``iceoryx2``
 package of the runtime's iceoryx2 version (0.10) and numpy; ``scripts/setup.sh`` installs both into
@@ -90,7 +94,7 @@ SERVICE = {
     "max_nodes": 20,
 }
 
-_PAYLOAD = {"depth": ctypes.c_float, "cloud": CloudPoint}
+_PAYLOAD = {"depth": ctypes.c_float, "confidence": ctypes.c_float, "cloud": CloudPoint}
 
 
 def layout():
@@ -107,8 +111,8 @@ def layout():
 
 class Frame:
     """One received sample: ``header`` (a FrameHeader in shared memory) and ``data`` (numpy, no copy):
-    depth as float32 ``(height, width)``, a cloud as a ``(valid,)`` array of CLOUD_DTYPE. Valid until
-    ``release()`` (or the end of a ``with`` block)."""
+    depth and confidence as float32 ``(height, width)``, a cloud as a ``(valid,)`` array of CLOUD_DTYPE.
+    Valid until ``release()`` (or the end of a ``with`` block)."""
 
     def __init__(self, sample, topic):
         self._sample = sample
@@ -117,9 +121,9 @@ class Frame:
         h = self.header
         # the sample's own element count (the Slice's len() is the publisher's maximum)
         n = sample.header.number_of_elements
-        if topic == "depth":
+        if topic in ("depth", "confidence"):
             if n != h.width * h.height:
-                raise ValueError(f"depth sample of {n} values for a {h.width}x{h.height} header")
+                raise ValueError(f"{topic} sample of {n} values for a {h.width}x{h.height} header")
             raw = (ctypes.c_float * n).from_address(payload.as_ptr())
             data = np.frombuffer(raw, dtype=np.float32).reshape(h.height, h.width)
         else:
@@ -146,11 +150,11 @@ class Frame:
 
 
 class Subscriber:
-    """Receives ``topic`` ("depth" or "cloud") of the runtime publishing under ``prefix``."""
+    """Receives ``topic`` ("depth", "confidence" or "cloud") of the runtime publishing under ``prefix``."""
 
     def __init__(self, topic="depth", prefix="abvs"):
         if topic not in _PAYLOAD:
-            raise ValueError(f"topic {topic!r}: expected 'depth' or 'cloud'")
+            raise ValueError(f"topic {topic!r}: expected 'depth', 'confidence' or 'cloud'")
         iox2.set_log_level_from_env_or(iox2.LogLevel.Error)
         self.topic = topic
         s = SERVICE

@@ -82,15 +82,21 @@ fn python_iceoryx2_subscriber_receives_the_frames() {
     let _one = one_run();
     let d = tempfile::tempdir().unwrap();
     let p = prefix("iox");
-    let (child, out) = start_check(&["iox", &p]);
-    let s = run(d.path(), &p, &[]);
+    let (child, out) = start_check(&["iox", &p, "confidence"]);
+    let s = run(d.path(), &p, &["--confidence"]);
     let r = finish_check(child, out);
     let n = published(&s) as f64;
     let (depth, cloud) = (r["depth_frames"].as_f64().unwrap(), r["cloud_frames"].as_f64().unwrap());
-    println!("published {n}, python received depth {depth}, clouds {cloud}");
-    assert!(depth >= 0.95 * n && cloud >= 0.95 * n, "{r}");
+    let confidence = r["confidence_frames"].as_f64().unwrap();
+    println!("published {n}, python received depth {depth}, clouds {cloud}, confidence {confidence}");
+    assert!(depth >= 0.95 * n && cloud >= 0.95 * n && confidence >= 0.95 * n, "{r}");
     assert_eq!(r["bad_shapes"], serde_json::json!([]), "depth arrays of the wrong shape: {r}");
     assert_eq!(r["frame_ids"], serde_json::json!(["left_home_camera"]));
+    // the confidence: (height, width) float32 in [0, 1], not all 0, with its depth sample's header (by seq)
+    assert_eq!(r["bad_confidence"], serde_json::json!([]), "{r}");
+    let with_depth = r["confidence_with_depth"].as_f64().unwrap();
+    assert!(with_depth >= 0.9 * n, "{r}");
+    assert_eq!(r["confidence_same_header"], r["confidence_with_depth"], "{r}");
 }
 
 #[test]

@@ -100,3 +100,38 @@ fn shipped_examples_load() {
     let l = ok(&["run", "--config", live.to_str().unwrap(), "--print-config"]);
     assert!(l.contains("kind = \"live\"") && l.contains("/dev/ttyACM0"), "{l}");
 }
+
+/// The left-right check's fields: printed with their defaults, set by the flags, read back from a file.
+#[test]
+fn print_config_carries_the_confidence_and_the_left_right_check() {
+    let plain = ok(&["run", "--print-config"]);
+    let v: toml::Value = toml::from_str(&plain).unwrap();
+    let d = &v["disparity"];
+    assert_eq!((d["confidence"].as_bool(), d["lr_check"].as_bool()), (Some(false), Some(false)), "{plain}");
+    assert_eq!(d["lr_max_diff"].as_float(), Some(1.0), "{plain}");
+    let on = ok(&["run", "--print-config", "--confidence", "--lr-check"]);
+    let v: toml::Value = toml::from_str(&on).unwrap();
+    assert_eq!(
+        (v["disparity"]["confidence"].as_bool(), v["disparity"]["lr_check"].as_bool()),
+        (Some(true), Some(true))
+    );
+    // a file's values come back, and a flag adds to them
+    let dir = tempfile::tempdir().unwrap();
+    let f = dir.path().join("c.toml");
+    std::fs::write(
+        &f,
+        plain.replace("lr_max_diff = 1.0", "lr_max_diff = 2.5").replace("lr_check = false", "lr_check = true"),
+    )
+    .unwrap();
+    let back = ok(&["run", "--config", f.to_str().unwrap(), "--print-config", "--confidence"]);
+    let v: toml::Value = toml::from_str(&back).unwrap();
+    let d = &v["disparity"];
+    assert_eq!(
+        (d["confidence"].as_bool(), d["lr_check"].as_bool(), d["lr_max_diff"].as_float()),
+        (Some(true), Some(true), Some(2.5))
+    );
+    // out of range is refused, naming the field
+    std::fs::write(&f, plain.replace("lr_max_diff = 1.0", "lr_max_diff = -1.0")).unwrap();
+    let o = abvs(&["run", "--config", f.to_str().unwrap(), "--print-config"]);
+    assert!(!o.status.success() && String::from_utf8_lossy(&o.stderr).contains("lr_max_diff"));
+}

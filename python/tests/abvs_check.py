@@ -4,7 +4,8 @@ tests assert on it. Needs .deps/python (scripts/setup.sh): eclipse-zenoh, rosbag
 mcap-ros2-support, iceoryx2, numpy.
 
   layout                       the ctypes layout of FrameHeader and CloudPoint
-  iox PREFIX                   receive depth and clouds until stdin closes (prints "ready" first)
+  iox PREFIX [confidence]      receive depth and clouds (and the confidence) until stdin closes (prints
+                               "ready" first)
   zenoh ENDPOINT PREFIX        listen on ENDPOINT for the five keys, and the iceoryx2 clouds, until
                                stdin closes; decode every message, compare clouds by stamp
   mcap FILE PREFIX             receive the iceoryx2 headers until stdin closes, then decode FILE
@@ -47,19 +48,27 @@ def stdin_closed():
 
 
 class IoxCollector:
-    """Receives both iceoryx2 topics on a thread: depth shapes, headers and (optionally) clouds by stamp."""
+    """Receives the iceoryx2 topics on threads: depth shapes, headers, (optionally) clouds by stamp and the
+    confidence (shape, range, header by seq)."""
 
-    def __init__(self, prefix, keep_clouds):
+    def __init__(self, prefix, keep_clouds, confidence=False):
         self.depth = abvs.Subscriber("depth", prefix)
         self.cloud = abvs.Subscriber("cloud", prefix)
+        self.confidence = abvs.Subscriber("confidence", prefix) if confidence else None
         self.keep_clouds = keep_clouds
         self.depth_frames = 0
         self.cloud_frames = 0
+        self.confidence_frames = 0
         self.bad_shapes = []
+        self.bad_confidence = []
         self.headers = {}  # t_frame_ns -> (seq, intrinsics)
         self.clouds = {}  # t_frame_ns -> structured array copy
+        self.confidence_headers = {}  # seq -> t_frame_ns, width, height, valid
+        self.depth_by_seq = {}  # seq -> t_frame_ns, width, height, valid
         self.stop = threading.Event()
         self.threads = [threading.Thread(target=self.run_depth), threading.Thread(target=self.run_cloud)]
+        if confidence:
+            self.threads.append(threading.Thread(target=self.run_confidence))
         for t in self.threads:
             t.start()
 
@@ -74,6 +83,23 @@ class IoxCollector:
                     self.bad_shapes.append([list(f.data.shape), h.height, h.width])
                 self.headers[h.t_frame_ns] = (h.seq, list(h.intrinsics), h.frame_id_str())
                 self.depth_frames += 1
+                self.depth_by_seq[h.seq] = (h.t_frame_ns, h.width, h.height, h.valid)
+
+    def run_confidence(self):
+        while not self.stop.is_set():
+            f = self.confidence.receive(0.2)
+            if f is None:
+                continue
+            with f:
+                h, c = f.header, f.data
+                if c.shape != (h.height, h.width) or c.dtype != np.float32:
+                    self.bad_confidence.append(["shape", list(c.shape), h.height, h.width])
+                elif not (np.all(c >= 0.0) and np.all(c <= 1.0)):  # (NaN fails both)
+                    self.bad_confidence.append(["range", h.seq, float(np.nanmin(c)), float(np.nanmax(c))])
+                elif not np.any(c > 0.0):
+                    self.bad_confidence.append(["all zero", h.seq])
+                self.confidence_headers[h.seq] = (h.t_frame_ns, h.width, h.height, h.valid)
+                self.confidence_frames += 1
 
     def run_cloud(self):
         while not self.stop.is_set():
@@ -91,6 +117,8 @@ class IoxCollector:
             t.join()
         self.depth.close()
         self.cloud.close()
+        if self.confidence is not None:
+            self.confidence.close()
 
 
 def quat_matrix(q):
@@ -136,9 +164,9 @@ def cmd_layout():
     print(json.dumps(abvs.layout()))
 
 
-def cmd_iox(prefix):
+def cmd_iox(prefix, *topics):
     done = stdin_closed()
-    c = IoxCollector(prefix, keep_clouds=False)
+    c = IoxCollector(prefix, keep_clouds=False, confidence="confidence" in topics)
     print("ready", flush=True)
     done.wait()
     time.sleep(0.5)  # samples still on their way
@@ -151,6 +179,11 @@ def cmd_iox(prefix):
         "first_seq": seqs[0] if seqs else None,
         "last_seq": seqs[-1] if seqs else None,
         "frame_ids": sorted({f for _, _, f in c.headers.values()}),
+        "confidence_frames": c.confidence_frames,
+        "bad_confidence": c.bad_confidence[:5],
+        # confidence samples whose depth sample (same seq) came too, and of those, with the same header
+        "confidence_with_depth": sum(s in c.depth_by_seq for s in c.confidence_headers),
+        "confidence_same_header": sum(c.depth_by_seq.get(s) == v for s, v in c.confidence_headers.items()),
     }))
 
 

@@ -5,7 +5,9 @@
 //!
 //! What iceoryx2 0.10 itself allocates: one small block per loaned sample (`SampleMutUninit` keeps its shared
 //! state in an `Arc`, freed at send; no public API avoids it), so publishing a frame (one depth map, one
-//! cloud) allocates exactly two small blocks; nothing of ours. Dropping frames allocates nothing.
+//! cloud) allocates exactly two small blocks (three with the confidence); nothing of ours. Dropping frames
+//! allocates nothing. The left-right check (the engine's second run on mirror buffers, the confidence
+//! published) allocates nothing of its own either.
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::path::Path;
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -15,7 +17,7 @@ use std::time::Duration;
 use abvs_camera::StereoCalibration;
 use abvs_runtime::bridges::iceoryx::BridgeConfig;
 use abvs_runtime::bridges::publish::PublishSink;
-use abvs_runtime::pipeline::{run_replay, PipelineConfig, Published, Sink};
+use abvs_runtime::pipeline::{run_replay, CheckConfig, PipelineConfig, Published, Sink};
 use abvs_runtime::session::Session;
 use abvs_runtime::sources::replay::{on_decode_thread, ReplaySource};
 use abvs_runtime::tasks::disparity;
@@ -25,6 +27,8 @@ struct Counting;
 /// Allocations of every thread but the replay's decoder, and the largest of them (bytes).
 static ALLOCS: AtomicU64 = AtomicU64::new(0);
 static LARGEST: AtomicU64 = AtomicU64::new(0);
+/// Frames the probe saw with a confidence.
+static WITH_CONFIDENCE: AtomicU64 = AtomicU64::new(0);
 
 fn count(size: usize) {
     if !on_decode_thread() {
@@ -64,7 +68,10 @@ impl Sink for Probe {
     fn name(&self) -> &'static str {
         "probe"
     }
-    fn consume(&mut self, _: &Published) -> abvs_runtime::Result<()> {
+    fn consume(&mut self, p: &Published) -> abvs_runtime::Result<()> {
+        if p.confidence.is_some() {
+            WITH_CONFIDENCE.fetch_add(1, Ordering::Relaxed);
+        }
         {
             let mut v = self.marks.lock().unwrap();
             if v.len() < v.capacity() {
@@ -106,7 +113,8 @@ fn replay(engine: &str, publish: Option<&str>, cfg: PipelineConfig, slow: Durati
             max_height: cfg.out.height,
             ..Default::default()
         };
-        sinks.push(Box::new(PublishSink::new(bc).unwrap()));
+        let sink = if cfg.check.confidence { PublishSink::with_confidence(bc) } else { PublishSink::new(bc) };
+        sinks.push(Box::new(sink.unwrap()));
     }
     sinks.push(Box::new(Probe { marks: marks.clone(), slow }));
     let source = ReplaySource::open(session).unwrap();
@@ -139,6 +147,27 @@ fn publishing_to_iceoryx2_allocates_only_its_two_loans_per_frame_with_both_engin
         assert!(counts.iter().all(|&c| c <= 4), "{engine}: {counts:?}");
         assert!(largest <= 256, "{engine}: an allocation of {largest} bytes per frame");
     }
+}
+
+#[test]
+fn the_left_right_check_and_publishing_its_confidence_allocate_only_the_three_loans_per_frame() {
+    let _one = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
+    let prefix = format!("abvs_alloc_test_{}_confidence", std::process::id());
+    let check = CheckConfig { confidence: true, invalidate: true, max_diff: 1.0 };
+    let cfg = PipelineConfig { lossless: true, paced: false, frames: Some(120), check, ..Default::default() };
+    WITH_CONFIDENCE.store(0, Ordering::Relaxed);
+    let r = replay("sgbm", Some(&prefix), cfg, Duration::ZERO);
+    assert_eq!(r.published, 120);
+    assert_eq!(WITH_CONFIDENCE.load(Ordering::Relaxed), 120, "every frame carries its confidence");
+    let steady = &r.per_frame[20..];
+    let counts: Vec<u64> = steady.iter().map(|x| x.0).collect();
+    let largest = steady.iter().map(|x| x.1).max().unwrap_or(0);
+    eprintln!("sgbm + left-right check + iceoryx2: allocations per frame {counts:?}, largest {largest} bytes");
+    // depth, confidence and cloud: one loan each
+    let total: u64 = counts.iter().sum();
+    assert_eq!(total, 3 * steady.len() as u64, "{counts:?}");
+    assert!(counts.iter().all(|&c| c <= 6), "{counts:?}");
+    assert!(largest <= 256, "an allocation of {largest} bytes per frame");
 }
 
 #[test]

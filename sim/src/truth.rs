@@ -142,9 +142,17 @@ impl Sink for TruthSink {
         // valid_fraction over the scored pixel stride
         stats.depth_error = Some(self.err);
         if let Some([hi, lo]) = &self.by_confidence {
+            // (no valid fraction: the pixels are not split by confidence, only the points)
+            let part = |e: &DepthError| {
+                let mut v = e.json();
+                if let Some(o) = v.as_object_mut() {
+                    o.remove("valid_fraction");
+                }
+                v
+            };
             stats.extra.insert(
                 "depth_error_by_confidence".into(),
-                serde_json::json!({ "threshold": HIGH_CONFIDENCE, "above": hi.json(), "at_most": lo.json() }),
+                serde_json::json!({ "threshold": HIGH_CONFIDENCE, "above": part(hi), "at_most": part(lo) }),
             );
         }
         stats.extra.insert("truth_frames_unscored".into(), serde_json::json!(self.unscored));
