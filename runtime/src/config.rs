@@ -326,7 +326,8 @@ impl Default for ZenohSettings {
 #[serde(deny_unknown_fields, default)]
 pub struct IceoryxConfig {
     pub enabled: bool,
-    /// Services `{prefix}/depth`, `{prefix}/cloud` and their events.
+    /// Services `{prefix}/depth`, `{prefix}/cloud` (with `[disparity] confidence`, `{prefix}/confidence`) and
+    /// their events.
     pub service_prefix: String,
 }
 
