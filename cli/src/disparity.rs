@@ -9,6 +9,10 @@ use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
 use abvs_runtime::config::EngineKind;
+use abvs_runtime::tasks::confidence::{
+    self,
+    reason::{NO_ESTIMATE, VALID},
+};
 use abvs_runtime::tasks::disparity::{self, DisparityEngine};
 use abvs_runtime::tasks::disparity_fused::{upsample_disparity, FusedEngine, Source};
 use anyhow::{bail, Context};
@@ -66,41 +70,19 @@ const NETWORK_CONFIDENCE: f32 = 0.5;
 /// agree to exp(-1).
 const AGREEMENT_PX: f32 = 2.0;
 
-/// Codes of `--invalid-reason`.
-const VALID: u8 = 0;
-const NO_ESTIMATE: u8 = 1;
-const OUTSIDE_RIGHT: u8 = 2;
-const LR_FAILED: u8 = 3;
-
-/// The left-right check at the engine's resolution: per pixel, the reason code and the confidence.
+/// The left-right check at the engine's resolution (`abvs_runtime::tasks::confidence`, the runtime's own):
+/// per pixel, the reason code and the confidence.
 fn lr_check(dl: &[f32], dr: &[f32], w: usize, max_diff: f32) -> (Vec<u8>, Vec<f32>) {
-    let mut reason = vec![VALID; dl.len()];
-    let mut conf = vec![0f32; dl.len()];
-    for (i, &d) in dl.iter().enumerate() {
-        let x = (i % w) as f32;
-        if !d.is_finite() {
-            reason[i] = NO_ESTIMATE;
-            continue;
-        }
-        let xr = (x - d).round();
-        if xr < 0.0 {
-            reason[i] = OUTSIDE_RIGHT;
-            continue;
-        }
-        let back = dr[i - (i % w) + xr as usize];
-        let diff = (d - back).abs();
-        if !back.is_finite() || diff > max_diff {
-            reason[i] = LR_FAILED;
-            continue;
-        }
-        conf[i] = (-diff).exp();
-    }
-    (reason, conf)
+    let (mut d, mut conf, mut why) = (dl.to_vec(), vec![0f32; dl.len()], vec![VALID; dl.len()]);
+    confidence::lr_check_with_reasons(&mut d, dr, w, max_diff, false, &mut conf, Some(&mut why));
+    (why, conf)
 }
 
 /// Each row of a `w`-wide image reversed (the mirror that turns a right view into a left one).
-fn mirror<T: Copy>(img: &[T], w: usize) -> Vec<T> {
-    img.chunks(w).flat_map(|row| row.iter().rev().copied()).collect()
+fn mirror<T: Copy + Default>(img: &[T], w: usize) -> Vec<T> {
+    let mut out = vec![T::default(); img.len()];
+    confidence::mirror_rows(img, w, &mut out);
+    out
 }
 
 /// Nearest-neighbour resample of a model-resolution map to the input resolution.

@@ -71,6 +71,17 @@ pub fn mirror_rows<T: Copy>(src: &[T], width: usize, dst: &mut [T]) {
     }
 }
 
+/// Why a pixel has no checked disparity: the codes of `abvs disparity --invalid-reason`.
+pub mod reason {
+    pub const VALID: u8 = 0;
+    /// The engine gave no disparity.
+    pub const NO_ESTIMATE: u8 = 1;
+    /// The match falls outside the right image.
+    pub const OUTSIDE_RIGHT: u8 = 2;
+    /// The right view's disparity there disagrees (occlusion or mismatch).
+    pub const LR_FAILED: u8 = 3;
+}
+
 /// The left-right check of a left-view disparity `left` against the right view's `right` (both
 /// `width`-wide, row-major): writes each pixel's confidence into `conf` (see the module docs) and returns
 /// how many pixels passed. With `invalidate`, the left disparity of every failing pixel becomes NaN.
@@ -82,31 +93,48 @@ pub fn lr_check(
     invalidate: bool,
     conf: &mut [f32],
 ) -> usize {
+    lr_check_with_reasons(left, right, width, max_diff, invalidate, conf, None)
+}
+
+/// [`lr_check`], also writing each pixel's [`reason`] code into `why` when given.
+pub fn lr_check_with_reasons(
+    left: &mut [f32],
+    right: &[f32],
+    width: usize,
+    max_diff: f32,
+    invalidate: bool,
+    conf: &mut [f32],
+    mut why: Option<&mut [u8]>,
+) -> usize {
     let mut passed = 0;
     for (row, (l_row, c_row)) in left.chunks_exact_mut(width).zip(conf.chunks_exact_mut(width)).enumerate() {
         let r_row = &right[row * width..(row + 1) * width];
         for (x, (d, c)) in l_row.iter_mut().zip(c_row.iter_mut()).enumerate() {
             *c = 0.0;
-            if !d.is_finite() {
-                continue;
-            }
-            let xr = (x as f32 - *d).round();
-            let ok = if xr < 0.0 || xr >= width as f32 {
-                false
+            let code = if !d.is_finite() {
+                reason::NO_ESTIMATE
             } else {
-                let diff = (*d - r_row[xr as usize]).abs();
-                // (a NaN right disparity fails the comparison)
-                if diff <= max_diff {
-                    *c = (-diff).exp();
-                    true
+                let xr = (x as f32 - *d).round();
+                if xr < 0.0 || xr >= width as f32 {
+                    reason::OUTSIDE_RIGHT
                 } else {
-                    false
+                    let diff = (*d - r_row[xr as usize]).abs();
+                    // (a NaN right disparity fails the comparison)
+                    if diff <= max_diff {
+                        *c = (-diff).exp();
+                        reason::VALID
+                    } else {
+                        reason::LR_FAILED
+                    }
                 }
             };
-            if ok {
+            if code == reason::VALID {
                 passed += 1;
             } else if invalidate {
                 *d = f32::NAN;
+            }
+            if let Some(w) = why.as_deref_mut() {
+                w[row * width + x] = code;
             }
         }
     }
