@@ -18,7 +18,7 @@ package of the runtime's iceoryx2 version (0.10) and numpy; ``scripts/setup.sh``
     with Subscriber("depth") as sub:
         frame = sub.receive(timeout_s=1.0)      # None when nothing came in time
         if frame is not None:
-            print(frame.header.seq, frame.data.shape)   # (240, 320) float32, a view of shared memory
+            print(frame.header.seq, frame.data.shape)   # (480, 640) float32 at the default resolution, a view of shared memory
             frame.release()                     # give the sample back (at most 2 held at once)
 
 ``frame.data`` views the runtime's shared memory without a copy (read-only): copy it (``.copy()``)

@@ -60,8 +60,8 @@ pub struct RunArgs {
     /// Disparity model directory or .onnx (default: models/hitnet/hitnet-s at 320x240, hitnet-m at 640x480).
     #[arg(long)]
     pub model: Option<PathBuf>,
-    /// Network resolution "WxH" (320x240 or 640x480 for the shipped models).
-    #[arg(long, default_value = "320x240")]
+    /// Network resolution "WxH" (640x480 or 320x240 for the shipped models).
+    #[arg(long, default_value = "640x480")]
     pub resolution: String,
     /// Horizontal field of view of the rectified images (deg).
     #[arg(long, default_value_t = 100.0)]

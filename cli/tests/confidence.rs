@@ -60,7 +60,17 @@ fn run(name: &str, extra: &[&str], echo: bool) -> (Received, Option<Value>) {
     let d = tempfile::tempdir().unwrap();
     let stats = d.path().join("stats.json");
     let o = Command::new(env!("CARGO_BIN_EXE_abvs"))
-        .args(["run", "--lossless", "--quiet", "--service-prefix", &prefix, "--stats-json", stats.to_str().unwrap()])
+        .args([
+            "run",
+            "--resolution",
+            "320x240",
+            "--lossless",
+            "--quiet",
+            "--service-prefix",
+            &prefix,
+            "--stats-json",
+            stats.to_str().unwrap(),
+        ])
         .args(extra)
         .output()
         .unwrap();

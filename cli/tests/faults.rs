@@ -17,9 +17,20 @@ fn abvs() -> Command {
 /// `seconds`.
 fn runtime(prefix: &str, seconds: u32, stats: Option<&PathBuf>) -> Command {
     let mut c = abvs();
-    c.args(["run", "--quiet", "--engine", "sgbm", "--truth-stride", "0", "--loop", "--seconds"])
-        .arg(seconds.to_string())
-        .args(["--service-prefix", prefix]);
+    c.args([
+        "run",
+        "--resolution",
+        "320x240",
+        "--quiet",
+        "--engine",
+        "sgbm",
+        "--truth-stride",
+        "0",
+        "--loop",
+        "--seconds",
+    ])
+    .arg(seconds.to_string())
+    .args(["--service-prefix", prefix]);
     if let Some(p) = stats {
         c.arg("--stats-json").arg(p);
     }

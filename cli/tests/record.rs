@@ -193,7 +193,17 @@ fn records_the_fixture_from_a_board_process_and_stand_in_cameras() {
     // The recording replays through the whole pipeline.
     let json = tmp.path().join("run.json");
     let o = Command::new(env!("CARGO_BIN_EXE_abvs"))
-        .args(["run", "--engine", "sgbm", "--no-publish", "--lossless", "--quiet", "--session"])
+        .args([
+            "run",
+            "--resolution",
+            "320x240",
+            "--engine",
+            "sgbm",
+            "--no-publish",
+            "--lossless",
+            "--quiet",
+            "--session",
+        ])
         .arg(&out)
         .arg("--stats-json")
         .arg(&json)
@@ -362,7 +372,17 @@ fn a_full_disk_while_recording_is_counted_and_what_fit_replays() {
     assert!(orphans.is_empty(), "files of pairs that were not written remain: {orphans:?}");
     let json = tmp.path().join("run.json");
     let o = Command::new(env!("CARGO_BIN_EXE_abvs"))
-        .args(["run", "--engine", "sgbm", "--no-publish", "--lossless", "--quiet", "--session"])
+        .args([
+            "run",
+            "--resolution",
+            "320x240",
+            "--engine",
+            "sgbm",
+            "--no-publish",
+            "--lossless",
+            "--quiet",
+            "--session",
+        ])
         .arg(&out)
         .arg("--stats-json")
         .arg(&json)

@@ -12,7 +12,18 @@ fn replay_is_logged_to_a_rerun_file() {
     let json = tmp.path().join("stats.json");
     let frames = 6;
     let o = Command::new(env!("CARGO_BIN_EXE_abvs"))
-        .args(["run", "--engine", "sgbm", "--no-publish", "--lossless", "--quiet", "--frames", &frames.to_string()])
+        .args([
+            "run",
+            "--resolution",
+            "320x240",
+            "--engine",
+            "sgbm",
+            "--no-publish",
+            "--lossless",
+            "--quiet",
+            "--frames",
+            &frames.to_string(),
+        ])
         .arg("--rerun")
         .arg(&rrd)
         .arg("--stats-json")
@@ -54,7 +65,18 @@ fn replay_is_logged_to_a_rerun_file() {
 #[test]
 fn rerun_flag_without_the_feature_is_refused_clearly() {
     let o = Command::new(env!("CARGO_BIN_EXE_abvs"))
-        .args(["run", "--engine", "sgbm", "--no-publish", "--frames", "1", "--rerun", "x.rrd"])
+        .args([
+            "run",
+            "--resolution",
+            "320x240",
+            "--engine",
+            "sgbm",
+            "--no-publish",
+            "--frames",
+            "1",
+            "--rerun",
+            "x.rrd",
+        ])
         .output()
         .unwrap();
     let e = String::from_utf8_lossy(&o.stderr);

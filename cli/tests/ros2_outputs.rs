@@ -55,7 +55,16 @@ fn finish_check(mut child: Child, mut out: BufReader<ChildStdout>) -> Value {
 fn run(dir: &Path, prefix: &str, extra: &[&str]) -> Value {
     let stats = dir.join("stats.json");
     let o = Command::new(env!("CARGO_BIN_EXE_abvs"))
-        .args(["run", "--quiet", "--service-prefix", prefix, "--stats-json", stats.to_str().unwrap()])
+        .args([
+            "run",
+            "--resolution",
+            "320x240",
+            "--quiet",
+            "--service-prefix",
+            prefix,
+            "--stats-json",
+            stats.to_str().unwrap(),
+        ])
         .args(extra)
         .output()
         .unwrap();

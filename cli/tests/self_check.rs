@@ -17,7 +17,18 @@ fn fixture() -> PathBuf {
 fn run(dir: &Path, extra: &[&str]) -> (Value, String) {
     let stats = dir.join(format!("stats-{}.json", extra.len()));
     let out = abvs()
-        .args(["run", "--no-publish", "--engine", "sgbm", "--lossless", "--truth-stride", "0", "--session"])
+        .args([
+            "run",
+            "--resolution",
+            "320x240",
+            "--no-publish",
+            "--engine",
+            "sgbm",
+            "--lossless",
+            "--truth-stride",
+            "0",
+            "--session",
+        ])
         .arg(fixture())
         .arg("--stats-json")
         .arg(&stats)
@@ -94,7 +105,18 @@ fn the_offline_report_names_the_wrong_eye_and_where() {
     };
     let log = tmp.path().join("ok.csv");
     let out = abvs()
-        .args(["run", "--no-publish", "--engine", "sgbm", "--lossless", "--quiet", "--truth-stride", "0"])
+        .args([
+            "run",
+            "--resolution",
+            "320x240",
+            "--no-publish",
+            "--engine",
+            "sgbm",
+            "--lossless",
+            "--quiet",
+            "--truth-stride",
+            "0",
+        ])
         .args(["--self-check-every", "1", "--self-check-log"])
         .arg(&log)
         .output()
@@ -106,7 +128,18 @@ fn the_offline_report_names_the_wrong_eye_and_where() {
         let copy = wrong_eye_copy(tmp.path(), eye);
         let log = tmp.path().join(format!("wrong{eye}.csv"));
         let out = abvs()
-            .args(["run", "--no-publish", "--engine", "sgbm", "--lossless", "--quiet", "--truth-stride", "0"])
+            .args([
+                "run",
+                "--resolution",
+                "320x240",
+                "--no-publish",
+                "--engine",
+                "sgbm",
+                "--lossless",
+                "--quiet",
+                "--truth-stride",
+                "0",
+            ])
             .arg("--session")
             .arg(&copy)
             .args(["--self-check-every", "1", "--self-check-log"])

@@ -20,7 +20,17 @@ fn a_looped_replay_keeps_resident_memory_flat_and_latency_bounded() {
     let dir = tempfile::tempdir().unwrap();
     let stats = dir.path().join("stats.json");
     let out = Command::new(env!("CARGO_BIN_EXE_abvs"))
-        .args(["run", "--quiet", "--loop", "--seconds", &secs.to_string(), "--stats-window", &window.to_string()])
+        .args([
+            "run",
+            "--resolution",
+            "320x240",
+            "--quiet",
+            "--loop",
+            "--seconds",
+            &secs.to_string(),
+            "--stats-window",
+            &window.to_string(),
+        ])
         .args(["--service-prefix", &format!("abvs-soak-{}", std::process::id())])
         .arg("--stats-json")
         .arg(&stats)
@@ -92,7 +102,19 @@ fn a_looped_run_stopped_by_a_signal_still_reports() {
     let dir = tempfile::tempdir().unwrap();
     let stats = dir.path().join("stats.json");
     let child = Command::new(env!("CARGO_BIN_EXE_abvs"))
-        .args(["run", "--quiet", "--engine", "sgbm", "--truth-stride", "0", "--loop", "--stats-window", "1"])
+        .args([
+            "run",
+            "--resolution",
+            "320x240",
+            "--quiet",
+            "--engine",
+            "sgbm",
+            "--truth-stride",
+            "0",
+            "--loop",
+            "--stats-window",
+            "1",
+        ])
         .args(["--service-prefix", &format!("abvs-soak-stop-{}", std::process::id())])
         .arg("--stats-json")
         .arg(&stats)

@@ -338,7 +338,8 @@ impl Default for IceoryxConfig {
 }
 
 impl RuntimeConfig {
-    /// The default deployment: replay `session` with the shipped network at 320x240.
+    /// The default deployment: replay `session` with the shipped network at 640x480, the best depth this
+    /// 2-core machine sustains at 25 fps (runtime/BENCHMARKS.md, `scripts/bench_depth.sh`).
     pub fn for_session(session: PathBuf) -> Self {
         RuntimeConfig {
             format: FORMAT.into(),
@@ -356,8 +357,8 @@ impl RuntimeConfig {
             disparity: DisparityConfig {
                 engine: EngineKind::Onnx,
                 model: None,
-                width: 320,
-                height: 240,
+                width: 640,
+                height: 480,
                 rect_hfov_deg: 100.0,
                 min_depth_m: 0.2,
                 threads: 2,
