@@ -105,8 +105,12 @@ fn a_missing_frame_is_counted_and_shifts_nothing() {
         assert_eq!((e.points, e.pixels), (i.points, i.pixels), "frame {seq}: points scored");
         let (a, b) = (e.abs_rel_sum / e.points.max(1) as f64, i.abs_rel_sum / i.points.max(1) as f64);
         worst = worst.max((a - b).abs());
-        assert!((a - b).abs() <= 1e-9 * b.max(1e-3), "frame {seq}: abs_rel {a} with the gap, {b} intact");
-        assert!((e.sq_sum - i.sq_sum).abs() <= 1e-9 * i.sq_sum.max(1e-9), "frame {seq}: rmse differs");
+        // Not bit-exact: a replay maps the session's times onto CLOCK_MONOTONIC when it starts, so the link
+        // angles of any two runs (gap or not) differ in their last bits, and now and then a point's float
+        // rounding flips (seen: frame 8, 2e-8 relative, in about one run of three). A frame scored against
+        // another frame's truth differs by percent.
+        assert!((a - b).abs() <= 1e-6 * b.max(1e-3), "frame {seq}: abs_rel {a} with the gap, {b} intact");
+        assert!((e.sq_sum - i.sq_sum).abs() <= 1e-6 * i.sq_sum.max(1e-9), "frame {seq}: rmse differs");
     }
     eprintln!("largest per-frame abs_rel difference: {worst:e}");
     // and so the session's error is the intact one without frame 20
@@ -115,7 +119,7 @@ fn a_missing_frame_is_counted_and_shifts_nothing() {
     let whole = intact.depth_error.unwrap();
     assert_eq!(e.points, whole.points - f20.points);
     let expect = (whole.abs_rel_sum - f20.abs_rel_sum) / (whole.points - f20.points) as f64;
-    assert!((e.abs_rel_sum / e.points as f64 - expect).abs() < 1e-9, "{e:?} vs {expect}");
+    assert!((e.abs_rel_sum / e.points as f64 - expect).abs() < 1e-8 * expect, "{e:?} vs {expect}");
 }
 
 #[test]
