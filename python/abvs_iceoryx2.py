@@ -35,7 +35,11 @@ import time
 import iceoryx2 as iox2
 import numpy as np
 
-__all__ = ["FrameHeader", "CloudPoint", "CLOUD_DTYPE", "SERVICE", "Frame", "Subscriber", "layout"]
+__all__ = ["FrameHeader", "CloudPoint", "CLOUD_DTYPE", "SERVICE", "Frame", "Subscriber", "layout", "FLAG_MOTION_GATED"]
+
+# FrameHeader.flags bit (Rust: abvs_runtime::bridges::iceoryx::FLAG_MOTION_GATED): the eyes moved too fast
+# during the exposure, so the depth is all NaN and the cloud empty on purpose; a lost frame's seq is missing.
+FLAG_MOTION_GATED = 1
 
 
 class FrameHeader(ctypes.Structure):
@@ -53,7 +57,7 @@ class FrameHeader(ctypes.Structure):
         ("height", ctypes.c_uint32),
         ("baseline_m", ctypes.c_double),
         ("valid", ctypes.c_uint32),  # valid depth pixels / points
-        ("flags", ctypes.c_uint32),
+        ("flags", ctypes.c_uint32),  # FLAG_MOTION_GATED: depth NaN on purpose (eyes too fast)
     ]
 
     @staticmethod

@@ -80,6 +80,8 @@ fn echo<T: BridgePayload>(
     let mut all_lat: Vec<f64> = Vec::new();
     let mut points_sum = 0u64;
     let mut received = 0u64;
+    // frames published invalid on purpose (the eyes moved too fast), as against lost ones (seq gaps)
+    let mut motion_gated = 0u64;
     let (mut first_rx, mut last_rx) = (None::<Instant>, None::<Instant>);
     let mut win = Window { t0: Instant::now(), lat: Vec::new(), points: 0 };
     let mut failure = None;
@@ -105,6 +107,7 @@ fn echo<T: BridgePayload>(
         win.lat.push(lat_ms);
         points_sum += h.valid as u64;
         win.points += h.valid as u64;
+        motion_gated += (h.flags & abvs_runtime::bridges::iceoryx::FLAG_MOTION_GATED != 0) as u64;
         first_rx.get_or_insert(now);
         last_rx = Some(now);
         if a.abort_after == Some(received) {
@@ -161,6 +164,7 @@ fn echo<T: BridgePayload>(
             "fps": num(fps),
             "latency_ms": { "p50": num(p50), "p99": num(p99) },
             "points_mean": num(points_mean),
+            "motion_gated": motion_gated,
             "seq_gaps": st.seq_gaps,
             "seq_restarts": st.seq_restarts,
             "dead_nodes_cleaned": st.dead_nodes_cleaned,
@@ -169,7 +173,8 @@ fn echo<T: BridgePayload>(
         println!("{o}");
     } else {
         println!(
-            "{service}: {received} received, {fps:.1} Hz, latency p50 {p50:.2} ms p99 {p99:.2} ms, mean {points_mean:.0} {} per sample",
+            "{service}: {received} received ({motion_gated} motion-gated), {fps:.1} Hz, latency p50 {p50:.2} ms p99 {p99:.2} ms, \
+             mean {points_mean:.0} {} per sample",
             if T::TRIM_TO_VALID { "points" } else { "valid pixels" }
         );
     }

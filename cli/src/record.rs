@@ -159,7 +159,8 @@ pub fn run(a: RecordArgs) -> anyhow::Result<ExitCode> {
     SessionWriter::check_target(&a.out)?;
     calib.check()?;
     let (mut capture, encoders) = open_devices(d)?;
-    let writer = SessionWriter::create(&a.out, &calib, f64::from(d.fps), description)?;
+    let writer =
+        SessionWriter::create(&a.out, &calib, f64::from(d.fps), description)?.with_timing(d.readout_ms, d.exposure_ms);
     let stop = Arc::new(AtomicBool::new(false));
     signal_hook::flag::register(signal_hook::consts::SIGINT, stop.clone()).context("installing the Ctrl-C handler")?;
     signal_hook::flag::register(signal_hook::consts::SIGTERM, stop.clone())

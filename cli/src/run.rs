@@ -128,6 +128,19 @@ pub struct RunArgs {
     /// matched features and the relative rotation error (stats JSON `self_check`, a warning when it persists).
     #[arg(long)]
     pub self_check: bool,
+    /// Rolling-shutter correction: rectify each row with the eye's pose when it exposed (on by default
+    /// wherever the frames have a readout; off: one pose per frame, for comparison).
+    #[arg(long, value_enum, value_name = "on|off")]
+    pub rolling_shutter: Option<OnOff>,
+    /// Motion gate (rectified px): frames whose blur (the faster eye's speed x exposure) exceeds this are
+    /// published with depth NaN and an empty cloud, flagged in the header [default: 3].
+    #[arg(long, value_name = "PX")]
+    pub motion_gate_px: Option<f64>,
+    /// encoder_time_offset of both eyes (ms; the encoder stream is stamped this much late), overriding the
+    /// FK models' (e.g. a timing measured by `abvs calib self-check`, or a wrong one on purpose).
+    /// (`--readout-ms` overrides the session's or the cameras' rolling-shutter readout the same way.)
+    #[arg(long, value_name = "MS", allow_negative_numbers = true)]
+    pub time_offset_ms: Option<f64>,
     /// Self-check every N-th frame (implies --self-check).
     #[arg(long)]
     pub self_check_every: Option<u64>,
@@ -135,6 +148,13 @@ pub struct RunArgs {
     /// (implies --self-check).
     #[arg(long)]
     pub self_check_log: Option<PathBuf>,
+}
+
+/// A switch on the command line.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum OnOff {
+    On,
+    Off,
 }
 
 /// The checkout's directory of a shipped resource (fixtures/, models/), found next to the executable's
@@ -227,7 +247,18 @@ pub fn effective_config(a: &RunArgs, m: &ArgMatches) -> anyhow::Result<RuntimeCo
         l.exposure_ms = d.exposure_ms;
     }
     if given("readout_ms") {
+        // the cameras' readout, and the per-row correction's for a replay as for live
         l.readout_ms = d.readout_ms;
+        c.motion.readout_ms = Some(d.readout_ms);
+    }
+    if let Some(r) = a.rolling_shutter {
+        c.motion.rolling_shutter = r == OnOff::On;
+    }
+    if let Some(px) = a.motion_gate_px {
+        c.motion.gate_blur_px = px;
+    }
+    if given("time_offset_ms") {
+        c.motion.time_offset_ms = a.time_offset_ms;
     }
     if given("pair_tolerance_ms") {
         l.pair_tolerance_ms = d.pair_tolerance_ms;
@@ -438,12 +469,18 @@ pub fn run_config(c: &RuntimeConfig) -> anyhow::Result<ExitCode> {
     let engine_name = engine.name().to_string();
     let duration = c.source.seconds.map(std::time::Duration::from_secs_f64);
     let window = std::time::Duration::from_secs_f64(c.sinks.stats_window_s);
+    let readout_ms;
     let (mut stats, description, source_name) = match input {
         Input::Replay(session, dir) => {
             let description = session.meta.description.clone();
-            let source = ReplaySource::open(session)?;
+            let mut source = ReplaySource::open(session)?;
+            if let Some(r) = c.motion.readout_ms {
+                source.set_readout_ns((r * 1e6).round() as i64);
+            }
+            readout_ms = source.readout_ns() as f64 * 1e-6;
             let cfg = PipelineConfig {
                 out,
+                motion: c.motion.motion_config(),
                 lossless: c.source.lossless,
                 paced: c.source.paced && !c.source.lossless,
                 // loop without end: as many frames as a u64 counts (with --seconds, until then)
@@ -462,10 +499,13 @@ pub fn run_config(c: &RuntimeConfig) -> anyhow::Result<ExitCode> {
             let d = &crate::record::DeviceArgs::from(&c.source.live);
             let (capture, encoders) = crate::record::open_devices(d)?;
             wait_for_homing(&encoders, d.homing_timeout)?;
-            let source = abvs_runtime::sources::live::LiveSource::new(capture, encoders, d.width, d.height);
+            readout_ms = c.motion.readout_ms.unwrap_or(d.readout_ms);
+            let source = abvs_runtime::sources::live::LiveSource::new(capture, encoders, d.width, d.height)
+                .with_readout_ns((readout_ms * 1e6).round() as i64);
             // live frames come when the cameras deliver them: never paced
             let cfg = PipelineConfig {
                 out,
+                motion: c.motion.motion_config(),
                 lossless: c.source.lossless,
                 paced: false,
                 frames: c.source.frames,
@@ -485,6 +525,16 @@ pub fn run_config(c: &RuntimeConfig) -> anyhow::Result<ExitCode> {
     stats.extra.insert("engine".into(), serde_json::json!(engine_name));
     stats.extra.insert("fk".into(), serde_json::json!(c.calibration.fk));
     stats.extra.insert("resolution".into(), serde_json::json!([w, h]));
+    stats.extra.insert(
+        "motion".into(),
+        serde_json::json!({
+            "readout_ms": readout_ms,
+            "rolling_shutter": c.motion.rolling_shutter && readout_ms > 0.0,
+            "row_bands": c.motion.row_bands,
+            "gate_blur_px": c.motion.gate_blur_px,
+            "time_offset_ms": c.motion.time_offset_ms,
+        }),
+    );
     let elapsed = stats.extra.get("elapsed_s").and_then(|v| v.as_f64()).unwrap_or(0.0);
     if !c.sinks.quiet {
         println!("session {source_name} ({description})");
@@ -519,6 +569,20 @@ pub fn run_config(c: &RuntimeConfig) -> anyhow::Result<ExitCode> {
                 part(&v["above"]),
                 part(&v["at_most"])
             );
+        }
+        if let Some(serde_json::Value::Array(bands)) = stats.extra.get("depth_error_by_speed") {
+            println!("depth error vs truth by eye speed (deg/s): frames scored / gated, abs rel, point error p50");
+            for b in bands.iter().filter(|b| b["frames"].as_u64().unwrap_or(0) + b["gated"].as_u64().unwrap_or(0) > 0) {
+                let hi = b["deg_s"][1].as_f64().map_or("inf".to_string(), |h| format!("{h:.0}"));
+                println!(
+                    "  [{:>3.0}, {hi:>3}): {:>3} / {:>3}  {:>6.2} %  {:>6.1} mm",
+                    b["deg_s"][0].as_f64().unwrap_or(0.0),
+                    b["frames"].as_u64().unwrap_or(0),
+                    b["gated"].as_u64().unwrap_or(0),
+                    b["abs_rel"].as_f64().unwrap_or(f64::NAN) * 100.0,
+                    b["point_mm_p50"].as_f64().unwrap_or(f64::NAN)
+                );
+            }
         }
         for k in ["zenoh", "mcap"] {
             if let Some(v) = stats.extra.get(k) {

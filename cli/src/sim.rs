@@ -49,6 +49,21 @@ pub struct SessionArgs {
     /// Anti-aliasing samples per pixel side.
     #[arg(long, default_value_t = 2)]
     supersample: u32,
+    /// Rolling-shutter readout (ms): first row's start of exposure to the last row's (the OV8856 binned
+    /// mode: ~32 ms); 0 = global shutter.
+    #[arg(long, default_value_t = 30.0)]
+    readout_ms: f64,
+    /// Exposure of each row (ms); every row integrates it (motion blur); 0 = an instant.
+    #[arg(long, default_value_t = 4.0)]
+    exposure_ms: f64,
+    /// Peak angular speed of the smooth pursuits (deg/s); the targets also move in depth (the eyes verge);
+    /// 0 = fixations and saccades only.
+    #[arg(long, default_value_t = 30.0)]
+    pursuit_deg_s: f64,
+    /// encoder_time_offset of both eyes (ms): the encoder stream is stamped this much later than the
+    /// camera clock (effects.md; default: each simulated unit's own, 0.1-5 ms).
+    #[arg(long)]
+    time_offset_ms: Option<f64>,
 }
 
 #[derive(Args)]
@@ -217,8 +232,14 @@ pub fn run(cmd: SimCmd) -> anyhow::Result<ExitCode> {
                 fk_method: a.fk_method,
                 calib_step_deg: a.calib_step_deg,
                 supersample: a.supersample,
+                readout_ms: a.readout_ms,
+                exposure_ms: a.exposure_ms,
+                pursuit_deg_s: a.pursuit_deg_s,
+                time_offset_ms: a.time_offset_ms,
                 ..Default::default()
             };
+            // refused before any work (a session takes minutes to render)
+            spec.validate()?;
             let pb = crate::progress_bar(a.frames as u64, "render");
             abvs_sim::synth::generate(&spec, &a.out, &mut |stage, done, total| {
                 pb.set_message(stage.to_string());

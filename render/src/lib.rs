@@ -21,7 +21,7 @@ mod texture;
 pub use abvs_camera::Camera;
 pub use error::RenderError;
 pub use rays::RayTable;
-pub use render::{render, render_with_rays, RenderOptions, Rendered};
+pub use render::{render, render_moving, render_with_rays, RenderOptions, Rendered, MAX_TIME_SAMPLES};
 pub use scene::{BoxTextures, Hit, Scene, Surface};
 pub use texture::{Filter, Texture};
 

@@ -127,13 +127,40 @@ pub fn render_with_rays(
     world_from_camera: &Isometry3<f64>,
     opts: &RenderOptions,
 ) -> Result<Rendered> {
+    render_moving(scene, rays, &|_, _| *world_from_camera, 1, opts)
+}
+
+/// Most time samples a pixel integrates (a saccade's blur at 1561 deg/s over a long exposure is
+/// tens of pixels; past this the caller's frame is unusable anyway).
+pub const MAX_TIME_SAMPLES: usize = 256;
+
+/// Renders `scene` through the camera of `rays` with a pose per row and time sample: pixel row `y`
+/// integrates `time_samples` poses `world_from_camera(y, k)`, k = 0..time_samples (the caller spaces
+/// them over that row's exposure, so a rolling shutter and motion blur are both the caller's
+/// timing). Each time sample takes one of the pixel's spatial samples in turn (distributed ray
+/// tracing: `max(time_samples, n^2)` rays a pixel, not their product). Depth comes from the pixel
+/// centre at the middle time sample. `time_samples = 1` with a constant pose is
+/// [`render_with_rays`].
+pub fn render_moving(
+    scene: &Scene,
+    rays: &RayTable,
+    world_from_camera: &(dyn Fn(usize, usize) -> Isometry3<f64> + Sync),
+    time_samples: usize,
+    opts: &RenderOptions,
+) -> Result<Rendered> {
     opts.validate()?;
     scene.validate()?;
+    if time_samples == 0 || time_samples > MAX_TIME_SAMPLES {
+        return Err(RenderError::InvalidOptions(format!(
+            "time samples {time_samples} must be in 1..={MAX_TIME_SAMPLES}"
+        )));
+    }
     let (w, h) = (rays.width(), rays.height());
-    let frame = Frame::new(scene, world_from_camera);
     let with_rgb = scene.has_rgb();
     let n = opts.supersample as usize;
-    let weight = 1.0 / (n * n) as f32;
+    let spatial = n * n;
+    let samples = spatial.max(time_samples);
+    let weight = 1.0 / samples as f32;
     let bg = scene.background;
 
     struct Row {
@@ -147,12 +174,18 @@ pub fn render_with_rays(
             rgb: if with_rgb { vec![[bg; 3]; w] } else { Vec::new() },
             depth: vec![f32::INFINITY; w],
         };
-        let mut offsets = Vec::with_capacity(n * n);
+        // The scene prepared for each instant of this row (a few surfaces each: cheap).
+        let frames: Vec<Frame> = (0..time_samples).map(|k| Frame::new(scene, &world_from_camera(y, k))).collect();
+        let mid = &frames[time_samples / 2];
+        let mut offsets = Vec::with_capacity(spatial);
         for x in 0..w {
             let Some(centre) = rays.centre_ray(x, y) else { continue };
             let (mut g, mut c) = (0.0f32, [0.0f32; 3]);
             sample_offsets(x, y, n, &mut offsets);
-            for &(dx, dy) in &offsets {
+            for j in 0..samples {
+                // sample j: spatial offset j mod n^2, instant j (or spread evenly when n^2 > K)
+                let (dx, dy) = offsets[j % spatial];
+                let frame = &frames[if time_samples >= spatial { j } else { j * time_samples / spatial }];
                 let ray = rays.ray(x, y, dx, dy).unwrap_or(centre);
                 match frame.trace(&ray) {
                     Some((i, t, aux)) if with_rgb => {
@@ -172,8 +205,7 @@ pub fn render_with_rays(
                 row.rgb[x] = [c[0] * weight, c[1] * weight, c[2] * weight];
             }
             // Depth from the exact pixel-centre ray (with n = 1 it is the one sample).
-            let hit = frame.trace(&centre);
-            if let Some((_, t, _)) = hit {
+            if let Some((_, t, _)) = mid.trace(&centre) {
                 row.depth[x] = (t * centre.z) as f32;
             }
         }

@@ -77,6 +77,8 @@ pub struct RuntimeConfig {
     pub calibration: CalibrationConfig,
     pub disparity: DisparityConfig,
     #[serde(default)]
+    pub motion: MotionSettings,
+    #[serde(default)]
     pub sinks: SinksConfig,
     #[serde(default)]
     pub bridges: BridgesConfig,
@@ -337,6 +339,77 @@ impl Default for IceoryxConfig {
     }
 }
 
+/// Eyes that move while they expose (`tasks::motion`): the per-row correction, the motion gate, and the
+/// timing of the eyes where it is measured rather than taken from the source and the FK models.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct MotionSettings {
+    /// Rectify each row with the eye's pose when it exposed (frames with a rolling-shutter readout).
+    pub rolling_shutter: bool,
+    /// Row bands of that correction (1 ..= 64).
+    pub row_bands: usize,
+    /// Publish a frame's depth invalid (NaN, empty cloud, header flag) when its motion blur exceeds this
+    /// many rectified pixels (the faster eye's speed x exposure); a large value never gates.
+    pub gate_blur_px: f64,
+    /// Rolling-shutter readout (ms), overriding the session's (session.toml) or the cameras'
+    /// (`[source.live] readout_ms`): e.g. measured by `abvs calib self-check`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub readout_ms: Option<f64>,
+    /// encoder_time_offset of both eyes (ms: encoder stamps this much late), overriding the FK models'.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub time_offset_ms: Option<f64>,
+}
+
+impl Default for MotionSettings {
+    fn default() -> Self {
+        let m = crate::tasks::motion::MotionConfig::default();
+        MotionSettings {
+            rolling_shutter: m.rolling_shutter,
+            row_bands: m.bands,
+            gate_blur_px: m.gate_blur_px,
+            readout_ms: None,
+            time_offset_ms: None,
+        }
+    }
+}
+
+impl MotionSettings {
+    /// What the pipeline's stages take.
+    pub fn motion_config(&self) -> crate::tasks::motion::MotionConfig {
+        crate::tasks::motion::MotionConfig {
+            rolling_shutter: self.rolling_shutter,
+            bands: self.row_bands,
+            gate_blur_px: self.gate_blur_px,
+            time_offset_s: self.time_offset_ms.map(|t| t * 1e-3),
+        }
+    }
+
+    #[allow(clippy::neg_cmp_op_on_partial_ord)] // refuses NaN too
+    fn check(&self) -> std::result::Result<(), String> {
+        if !(1..=crate::messages::MAX_ROW_BANDS).contains(&self.row_bands) {
+            return Err(format!(
+                "motion.row_bands: {} must be in 1..={}",
+                self.row_bands,
+                crate::messages::MAX_ROW_BANDS
+            ));
+        }
+        if !(self.gate_blur_px > 0.0) {
+            return Err(format!("motion.gate_blur_px: {} must be positive", self.gate_blur_px));
+        }
+        if let Some(r) = self.readout_ms {
+            if !(r >= 0.0 && r <= 1000.0) {
+                return Err(format!("motion.readout_ms: {r} must be in [0, 1000]"));
+            }
+        }
+        if let Some(t) = self.time_offset_ms {
+            if !(t.abs() <= 1000.0) {
+                return Err(format!("motion.time_offset_ms: {t} must be in [-1000, 1000]"));
+            }
+        }
+        Ok(())
+    }
+}
+
 impl RuntimeConfig {
     /// The default deployment: replay `session` with the shipped network at 640x480, the best depth this
     /// 2-core machine sustains at 25 fps (runtime/BENCHMARKS.md, `scripts/bench_depth.sh`).
@@ -366,6 +439,7 @@ impl RuntimeConfig {
                 lr_check: false,
                 lr_max_diff: default_lr_max_diff(),
             },
+            motion: MotionSettings::default(),
             sinks: SinksConfig::default(),
             bridges: BridgesConfig::default(),
         }
@@ -447,6 +521,7 @@ impl RuntimeConfig {
                 return Err(format!("{what}: {q} must be in 1..=1024"));
             }
         }
+        self.motion.check()?;
         let w = self.sinks.stats_window_s;
         if !(0.01..=86400.0).contains(&w) {
             return Err(format!("sinks.stats_window_s: {w} must be in [0.01, 86400]"));

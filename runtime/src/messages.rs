@@ -63,10 +63,13 @@ pub struct SourcePair<'a> {
     pub session_seq: u64,
     /// Pipeline sequence number (keeps increasing when a replay loops).
     pub seq: u64,
+    /// Start of exposure of the left frame's first row (conventions.md "Time").
     pub t_start_ns: i64,
     /// The right frame's start of exposure (live pairs differ by up to the pairing tolerance).
     pub right_t_start_ns: i64,
     pub exposure_ns: i64,
+    /// Rolling-shutter readout: first row's start of exposure to the last row's (0 = global shutter).
+    pub readout_ns: i64,
     pub left: &'a [u8],
     pub right: &'a [u8],
 }
@@ -89,6 +92,57 @@ pub struct StereoPose {
     pub rel_right: Pose,
     /// T_l^r: current left camera -> current right camera.
     pub left_to_right: Pose,
+}
+
+/// Most row bands a frame's per-row correction uses (the pooled frames hold this many nodes).
+pub const MAX_ROW_BANDS: usize = 64;
+
+/// One frame's motion during its exposure: what the align and kinematics stages learn from the encoders
+/// about the rows' instants (conventions.md "Time"). Buffers are sized at start-up; stages refill them.
+#[derive(Debug, Clone)]
+pub struct FrameMotion {
+    /// Start of exposure of row 0, left and right (CLOCK_MONOTONIC ns).
+    pub t_start_ns: [i64; 2],
+    pub exposure_ns: i64,
+    /// First row's start of exposure to the last row's (ns); 0 = global shutter.
+    pub readout_ns: i64,
+    /// Link angles (deg) of each eye at its frame instant -/+ `tasks::motion::SPEED_DT_S`.
+    pub theta_pm: [[[f64; 3]; 2]; 2],
+    /// Per-row correction: link angles at the row-band nodes (node b at row b (H - 1) / bands, that row's
+    /// mid-exposure), per eye; empty when the frame is corrected as a whole (global shutter, or off).
+    pub band_theta: [Vec<[f64; 3]>; 2],
+    /// Per node: the rotation from the virtual camera (the eye at the frame instant) to the camera as it
+    /// was when that row exposed, `R_row^T R_frame` (kinematics stage).
+    pub band_rot: [Vec<Matrix3<f64>>; 2],
+    /// Angular speed of each camera at its frame instant (deg/s).
+    pub speed_deg_s: [f64; 2],
+    /// Motion blur of the faster eye over the exposure, in rectified output pixels at the image centre.
+    pub blur_px: f64,
+    /// Blur above the run's threshold: depth is published invalid (NaN) with an empty cloud.
+    pub gated: bool,
+}
+
+impl FrameMotion {
+    fn new() -> Self {
+        let angles = || Vec::with_capacity(MAX_ROW_BANDS + 1);
+        let rots = || Vec::with_capacity(MAX_ROW_BANDS + 1);
+        FrameMotion {
+            t_start_ns: [0; 2],
+            exposure_ns: 0,
+            readout_ns: 0,
+            theta_pm: [[[0.0; 3]; 2]; 2],
+            band_theta: [angles(), angles()],
+            band_rot: [rots(), rots()],
+            speed_deg_s: [0.0; 2],
+            blur_px: 0.0,
+            gated: false,
+        }
+    }
+
+    /// The faster eye's angular speed at the frame instant (deg/s).
+    pub fn max_speed_deg_s(&self) -> f64 {
+        self.speed_deg_s[0].max(self.speed_deg_s[1])
+    }
 }
 
 // ---------------------------------------------------------------- rectified pair
@@ -188,10 +242,13 @@ pub struct Work {
     pub seq: u64,
     /// The frame's `seq` in its session (before looping): the key of its ground truth.
     pub session_seq: u64,
-    /// Left mid-exposure time (CLOCK_MONOTONIC ns): the frame's timestamp.
+    /// The left frame's instant (CLOCK_MONOTONIC ns): its middle row's mid-exposure (conventions.md
+    /// "Time"): the frame's timestamp, and the virtual camera every row is rectified into.
     pub t_frame_ns: i64,
-    /// Right mid-exposure time (ns).
+    /// The right frame's instant (ns).
     pub t_right_ns: i64,
+    /// Row timing, speed, per-row rotations and the motion gate of this frame.
+    pub motion: FrameMotion,
     /// The raw pair (gray, the source's size).
     pub raw_left: Vec<u8>,
     pub raw_right: Vec<u8>,
@@ -220,6 +277,7 @@ impl Work {
             session_seq: 0,
             t_frame_ns: 0,
             t_right_ns: 0,
+            motion: FrameMotion::new(),
             raw_left: vec![0; nr],
             raw_right: vec![0; nr],
             theta: [[0.0; 3]; 2],
@@ -235,8 +293,19 @@ impl Work {
     pub fn fill(&mut self, f: &SourcePair) {
         self.seq = f.seq;
         self.session_seq = f.session_seq;
-        self.t_frame_ns = f.t_start_ns + f.exposure_ns / 2;
-        self.t_right_ns = f.right_t_start_ns + f.exposure_ns / 2;
+        // the middle row's mid-exposure
+        let mid = f.readout_ns / 2 + f.exposure_ns / 2;
+        self.t_frame_ns = f.t_start_ns + mid;
+        self.t_right_ns = f.right_t_start_ns + mid;
+        let m = &mut self.motion;
+        m.t_start_ns = [f.t_start_ns, f.right_t_start_ns];
+        m.exposure_ns = f.exposure_ns;
+        m.readout_ns = f.readout_ns;
+        m.band_theta.iter_mut().for_each(Vec::clear);
+        m.band_rot.iter_mut().for_each(Vec::clear);
+        m.speed_deg_s = [0.0; 2];
+        m.blur_px = 0.0;
+        m.gated = false;
         self.raw_left.copy_from_slice(f.left);
         self.raw_right.copy_from_slice(f.right);
         self.pose = None;
@@ -258,6 +327,7 @@ impl Work {
             right_rect: &self.rectified.right,
             disparity: &self.disparity,
             confidence: (!self.confidence.is_empty()).then_some(&self.confidence[..]),
+            motion: &self.motion,
         })
     }
 }
@@ -278,4 +348,6 @@ pub struct Published<'a> {
     pub disparity: &'a [f32],
     /// The disparity's confidence in [0, 1] per pixel (0 = invalid), when the run computes it.
     pub confidence: Option<&'a [f32]>,
+    /// The frame's motion: eye speeds, blur, and whether it was gated (depth all NaN, empty cloud).
+    pub motion: &'a FrameMotion,
 }

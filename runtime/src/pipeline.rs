@@ -26,6 +26,7 @@ pub use crate::tasks::confidence::CheckConfig;
 use crate::tasks::depth::{DepthConfig, DepthStage};
 use crate::tasks::disparity::{DisparityEngine, DisparityStage};
 use crate::tasks::kinematics::{KinematicsStage, StereoKinematics};
+pub use crate::tasks::motion::MotionConfig;
 pub use crate::tasks::rectify::camera_for_frames;
 use crate::tasks::rectify::{RectifiedCamera, RectifyStage};
 
@@ -43,6 +44,8 @@ pub struct PipelineConfig {
     /// Node spacing of the rectification map grid (px).
     pub grid_step: u32,
     pub depth: DepthConfig,
+    /// Rolling-shutter correction, the motion gate, an encoder time offset override.
+    pub motion: MotionConfig,
     /// The disparity's left-right check: confidence per frame, inconsistent pixels invalidated (default:
     /// neither, the check does not run).
     pub check: CheckConfig,
@@ -70,6 +73,7 @@ impl Default for PipelineConfig {
             out: RectifiedCamera::with_hfov(320, 240, 100.0),
             grid_step: 8,
             depth: DepthConfig::default(),
+            motion: MotionConfig::default(),
             check: CheckConfig::default(),
             queue: 2,
             lossless: false,
@@ -106,9 +110,9 @@ pub fn graph<S: PairSource>(
     sinks: Vec<Box<dyn Sink>>,
     cfg: &PipelineConfig,
 ) -> Result<Graph<S>> {
-    let kinematics = KinematicsStage::new(kin);
+    let kinematics = KinematicsStage::new(kin).with_motion(cfg.motion);
     let stages: Vec<Box<dyn Stage>> = vec![
-        Box::new(AlignStage::new(kinematics.encoder_latency_s())),
+        Box::new(AlignStage::new(kinematics.encoder_latency_s()).with_motion(cfg.motion)),
         Box::new(kinematics),
         Box::new(RectifyStage::new(cams, cfg.grid_step)),
         Box::new(DisparityStage::with_check(engine, cfg.check)?),

@@ -284,7 +284,8 @@ pub fn run<S: PairSource>(graph: Graph<S>, cfg: &RunConfig) -> Result<RunStats> 
                     }
                     let Some(f) = source.next_frame(cfg.frames) else { break };
                     frames_in.fetch_add(1, Ordering::Relaxed);
-                    let ready = f.t_start_ns + f.exposure_ns; // a frame exists once its exposure ended
+                    // a frame exists once its last row's exposure ended (rolling shutter: readout after the first)
+                    let ready = f.t_start_ns + f.readout_ns + f.exposure_ns;
                     if cfg.paced {
                         let wait = ready - monotonic_ns();
                         if wait > 0 {

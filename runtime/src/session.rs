@@ -72,6 +72,13 @@ pub struct SessionMeta {
     /// timestamp plus one frame period.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub loop_period_ns: Option<i64>,
+    /// Rolling-shutter readout (ms): from the first row's start of exposure to the last row's
+    /// (conventions.md "Time"); 0 = a global shutter (and sessions written before it was recorded).
+    #[serde(default)]
+    pub readout_ms: f64,
+    /// The nominal exposure (ms), for people; frames.csv holds each frame's own.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub exposure_ms: Option<f64>,
     /// Stereo calibration at home (relative path).
     pub stereo: String,
     /// Per-eye FK model directories or unit-model TOML files (relative paths), left then right.
@@ -98,8 +105,13 @@ pub struct Truth {
     pub scene_seed: u64,
     /// The true stereo calibration at home (the one in `stereo` may be an estimate).
     pub stereo: String,
-    /// Per-frame true link angles of both eyes at mid-exposure (CSV: seq, l1,l2,l3, r1,r2,r3 in deg).
+    /// Per-frame true link angles of both eyes at the frame's instant, its middle row's mid-exposure (CSV:
+    /// seq, l1,l2,l3, r1,r2,r3 in deg).
     pub poses: String,
+    /// Rolling-shutter sessions: true link angles at row nodes (CSV: seq, node, l1,l2,l3, r1,r2,r3; node n of
+    /// N at row n (H - 1) / N, that row's mid-exposure), for scoring where each raw row really looked.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub row_poses: Option<String>,
 }
 
 /// One row of frames.csv.
@@ -243,6 +255,8 @@ struct MetaSpans {
     height: Option<Spanned<toml::Value>>,
     fps: Option<Spanned<toml::Value>>,
     loop_period_ns: Option<Spanned<toml::Value>>,
+    readout_ms: Option<Spanned<toml::Value>>,
+    exposure_ms: Option<Spanned<toml::Value>>,
     stereo: Option<Spanned<toml::Value>>,
     fk: Option<Spanned<toml::Value>>,
     gravity: Option<Spanned<toml::Value>>,
@@ -254,6 +268,7 @@ struct TruthSpans {
     units: Option<Spanned<toml::Value>>,
     stereo: Option<Spanned<toml::Value>>,
     poses: Option<Spanned<toml::Value>>,
+    row_poses: Option<Spanned<toml::Value>>,
 }
 
 /// The key of a `key = value` line (for a TOML error that points into a value).
@@ -304,6 +319,20 @@ fn parse_meta(mp: &Path, text: &str) -> Result<(SessionMeta, MetaSpans)> {
             );
         }
     }
+    // a readout longer than a frame period would overlap the next frame's first rows
+    let frame_ms = 1e3 / meta.fps;
+    if !(meta.readout_ms >= 0.0 && meta.readout_ms <= frame_ms) {
+        return bad(
+            sp(&spans.readout_ms),
+            "readout_ms",
+            format!("{} is out of range (0 ..= {frame_ms} ms, one frame period)", meta.readout_ms),
+        );
+    }
+    if let Some(e) = meta.exposure_ms {
+        if !(e >= 0.0 && e <= MAX_EXPOSURE_NS as f64 * 1e-6) {
+            return bad(sp(&spans.exposure_ms), "exposure_ms", format!("{e} is out of range (0 ..= 1000 ms)"));
+        }
+    }
     let g = meta.gravity;
     let norm = (g[0] * g[0] + g[1] * g[1] + g[2] * g[2]).sqrt();
     let unit = norm.is_finite() && (norm - 1.0).abs() <= 1e-3;
@@ -318,6 +347,9 @@ fn parse_meta(mp: &Path, text: &str) -> Result<(SessionMeta, MetaSpans)> {
         paths.extend(t.units.iter().map(|p| ("truth.units", p, tsp(|t| &t.units))));
         paths.push(("truth.stereo", &t.stereo, tsp(|t| &t.stereo)));
         paths.push(("truth.poses", &t.poses, tsp(|t| &t.poses)));
+        if let Some(r) = &t.row_poses {
+            paths.push(("truth.row_poses", r, tsp(|t| &t.row_poses)));
+        }
     }
     for (field, p, span) in paths {
         if let Err(e) = check_inside(p) {
@@ -367,8 +399,9 @@ fn read_frames(path: &Path) -> Result<Vec<FrameRecord>> {
         if !(0..MAX_T_NS).contains(&r.t_start_ns) {
             return bad(format!("t_start_ns {} is out of range (0 .. 2^60 ns)", r.t_start_ns));
         }
-        if r.exposure_ns <= 0 || r.exposure_ns > MAX_EXPOSURE_NS {
-            return bad(format!("exposure_ns {} is out of range (1 ..= {MAX_EXPOSURE_NS})", r.exposure_ns));
+        // 0: an instantaneous exposure (rendered sessions without motion blur)
+        if r.exposure_ns < 0 || r.exposure_ns > MAX_EXPOSURE_NS {
+            return bad(format!("exposure_ns {} is out of range (0 ..= {MAX_EXPOSURE_NS})", r.exposure_ns));
         }
         if i > 0 {
             let prev = &rows[i - 1].1;

@@ -166,6 +166,8 @@ pub struct RunStats {
     pub frames_dropped: u64,
     /// Frames a stage refused (bad frame file, encoders out of span, FK failure...), by reason.
     pub frames_failed: BTreeMap<String, u64>,
+    /// Published with depth invalid because the eyes moved too fast during the exposure (the motion gate).
+    pub frames_motion_gated: u64,
     pub stages: Vec<(&'static str, Latency)>,
     pub end_to_end: Latency,
     pub depth_error: Option<DepthError>,
@@ -186,6 +188,7 @@ impl RunStats {
             frames_published: 0,
             frames_dropped: 0,
             frames_failed: BTreeMap::new(),
+            frames_motion_gated: 0,
             stages: stage_names.iter().map(|n| (*n, Latency::default())).collect(),
             end_to_end: Latency::default(),
             depth_error: None,
@@ -226,6 +229,7 @@ impl RunStats {
             "frames_published": self.frames_published,
             "frames_dropped": self.frames_dropped,
             "frames_failed": self.frames_failed,
+            "frames_motion_gated": self.frames_motion_gated,
             "fps": if elapsed_s > 0.0 { self.frames_published as f64 / elapsed_s } else { 0.0 },
             "elapsed_s": elapsed_s,
             "latency_ms": self.end_to_end.json(),
@@ -277,9 +281,10 @@ impl RunStats {
     pub fn table(&self, elapsed_s: f64) -> String {
         let mut s = String::new();
         s += &format!(
-            "frames in {}  published {}  dropped {}  failed {}  ({:.1} fps over {:.1} s)\n",
+            "frames in {}  published {} (motion-gated {})  dropped {}  failed {}  ({:.1} fps over {:.1} s)\n",
             self.frames_in,
             self.frames_published,
+            self.frames_motion_gated,
             self.frames_dropped,
             self.frames_failed.values().sum::<u64>(),
             self.frames_published as f64 / elapsed_s.max(1e-9),

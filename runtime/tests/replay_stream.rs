@@ -84,6 +84,8 @@ fn session(dir: &Path, rows: usize) {
         height: H,
         fps: 25.0,
         loop_period_ns: None,
+        readout_ms: 0.0,
+        exposure_ms: None,
         stereo: "calib/stereo.yaml".into(),
         fk: ["calib/eye0".into(), "calib/eye1".into()],
         gravity: [0.0, 1.0, 0.0],

@@ -9,6 +9,7 @@
 //! `abvs sim session`, `abvs sim board` and `abvs run` use them.
 pub mod board;
 pub mod disparity_score;
+pub mod gaze_plan;
 pub mod servo_board;
 pub mod synth;
 pub mod truth;

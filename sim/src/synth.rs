@@ -6,15 +6,22 @@
 //!   World frame = the left eye's home camera frame.
 //! - Two units drawn by abvs-eye's simulator (every effect of effects.md on), with a stereo rig at home
 //!   (baseline ~65 mm, small rotation).
-//! - Motion: both eyes fixate 3D targets in the scene (so they verge), jumping between them with saccades
-//!   (minimum-jerk profile, peak speeds up to 1561 deg/s) and following a moving target (smooth pursuit);
-//!   the whole motion is periodic, so a looped replay is seamless. The drive commands each eye's orientation
-//!   through the nominal IK; the encoders read the link angles (1 kHz, quantised to counts, stamped late by
-//!   the unit's encoder_time_offset); the camera moves as the unit's true physics says.
+//! - Motion ([`crate::gaze_plan`]): both eyes fixate 3D targets in the scene (so they verge), jumping between
+//!   them with saccades (minimum-jerk profile, peak speeds up to 1561 deg/s) and following targets that glide
+//!   across and in depth (smooth pursuit, peak speed `pursuit_deg_s`); the whole motion is periodic, so a
+//!   looped replay is seamless. The drive commands each eye's orientation through the nominal IK; the
+//!   encoders read the link angles (1 kHz, quantised to counts, stamped late by the unit's
+//!   encoder_time_offset, or by `time_offset_ms` for both eyes); the camera moves as the unit's true physics
+//!   says.
 //! - Calibration in the session: each eye's FK fitted by abvs-calib on a simulated calibration dataset of the
 //!   same unit (what a user would have), the stereo calibration at home = the true one (issue 5 measures it).
 //!
-//! Frames are rendered at mid-exposure (no motion blur or rolling shutter: a documented simplification).
+//! - Time (conventions.md "Time"): each row is rendered at its own instants. Row r of a frame starting at
+//!   `t_start` exposes from `t_start + r * readout / (H - 1)` for `exposure`, integrated over enough time
+//!   samples that the blur is right (at most half a pixel between samples); `readout = 0` is a global
+//!   shutter, `exposure = 0` an instant. A frame's instant is its middle row's mid-exposure: `k / fps` for
+//!   frame k. The truth (`truth/poses.csv`: true link angles per frame) is at that instant, so the truth
+//!   depth is that of a global-shutter camera at mid-exposure, whatever the readout.
 use std::path::Path;
 
 use abvs_calib::methods::{fit, FitConfig, Method};
@@ -22,9 +29,9 @@ use abvs_calib::model::save_model;
 use abvs_camera::{Camera, StereoCalibration};
 use abvs_eye::encoder::COUNTS_PER_REV;
 use abvs_eye::sim::{draw_unit, simulate_dataset, Commanded, SimSpec};
-use abvs_eye::unit::Effect;
+use abvs_eye::unit::{Effect, EncoderTimeOffset};
 use abvs_eye::{Fick, Pose, SpmGeometry, UnitModel};
-use abvs_render::{RayTable, RenderOptions, Scene, Surface, Texture};
+use abvs_render::{RayTable, RenderOptions, Scene, Surface, Texture, MAX_TIME_SAMPLES};
 use nalgebra::{Isometry3, Matrix3, Point3, Rotation3, Translation3, UnitQuaternion, Vector3};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -32,7 +39,13 @@ use rand_chacha::ChaCha8Rng;
 use abvs_runtime::error::{Result, RuntimeError};
 use abvs_runtime::session::{EncoderRecord, FrameRecord, Session, SessionMeta, Truth, SESSION_FORMAT};
 
+use crate::gaze_plan::GazePlan;
+
 pub const SCENE_GENERATOR: &str = "abvs-scene/1";
+
+/// Row nodes of `truth/row_poses.csv` per frame (node n at row n (H - 1) / N): 2 ms apart at a 32 ms
+/// readout, where a pursuit's rotation is linear to well under 0.001 deg.
+pub const TRUTH_ROW_NODES: usize = 16;
 
 fn inv(e: impl std::fmt::Display) -> RuntimeError {
     RuntimeError::Invalid(e.to_string())
@@ -132,7 +145,15 @@ pub struct SessionSpec {
     pub seed: u64,
     pub frames: usize,
     pub fps: f64,
+    /// Exposure of every row (ms); 0 = an instant (no motion blur).
     pub exposure_ms: f64,
+    /// Rolling-shutter readout, first row's start of exposure to the last row's (ms); 0 = global shutter.
+    pub readout_ms: f64,
+    /// Peak angular speed of the smooth pursuits (deg/s); 0 = fixations and saccades only.
+    pub pursuit_deg_s: f64,
+    /// encoder_time_offset of both eyes (ms: the encoder stream is stamped this much late); `None` keeps
+    /// each drawn unit's own.
+    pub time_offset_ms: Option<f64>,
     pub width: u32,
     pub height: u32,
     pub encoder_hz: f64,
@@ -152,6 +173,9 @@ impl Default for SessionSpec {
             frames: 50,
             fps: 25.0,
             exposure_ms: 4.0,
+            readout_ms: 0.0,
+            pursuit_deg_s: 30.0,
+            time_offset_ms: None,
             width: 800,
             height: 600,
             encoder_hz: 1000.0,
@@ -164,71 +188,79 @@ impl Default for SessionSpec {
     }
 }
 
-/// A gaze plan: fixation targets (3D, world) and when the eyes move between them.
-struct Gaze {
-    /// (start time s, duration s, from, to, pursuit velocity m/s during the fixation that follows)
-    segments: Vec<Segment>,
-    period: f64,
-}
-
-struct Segment {
-    t0: f64,
-    saccade_s: f64,
-    from: Vector3<f64>,
-    to: Vector3<f64>,
-    pursuit: Vector3<f64>,
-    end: f64,
-}
-
-impl Gaze {
-    fn plan(rng: &mut ChaCha8Rng, period: f64) -> Gaze {
-        let target = |rng: &mut ChaCha8Rng| {
-            Vector3::new(rng.gen_range(-0.3..0.3), rng.gen_range(-0.22..0.2), rng.gen_range(0.55..1.3))
-        };
-        let first = target(rng);
-        let mut segments = Vec::new();
-        let mut t = 0.0;
-        let mut cur = first;
-        loop {
-            let fix = rng.gen_range(0.15..0.35f64).min(period * 0.6);
-            let last = t + fix + 0.12 > period - 0.2;
-            let next = if last { first } else { target(rng) };
-            let pursuit = if !last && rng.gen_bool(0.4) {
-                Vector3::new(rng.gen_range(-0.15..0.15), rng.gen_range(-0.08..0.08), 0.0)
-            } else {
-                Vector3::zeros()
-            };
-            // the pursued target drifts during the fixation; the saccade starts from where it got to
-            let from = cur;
-            // saccade duration from its amplitude: peak speed grows with amplitude up to the eyes' 1561 deg/s
-            let amp: f64 = (from + pursuit * fix).angle(&next).to_degrees().max(1.0);
-            let vpeak = (200.0 + 40.0 * amp).min(1561.0);
-            let saccade_s = (1.875 * amp / vpeak).max(0.025);
-            let end = if last { period } else { (t + fix + saccade_s).min(period) };
-            segments.push(Segment { t0: t, saccade_s, from, to: next, pursuit, end });
-            cur = next;
-            t = end;
-            if last {
-                break;
+impl SessionSpec {
+    /// Refuses a spec the session format or the encoder stream cannot hold, naming the field.
+    #[allow(clippy::neg_cmp_op_on_partial_ord)] // `!(lo <= x && x <= hi)` refuses NaN too
+    pub fn validate(&self) -> Result<()> {
+        let bad = |m: String| Err(RuntimeError::Invalid(m));
+        if !(self.fps > 0.0 && self.fps <= 200.0) {
+            return bad(format!("fps {} must be in (0, 200]", self.fps));
+        }
+        let frame_ms = 1e3 / self.fps;
+        if !(0.0 <= self.exposure_ms && self.exposure_ms <= frame_ms) {
+            return bad(format!("exposure {} ms must be in [0, {frame_ms}] (one frame period)", self.exposure_ms));
+        }
+        // The encoder stream spans one loop period; every row's mid-exposure (and 1 ms either side, for the
+        // runtime's speed) must fall inside it: the rows of one frame may span at most a frame period - 4 ms.
+        if !(0.0 <= self.readout_ms && self.readout_ms <= frame_ms - 4.0) {
+            return bad(format!(
+                "readout {} ms must be in [0, {}] (frame period - 4 ms)",
+                self.readout_ms,
+                frame_ms - 4.0
+            ));
+        }
+        if !(0.0 <= self.pursuit_deg_s && self.pursuit_deg_s <= 500.0) {
+            return bad(format!("pursuit peak {} deg/s must be in [0, 500]", self.pursuit_deg_s));
+        }
+        if let Some(t) = self.time_offset_ms {
+            if !(0.0..=10.0).contains(&t) {
+                return bad(format!("time offset {t} ms must be in [0, 10] (effects.md: 0.1 - 5 ms)"));
             }
         }
-        Gaze { segments, period }
-    }
-
-    /// Target point at time t (s), periodic.
-    fn at(&self, t: f64) -> Vector3<f64> {
-        let t = t.rem_euclid(self.period);
-        let seg = self.segments.iter().find(|s| t < s.end).unwrap_or_else(|| self.segments.last().expect("segments"));
-        let fix_end = seg.end - seg.saccade_s;
-        if t < fix_end {
-            seg.from + seg.pursuit * (t - seg.t0)
-        } else {
-            let start = seg.from + seg.pursuit * (fix_end - seg.t0);
-            let s = ((t - fix_end) / seg.saccade_s).clamp(0.0, 1.0);
-            let mj = s * s * s * (10.0 - 15.0 * s + 6.0 * s * s); // minimum jerk
-            start + (seg.to - start) * mj
+        if self.frames == 0 || self.width < 16 || self.height < 16 {
+            return bad(format!(
+                "{} frames of {}x{} px: need at least one frame of 16x16",
+                self.frames, self.width, self.height
+            ));
         }
+        Ok(())
     }
+}
+
+/// One eye's true pose (world from camera, metres) over one frame's exposure window, sampled densely and
+/// interpolated (slerp): the unit's FK runs per node, not per row and time sample.
+struct PoseTrack {
+    t0: f64,
+    dt: f64,
+    nodes: Vec<Isometry3<f64>>,
+}
+
+impl PoseTrack {
+    /// Node spacing (s): at the saccades' ~2e5 deg/s^2 a slerp between nodes errs by a h^2 / 8 ~ 0.002 deg.
+    const STEP_S: f64 = 0.25e-3;
+
+    fn pose_at(&self, t: f64) -> Isometry3<f64> {
+        if self.nodes.len() == 1 {
+            return self.nodes[0];
+        }
+        let g = ((t - self.t0) / self.dt).clamp(0.0, (self.nodes.len() - 1) as f64);
+        let i = (g as usize).min(self.nodes.len() - 2);
+        self.nodes[i].lerp_slerp(&self.nodes[i + 1], g - i as f64)
+    }
+}
+
+/// Writes an 8-bit gray PNG at the best compression: sessions are shipped (the fixture) and replayed from
+/// disk, so a few seconds more at rendering buy ~10 % less to store and read.
+fn save_png(img: &image::GrayImage, path: &Path) -> std::result::Result<(), image::ImageError> {
+    use image::codecs::png::{CompressionType, FilterType, PngEncoder};
+    use image::ImageEncoder;
+    let file = std::io::BufWriter::new(std::fs::File::create(path)?);
+    PngEncoder::new_with_quality(file, CompressionType::Best, FilterType::Adaptive).write_image(
+        img.as_raw(),
+        img.width(),
+        img.height(),
+        image::ExtendedColorType::L8,
+    )
 }
 
 /// Fick angles (deg) that point a camera at home pose `home_from_world` at `target` (beta = 0).
@@ -239,6 +271,7 @@ fn look_at(home_from_world: &Pose, target: &Vector3<f64>) -> [f64; 3] {
 
 /// Writes a synthetic session into `dir`. `progress(stage, done, total)`.
 pub fn generate(spec: &SessionSpec, dir: &Path, progress: &mut dyn FnMut(&str, usize, usize)) -> Result<()> {
+    spec.validate()?;
     let mut rng = ChaCha8Rng::seed_from_u64(spec.seed);
     let fdir = dir.join("frames");
     for d in [dir.to_path_buf(), fdir.clone(), dir.join("calib"), dir.join("truth")] {
@@ -253,8 +286,13 @@ pub fn generate(spec: &SessionSpec, dir: &Path, progress: &mut dyn FnMut(&str, u
         line: None,
         msg: e.to_string(),
     };
-    let units: [UnitModel; 2] =
+    let mut units: [UnitModel; 2] =
         [draw_unit(spec.seed * 2 + 11, &Effect::ALL), draw_unit(spec.seed * 2 + 12, &Effect::ALL)];
+    if let Some(t) = spec.time_offset_ms {
+        for u in &mut units {
+            u.effects.encoder_time_offset = EncoderTimeOffset { enabled: true, latency_ms: t };
+        }
+    }
     // stereo rig at home: T_lH^rH (metres inside, mm in the file)
     let r_home = Rotation3::from_euler_angles(
         rng.gen_range(-0.008..0.008),
@@ -286,7 +324,7 @@ pub fn generate(spec: &SessionSpec, dir: &Path, progress: &mut dyn FnMut(&str, u
 
     // ---- motion and encoders
     let period = spec.frames as f64 / spec.fps;
-    let gaze = Gaze::plan(&mut rng, period);
+    let gaze = GazePlan::new(&mut rng, period, spec.pursuit_deg_s);
     let nominal = SpmGeometry::nominal();
     let homes = [Pose::identity(), home_l_to_r];
     let readings = |eye: usize, t: f64| -> Result<[f64; 3]> {
@@ -299,8 +337,9 @@ pub fn generate(spec: &SessionSpec, dir: &Path, progress: &mut dyn FnMut(&str, u
     let mut encoders = Vec::new();
     let n_enc = (period * spec.encoder_hz).round() as usize;
     for k in 0..n_enc {
-        // one period of samples starting 20 ms before the first frame: periodic, so looping is seamless
-        let t = k as f64 / spec.encoder_hz - 0.02;
+        // one period of samples starting half a frame before the first frame's instant: periodic, so looping
+        // is seamless, and every row's mid-exposure of every frame lies inside (SessionSpec::validate)
+        let t = k as f64 / spec.encoder_hz - 0.5 / spec.fps;
         for (eye, unit) in units.iter().enumerate() {
             let th = readings(eye, t)?;
             let c = th.map(|d| (d * COUNTS_PER_REV as f64 / 360.0).round() as i64);
@@ -322,26 +361,70 @@ pub fn generate(spec: &SessionSpec, dir: &Path, progress: &mut dyn FnMut(&str, u
     let rays = RayTable::new(&camera).map_err(inv)?;
     let fks = [units[0].compile().map_err(inv)?, units[1].compile().map_err(inv)?];
     let mut streams = [fks[0].stream(), fks[1].stream()];
-    let exposure_ns = (spec.exposure_ms * 1e6) as i64;
+    let (readout, exposure) = (spec.readout_ms * 1e-3, spec.exposure_ms * 1e-3);
+    let exposure_ns = (spec.exposure_ms * 1e6).round() as i64;
+    let h1 = (spec.height - 1).max(1) as f64;
     let mut frames = Vec::new();
     let mut truth_rows = String::from("seq,l1,l2,l3,r1,r2,r3\n");
+    let mut truth_row_nodes = String::from("seq,node,l1,l2,l3,r1,r2,r3\n");
     for k in 0..spec.frames {
         progress("render", k, spec.frames);
-        let t_mid = k as f64 / spec.fps;
-        let th = [readings(0, t_mid)?, readings(1, t_mid)?];
+        // the frame's instant: its middle row's mid-exposure; row 0 starts readout / 2 + exposure / 2 earlier
+        let t_frame = k as f64 / spec.fps;
+        let t_start = t_frame - readout / 2.0 - exposure / 2.0;
+        let th = [readings(0, t_frame)?, readings(1, t_frame)?];
         truth_rows += &format!(
             "{k},{:.9},{:.9},{:.9},{:.9},{:.9},{:.9}\n",
             th[0][0], th[0][1], th[0][2], th[1][0], th[1][1], th[1][2]
         );
+        for n in 0..=TRUTH_ROW_NODES {
+            // row n (H - 1) / N's mid-exposure
+            let t = t_frame - readout / 2.0 + n as f64 * readout / TRUTH_ROW_NODES as f64;
+            let (l, r) = (readings(0, t)?, readings(1, t)?);
+            truth_row_nodes +=
+                &format!("{k},{n},{:.9},{:.9},{:.9},{:.9},{:.9},{:.9}\n", l[0], l[1], l[2], r[0], r[1], r[2]);
+        }
         let mut names = [String::new(), String::new()];
         for eye in 0..2 {
-            let rel = fks[eye].next(&mut streams[eye], &th[eye], [0.0, 1.0, 0.0]).map_err(inv)?;
-            let rel_m = Pose::new(rel.r, rel.t * 1e-3);
-            let world = if eye == 0 { rel_m } else { world_from_rhome.compose(&rel_m) };
-            let iso = Isometry3::from_parts(
-                Translation3::from(world.t),
-                UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix_unchecked(world.r)),
-            );
+            let world_from = |rel: Pose| {
+                let rel_m = Pose::new(rel.r, rel.t * 1e-3);
+                let world = if eye == 0 { rel_m } else { world_from_rhome.compose(&rel_m) };
+                Isometry3::from_parts(
+                    Translation3::from(world.t),
+                    UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix_unchecked(world.r)),
+                )
+            };
+            // the frame's own pose advances the eye's stream (motion history for backlash); the camera over the
+            // frame's exposure window is posed with that history frozen (as the truth and the runtime do)
+            let g = [0.0, 1.0, 0.0];
+            fks[eye].next(&mut streams[eye], &th[eye], g).map_err(inv)?;
+            let (cond, mut warm) = fks[eye].peek(&streams[eye], &th[eye], g, None).map_err(inv)?;
+            let span = readout + exposure;
+            let n_nodes = if span > 0.0 { (span / PoseTrack::STEP_S).ceil() as usize + 1 } else { 1 };
+            let dt = if n_nodes > 1 { span / (n_nodes - 1) as f64 } else { 0.0 };
+            let mut nodes = Vec::with_capacity(n_nodes);
+            for i in 0..n_nodes {
+                let t = if n_nodes > 1 { t_start + i as f64 * dt } else { t_frame };
+                let (rel, r) = fks[eye].pose_unchecked(&readings(eye, t)?, &cond, Some(&warm)).map_err(inv)?;
+                warm = r;
+                nodes.push(world_from(rel));
+            }
+            let track = PoseTrack { t0: t_start, dt, nodes };
+            // time samples: the largest blur over the rows, at most half a pixel between samples
+            let blur_px = [0.0, 0.5, 1.0]
+                .iter()
+                .map(|f| {
+                    let t = t_start + f * readout;
+                    let (a, b) = (track.pose_at(t), track.pose_at(t + exposure));
+                    a.rotation.angle_to(&b.rotation) * camera.fx.max(camera.fy)
+                })
+                .fold(0.0, f64::max);
+            let time_samples =
+                if exposure > 0.0 { ((2.0 * blur_px).ceil() as usize + 1).min(MAX_TIME_SAMPLES) } else { 1 };
+            let ks = time_samples as f64;
+            let pose_at = |y: usize, s: usize| {
+                track.pose_at(t_start + y as f64 * readout / h1 + (s as f64 + 0.5) / ks * exposure)
+            };
             let opts = RenderOptions {
                 supersample: spec.supersample,
                 blur_sigma: 0.5,
@@ -353,18 +436,23 @@ pub fn generate(spec: &SessionSpec, dir: &Path, progress: &mut dyn FnMut(&str, u
                 threads: spec.threads,
                 ..RenderOptions::default()
             };
-            let img = abvs_render::render_with_rays(&scene, &rays, &iso, &opts).map_err(inv)?;
+            let img = abvs_render::render_moving(&scene, &rays, &pose_at, time_samples, &opts).map_err(inv)?;
             let name = format!("frames/{}_{k:06}.png", if eye == 0 { "left" } else { "right" });
             let p = dir.join(&name);
-            img.gray_image().save(&p).map_err(|e| io(&p, &e))?;
+            save_png(&img.gray_image(), &p).map_err(|e| io(&p, &e))?;
             names[eye] = name;
         }
         let [left, right] = names;
-        frames.push(FrameRecord { seq: k as u64, t_start_ns: ns(t_mid) - exposure_ns / 2, exposure_ns, left, right });
+        frames.push(FrameRecord { seq: k as u64, t_start_ns: ns(t_start), exposure_ns, left, right });
     }
     progress("render", spec.frames, spec.frames);
     let tp = dir.join("truth/poses.csv");
     std::fs::write(&tp, truth_rows).map_err(|e| io(&tp, &e))?;
+    let rolling = spec.readout_ms > 0.0;
+    if rolling {
+        let tr = dir.join("truth/row_poses.csv");
+        std::fs::write(&tr, truth_row_nodes).map_err(|e| io(&tr, &e))?;
+    }
 
     // ---- each eye's FK calibrated as a user would: a simulated calibration dataset of the same unit, fitted
     let method = spec.fk_method;
@@ -390,14 +478,20 @@ pub fn generate(spec: &SessionSpec, dir: &Path, progress: &mut dyn FnMut(&str, u
     let meta = SessionMeta {
         format: SESSION_FORMAT.into(),
         description: format!(
-            "synthetic: scene {SCENE_GENERATOR} seed {}, units sim-{} / sim-{}, {} frames at {} fps, FK calibrated with {}",
+            "synthetic: scene {SCENE_GENERATOR} seed {}, units sim-{} / sim-{}, {} frames at {} fps, readout {} ms, \
+             exposure {} ms, pursuit up to {} deg/s, FK calibrated with {}",
             spec.seed,
             spec.seed * 2 + 11,
             spec.seed * 2 + 12,
             spec.frames,
             spec.fps,
+            spec.readout_ms,
+            spec.exposure_ms,
+            spec.pursuit_deg_s,
             spec.fk_method
         ),
+        readout_ms: spec.readout_ms,
+        exposure_ms: Some(spec.exposure_ms),
         width: spec.width,
         height: spec.height,
         fps: spec.fps,
@@ -411,6 +505,7 @@ pub fn generate(spec: &SessionSpec, dir: &Path, progress: &mut dyn FnMut(&str, u
             scene_seed: spec.seed,
             stereo: "truth/stereo.yaml".into(),
             poses: "truth/poses.csv".into(),
+            row_poses: rolling.then(|| "truth/row_poses.csv".into()),
         }),
     };
     Session::write_index(dir, &meta, &frames, &encoders)

@@ -1,38 +1,88 @@
 //! Depth accuracy against ground truth, for synthetic sessions.
 //!
 //! For a published point at rectified pixel (u, v), the pipeline's own chain says which raw pixel it came
-//! from (rectifying rotation + lens); the truth says where that raw pixel really looked: the true camera pose
-//! (true unit model at the true link angles) and a ray cast into the true scene. Errors compare the published
+//! from (rectifying rotation, the per-row rotations of a rolling-shutter correction, lens); the truth says
+//! where that raw pixel really looked: the true camera pose when its row exposed (true unit model at the
+//! true link angles of that row's mid-exposure, `truth/row_poses.csv`; the frame's instant for a global
+//! shutter) and a ray cast into the true scene. So a point placed with the wrong row's pose is scored by how
+//! far from the true surface point it lands, not only along its ray. Errors compare the published
 //! point with that true surface point: `abs_rel` = |r_est - r_true| / r_true (ranges from the true optical
 //! centre) and `rmse_m` = RMS of the 3D distance. Points are scored on a fixed pixel stride (casting every
 //! point would cost more than the pipeline). Frames are matched to their truth by `seq` (the first column of
 //! the truth's poses file), never by position: a frame the replay could not read shifts nothing. When the run
 //! computes a confidence, the points are also scored apart by it (above and at most [`HIGH_CONFIDENCE`]):
-//! stats `depth_error_by_confidence`.
+//! stats `depth_error_by_confidence`. Per eye speed (the faster eye at the frame's instant): stats
+//! `depth_error_by_speed`, with the frames the motion gate published invalid counted, not scored.
 use abvs_camera::{Camera, StereoCalibration};
 use abvs_eye::{Pose, UnitModel};
 use abvs_render::Scene;
-use nalgebra::{Point3, Vector2, Vector3};
+use nalgebra::{Point3, UnitQuaternion, Vector2, Vector3};
 
 use abvs_runtime::error::{Result, RuntimeError};
 use abvs_runtime::pipeline::{Published, Sink};
 use abvs_runtime::session::Session;
 use abvs_runtime::sinks::stats::{DepthError, RunStats};
+use abvs_runtime::tasks::motion::RowRotations;
+use abvs_runtime::tasks::rectify::source_pixel;
 
 /// The confidence above which a point counts as confident in `depth_error_by_confidence`.
 pub const HIGH_CONFIDENCE: f32 = 0.8;
 
+/// Lower edges of the eye-speed bands of `depth_error_by_speed` (deg/s, the faster eye at the frame's
+/// instant): fixation, slow pursuit, fast pursuit, slow saccade, saccade.
+pub const SPEED_BANDS_DEG_S: [f64; 5] = [0.0, 5.0, 30.0, 100.0, 300.0];
+
+/// The error of the frames of one speed band.
+#[derive(Debug, Clone, Default)]
+pub struct SpeedBand {
+    /// Frames scored (published with depth, a truth row for their seq).
+    pub frames: u64,
+    /// Frames the motion gate published invalid.
+    pub gated: u64,
+    pub abs_rel_sum: f64,
+    pub points: u64,
+    /// 3D distance (mm) of each scored point to the true surface point, for the median.
+    pub dist_mm: Vec<f32>,
+}
+
+impl SpeedBand {
+    /// Median 3D point error (mm), NaN without points.
+    pub fn point_mm_p50(&mut self) -> f64 {
+        if self.dist_mm.is_empty() {
+            return f64::NAN;
+        }
+        let mid = self.dist_mm.len() / 2;
+        *self.dist_mm.select_nth_unstable_by(mid, f32::total_cmp).1 as f64
+    }
+
+    pub fn abs_rel(&self) -> f64 {
+        if self.points == 0 {
+            f64::NAN
+        } else {
+            self.abs_rel_sum / self.points as f64
+        }
+    }
+}
+
+/// The band of a speed (deg/s).
+pub fn speed_band(deg_s: f64) -> usize {
+    SPEED_BANDS_DEG_S.iter().rposition(|lo| deg_s >= *lo).unwrap_or(0)
+}
+
 pub struct TruthSink {
     scene: Scene,
     camera: Camera,
-    /// True T_rel of the left eye per session frame (metres), by seq (increasing).
-    poses: Vec<(u64, Pose)>,
+    /// True T_rel of the left eye per session frame (metres), by seq (increasing), and at its row nodes
+    /// (empty for a global shutter).
+    poses: Vec<(u64, Pose, Vec<Pose>)>,
     stride: usize,
     err: DepthError,
     /// The same over the points of confidence above [`HIGH_CONFIDENCE`], and the others (runs with one).
     by_confidence: Option<[DepthError; 2]>,
     /// Frames published without a truth row for their seq (not scored).
     unscored: u64,
+    /// The same errors by the eyes' speed ([`SPEED_BANDS_DEG_S`]).
+    by_speed: [SpeedBand; 5],
 }
 
 impl TruthSink {
@@ -53,27 +103,30 @@ impl TruthSink {
         let unit = UnitModel::load(&up).map_err(|e| model(&up, &e))?;
         let fk = unit.compile().map_err(|e| model(&up, &e))?;
         let pp = session.path(&truth.poses);
-        let text = std::fs::read_to_string(&pp).map_err(|e| model(&pp, &e))?;
+        let frame_rows = read_angles(&pp, false)?;
+        let node_rows = match &truth.row_poses {
+            Some(r) => read_angles(&session.path(r), true)?,
+            None => Vec::new(),
+        };
         let mut stream = fk.stream();
-        let mut poses = Vec::new();
-        for (i, line) in text.lines().enumerate().skip(1) {
-            let at = |msg: String| RuntimeError::File { path: pp.clone(), line: Some(i as u64 + 1), msg };
-            let cols: Vec<&str> = line.split(',').map(str::trim).collect();
-            if cols.len() != 7 {
-                return Err(at(format!("{} columns, expected 7 (seq,l1,l2,l3,r1,r2,r3)", cols.len())));
+        let mut poses = Vec::with_capacity(frame_rows.len());
+        let g = session.meta.gravity;
+        let mut nodes = node_rows.iter().peekable();
+        for (seq, _, v) in &frame_rows {
+            let th = [v[0], v[1], v[2]];
+            let p = fk.next(&mut stream, &th, g).map_err(|e| model(&up, &e))?;
+            // the row nodes of this frame, with the motion history frozen at the frame (as the runtime does)
+            let (cond, mut warm) = fk.peek(&stream, &th, g, None).map_err(|e| model(&up, &e))?;
+            let mut rows = Vec::new();
+            while let Some((_, _, n)) = nodes.next_if(|(s, _, _)| s == seq) {
+                let (q, r) = fk.pose_unchecked(&[n[0], n[1], n[2]], &cond, Some(&warm)).map_err(|e| model(&up, &e))?;
+                warm = r;
+                rows.push(Pose::new(q.r, q.t * 1e-3));
             }
-            let seq: u64 = cols[0].parse().map_err(|e| at(format!("seq `{}`: {e}", cols[0])))?;
-            if let Some((prev, _)) = poses.last() {
-                if seq <= *prev {
-                    return Err(at(format!("seq {seq} is not after the previous row's {prev}")));
-                }
-            }
-            let mut v = [0.0; 6];
-            for (k, x) in v.iter_mut().enumerate() {
-                *x = cols[k + 1].parse::<f64>().map_err(|e| at(format!("column {}: `{}`: {e}", k + 2, cols[k + 1])))?;
-            }
-            let p = fk.next(&mut stream, &[v[0], v[1], v[2]], session.meta.gravity).map_err(|e| model(&up, &e))?;
-            poses.push((seq, Pose::new(p.r, p.t * 1e-3)));
+            poses.push((*seq, Pose::new(p.r, p.t * 1e-3), rows));
+        }
+        if let Some((seq, _, _)) = nodes.next() {
+            return Err(RuntimeError::Invalid(format!("truth row poses: seq {seq} has no frame in {}", pp.display())));
         }
         let camera = abvs_runtime::pipeline::camera_for_frames(&stereo.left, session.meta.width, session.meta.height)?;
         Ok(Some(TruthSink {
@@ -84,6 +137,7 @@ impl TruthSink {
             err: DepthError::default(),
             by_confidence: None,
             unscored: 0,
+            by_speed: Default::default(),
         }))
     }
 
@@ -92,10 +146,61 @@ impl TruthSink {
         self.err
     }
 
-    /// The true pose of the left eye for a frame of the session, by its seq.
-    fn true_pose(&self, seq: u64) -> Option<Pose> {
-        self.poses.binary_search_by_key(&seq, |(s, _)| *s).ok().map(|i| self.poses[i].1)
+    /// The true pose of the left eye for a frame of the session, by its seq: at the frame's instant, and at
+    /// its row nodes.
+    fn true_pose(&self, seq: u64) -> Option<(Pose, &[Pose])> {
+        let i = self.poses.binary_search_by_key(&seq, |(s, _, _)| *s).ok()?;
+        Some((self.poses[i].1, &self.poses[i].2))
     }
+}
+
+/// The true pose when raw row `y` exposed: between the frame's row nodes (node n at row n (H - 1) / N);
+/// the frame's pose without nodes (global shutter).
+fn pose_at_row(frame: &Pose, nodes: &[Pose], y: f64, rows: u32) -> Pose {
+    if nodes.len() < 2 {
+        return *frame;
+    }
+    let n = nodes.len() - 1;
+    let g = (y / (rows.max(2) - 1) as f64 * n as f64).clamp(0.0, n as f64);
+    let i = (g as usize).min(n - 1);
+    let f = g - i as f64;
+    let q = |p: &Pose| UnitQuaternion::from_matrix(&p.r);
+    let r = q(&nodes[i]).slerp(&q(&nodes[i + 1]), f).to_rotation_matrix().into_inner();
+    Pose::new(r, nodes[i].t * (1.0 - f) + nodes[i + 1].t * f)
+}
+
+/// Rows of a truth angles file: `seq,l1..r3` or, `with_node`, `seq,node,l1..r3`: (seq, node, angles).
+fn read_angles(path: &std::path::Path, with_node: bool) -> Result<Vec<(u64, usize, [f64; 6])>> {
+    let text = std::fs::read_to_string(path)
+        .map_err(|e| RuntimeError::Model { path: path.to_path_buf(), msg: e.to_string() })?;
+    let lead = if with_node { 2 } else { 1 };
+    let mut out: Vec<(u64, usize, [f64; 6])> = Vec::new();
+    for (i, line) in text.lines().enumerate().skip(1) {
+        let at = |msg: String| RuntimeError::File { path: path.to_path_buf(), line: Some(i as u64 + 1), msg };
+        let cols: Vec<&str> = line.split(',').map(str::trim).collect();
+        if cols.len() != lead + 6 {
+            let names = if with_node { "seq,node,l1,l2,l3,r1,r2,r3" } else { "seq,l1,l2,l3,r1,r2,r3" };
+            return Err(at(format!("{} columns, expected {} ({names})", cols.len(), lead + 6)));
+        }
+        let seq: u64 = cols[0].parse().map_err(|e| at(format!("seq `{}`: {e}", cols[0])))?;
+        let node: usize =
+            if with_node { cols[1].parse().map_err(|e| at(format!("node `{}`: {e}", cols[1])))? } else { 0 };
+        if let Some((prev, pn, _)) = out.last() {
+            if (seq, node) <= (*prev, *pn) {
+                return Err(at(format!("seq {seq} node {node} is not after the previous row's {prev} {pn}")));
+            }
+        }
+        let mut v = [0.0; 6];
+        for (k, x) in v.iter_mut().enumerate() {
+            let c = cols[k + lead];
+            *x = c.parse::<f64>().map_err(|e| at(format!("column {}: `{c}`: {e}", k + lead + 1)))?;
+            if !x.is_finite() {
+                return Err(at(format!("column {}: `{c}` is not finite", k + lead + 1)));
+            }
+        }
+        out.push((seq, node, v));
+    }
+    Ok(out)
 }
 
 impl Sink for TruthSink {
@@ -104,20 +209,31 @@ impl Sink for TruthSink {
     }
 
     fn consume(&mut self, out: &Published) -> Result<()> {
-        let Some(true_pose) = self.true_pose(out.session_seq) else {
+        let Some((frame_pose, row_nodes)) = self.true_pose(out.session_seq) else {
             self.unscored += 1;
             return Ok(());
         };
+        let row_nodes = row_nodes.to_vec();
+        let band = &mut self.by_speed[speed_band(out.motion.max_speed_deg_s())];
+        if out.motion.gated {
+            // invalid on purpose: counted by speed, not scored
+            band.gated += 1;
+            return Ok(());
+        }
+        band.frames += 1;
         let w = out.cam.width as usize;
         let cam_from_rect = out.rect.rect_from_left.transpose();
-        let origin = Point3::from(true_pose.t);
+        let band_rot = &out.motion.band_rot[0];
+        let rows = (!band_rot.is_empty()).then_some(RowRotations { nodes: band_rot, rows: self.camera.height });
         self.err.pixels += (out.depth.depth.len() / self.stride) as u64;
         for j in (0..out.depth.n_points).step_by(self.stride) {
             let i = out.depth.pixel[j] as usize;
             let (u, v) = ((i % w) as f64, (i / w) as f64);
-            let ray = cam_from_rect * Vector3::new((u - out.cam.cx) / out.cam.f, (v - out.cam.cy) / out.cam.f, 1.0);
-            let Some(raw) = self.camera.project(&ray) else { continue };
+            // the raw pixel the pipeline took this point from, and where that pixel really looked
+            let Some(raw) = source_pixel(&self.camera, out.cam, &cam_from_rect, rows.as_ref(), u, v) else { continue };
             let Some(dir) = self.camera.unproject(&Vector2::new(raw.x, raw.y)) else { continue };
+            let true_pose = pose_at_row(&frame_pose, &row_nodes, raw.y, self.camera.height);
+            let origin = Point3::from(true_pose.t);
             let Some(hit) = self.scene.cast(&origin, &(true_pose.r * dir)) else { continue };
             let p = out.depth.points[j];
             let est = Vector3::new(p.x as f64, p.y as f64, p.z as f64);
@@ -127,6 +243,9 @@ impl Sink for TruthSink {
             self.err.abs_rel_sum += abs_rel;
             self.err.sq_sum += sq;
             self.err.points += 1;
+            band.abs_rel_sum += abs_rel;
+            band.points += 1;
+            band.dist_mm.push((sq.sqrt() * 1e3) as f32);
             if let Some(conf) = out.confidence {
                 let e = &mut self.by_confidence.get_or_insert_with(Default::default)
                     [if conf[i] > HIGH_CONFIDENCE { 0 } else { 1 }];
@@ -156,5 +275,23 @@ impl Sink for TruthSink {
             );
         }
         stats.extra.insert("truth_frames_unscored".into(), serde_json::json!(self.unscored));
+        let num =
+            |x: f64| if x.is_finite() { serde_json::json!((x * 1e6).round() / 1e6) } else { serde_json::Value::Null };
+        let bands: Vec<serde_json::Value> = self
+            .by_speed
+            .iter_mut()
+            .enumerate()
+            .map(|(i, b)| {
+                let hi = SPEED_BANDS_DEG_S.get(i + 1).map_or(serde_json::Value::Null, |h| serde_json::json!(h));
+                serde_json::json!({
+                    "deg_s": [SPEED_BANDS_DEG_S[i], hi],
+                    "frames": b.frames,
+                    "gated": b.gated,
+                    "abs_rel": num(b.abs_rel()),
+                    "point_mm_p50": num(b.point_mm_p50()),
+                })
+            })
+            .collect();
+        stats.extra.insert("depth_error_by_speed".into(), serde_json::Value::Array(bands));
     }
 }

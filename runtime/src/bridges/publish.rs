@@ -69,6 +69,9 @@ impl Sink for PublishSink {
         h.height = out.cam.height;
         h.baseline_m = out.rect.baseline_m;
         h.valid = out.depth.n_points as u32;
+        if out.motion.gated {
+            h.flags |= crate::bridges::iceoryx::FLAG_MOTION_GATED;
+        }
         let depth = &out.depth.depth;
         self.depth.publish_depth(&h, |s| s.extend_from_slice(depth)).map_err(err)?;
         if let Some(p) = &mut self.confidence {

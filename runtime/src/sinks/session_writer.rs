@@ -149,6 +149,8 @@ impl SessionWriter {
             height: 0,
             fps,
             loop_period_ns: None,
+            readout_ms: 0.0,
+            exposure_ms: None,
             stereo: "calib/stereo.yaml".into(),
             fk,
             gravity: [0.0, 1.0, 0.0],
@@ -164,6 +166,14 @@ impl SessionWriter {
             frames_written: 0,
             encoder_rows: 0,
         })
+    }
+
+    /// The cameras' rolling-shutter readout (ms) and nominal exposure, recorded in session.toml so a replay
+    /// corrects each row as the live run did.
+    pub fn with_timing(mut self, readout_ms: f64, exposure_ms: Option<f64>) -> SessionWriter {
+        self.meta.readout_ms = readout_ms;
+        self.meta.exposure_ms = exposure_ms;
+        self
     }
 
     /// Refuses a directory that exists and is not empty.

@@ -27,6 +27,8 @@ pub struct LiveSource {
     pub ended: Option<String>,
     /// Pairs of another size than the pipeline's (dropped).
     pub wrong_size: u64,
+    /// The sensors' rolling-shutter readout (ns): every pair carries it to the per-row correction.
+    readout_ns: i64,
 }
 
 impl LiveSource {
@@ -40,9 +42,17 @@ impl LiveSource {
             current: None,
             emitted: 0,
             pair_timeout: Duration::from_secs(2),
+            readout_ns: 0,
             ended: None,
             wrong_size: 0,
         }
+    }
+
+    /// The cameras' rolling-shutter readout (ns, `CaptureConfig::readout_ns`; frames' `t_start_ns` must be
+    /// their first row's, `RowReference::FirstRow`): the runtime corrects each row with the eye's pose then.
+    pub fn with_readout_ns(mut self, readout_ns: i64) -> LiveSource {
+        self.readout_ns = readout_ns.max(0);
+        self
     }
 }
 
@@ -94,6 +104,7 @@ impl PairSource for LiveSource {
             t_start_ns: p.left.t_start_ns,
             right_t_start_ns: p.right.t_start_ns,
             exposure_ns: p.left.exposure_ns,
+            readout_ns: self.readout_ns,
             left: &p.left.gray,
             right: &p.right.gray,
         })

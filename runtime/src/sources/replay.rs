@@ -100,6 +100,8 @@ type BadFrames = Arc<Mutex<Vec<(PathBuf, String)>>>;
 pub struct ReplaySource {
     dir: PathBuf,
     meta: SessionMeta,
+    /// Rolling-shutter readout of the frames (ns): session.toml's, or the run's override.
+    readout_ns: i64,
     /// The rows of frames.csv, in order (shared with the decoder).
     rows: Arc<[FrameRecord]>,
     bad: BadFrames,
@@ -265,6 +267,7 @@ impl ReplaySource {
         let seq_span = last.seq - first.seq + 1;
         Ok(ReplaySource {
             dir: session.dir,
+            readout_ns: (session.meta.readout_ms * 1e6).round() as i64,
             meta: session.meta,
             rows,
             bad: Arc::default(),
@@ -287,6 +290,16 @@ impl ReplaySource {
     /// The session's metadata (session.toml).
     pub fn meta(&self) -> &SessionMeta {
         &self.meta
+    }
+
+    /// Overrides session.toml's rolling-shutter readout (ns), e.g. to replay with wrong timing on purpose.
+    pub fn set_readout_ns(&mut self, readout_ns: i64) {
+        self.readout_ns = readout_ns.max(0);
+    }
+
+    /// The readout the frames are handed out with (ns).
+    pub fn readout_ns(&self) -> i64 {
+        self.readout_ns
     }
 
     /// The session's directory.
@@ -414,6 +427,7 @@ impl ReplaySource {
                         t_start_ns: s.t_start_ns + shift,
                         right_t_start_ns: s.t_start_ns + shift,
                         exposure_ns: s.exposure_ns,
+                        readout_ns: self.readout_ns,
                         left: &p.left,
                         right: &p.right,
                     });

@@ -13,6 +13,7 @@ use crate::messages::Work;
 use crate::sources::EncoderFeed;
 use crate::stage::{Stage, StageContext};
 use crate::stats::RunStats;
+use crate::tasks::motion::{node_time_ns, MotionConfig, SPEED_DT_S};
 use abvs_eye::UnitModel;
 use std::collections::VecDeque;
 
@@ -127,11 +128,13 @@ impl EncoderTrack {
     }
 }
 
-/// The time-alignment stage: both eyes' link angles at their frames' mid-exposure ([`Work::theta`]), from
-/// the source's encoder feed.
+/// The time-alignment stage: both eyes' link angles at their frames' instants ([`Work::theta`]), either
+/// side of it for the eyes' speed, and at the row-band nodes of the per-row correction ([`Work::motion`]),
+/// from the source's encoder feed.
 pub struct AlignStage {
     tracks: [EncoderTrack; 2],
     encoders: Option<Box<dyn EncoderFeed>>,
+    motion: MotionConfig,
 }
 
 impl AlignStage {
@@ -140,7 +143,16 @@ impl AlignStage {
         let mut tracks = [EncoderTrack::new(2000), EncoderTrack::new(2000)];
         tracks[0].latency_s = latency_s[0];
         tracks[1].latency_s = latency_s[1];
-        AlignStage { tracks, encoders: None }
+        AlignStage { tracks, encoders: None, motion: MotionConfig::default() }
+    }
+
+    /// Per-row correction and the encoder offset override of `motion`.
+    pub fn with_motion(mut self, motion: MotionConfig) -> Self {
+        if let Some(t) = motion.time_offset_s {
+            self.tracks.iter_mut().for_each(|tr| tr.latency_s = t);
+        }
+        self.motion = motion;
+        self
     }
 
     pub fn tracks(&self) -> &[EncoderTrack; 2] {
@@ -163,13 +175,26 @@ impl Stage for AlignStage {
 
     fn process(&mut self, w: &mut Work) -> Result<()> {
         let tracks = &mut self.tracks;
+        let m = &mut w.motion;
         if let Some(encoders) = self.encoders.as_mut() {
-            // encoders up to a little past the frame (interpolation needs the samples after it)
-            let latest = w.t_frame_ns.max(w.t_right_ns) + 20_000_000;
+            // encoders up to a little past the frame's last row (interpolation needs the samples after it)
+            let latest = w.t_frame_ns.max(w.t_right_ns) + m.readout_ns / 2 + 20_000_000;
             encoders.feed(latest + (tracks[0].latency_s.max(tracks[1].latency_s) * 1e9) as i64, tracks);
         }
-        w.theta[0] = tracks[0].at_camera_time(w.t_frame_ns as f64 * 1e-9)?;
-        w.theta[1] = tracks[1].at_camera_time(w.t_right_ns as f64 * 1e-9)?;
+        let bands = self.motion.bands_for(m.readout_ns);
+        for (eye, t_ns) in [w.t_frame_ns, w.t_right_ns].into_iter().enumerate() {
+            let track = &tracks[eye];
+            let t = t_ns as f64 * 1e-9;
+            w.theta[eye] = track.at_camera_time(t)?;
+            m.theta_pm[eye] = [track.at_camera_time(t - SPEED_DT_S)?, track.at_camera_time(t + SPEED_DT_S)?];
+            let nodes = &mut m.band_theta[eye];
+            nodes.clear();
+            if bands > 0 {
+                for b in 0..=bands {
+                    nodes.push(track.at_camera_time(node_time_ns(t_ns, m.readout_ns, b, bands) as f64 * 1e-9)?);
+                }
+            }
+        }
         Ok(())
     }
 

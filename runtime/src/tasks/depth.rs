@@ -82,11 +82,13 @@ impl DepthFrame {
 pub struct DepthStage {
     pub cfg: DepthConfig,
     cam: Option<RectifiedCamera>,
+    /// Frames published invalid by the motion gate.
+    gated: u64,
 }
 
 impl DepthStage {
     pub fn new(cfg: DepthConfig) -> Self {
-        DepthStage { cfg, cam: None }
+        DepthStage { cfg, cam: None, gated: 0 }
     }
 }
 
@@ -102,16 +104,27 @@ impl Stage for DepthStage {
 
     fn process(&mut self, w: &mut Work) -> Result<()> {
         let cam = self.cam.as_ref().ok_or_else(|| RuntimeError::Invalid("depth: not started".into()))?;
-        let Work { disparity, rectified, pose, depth, .. } = w;
+        let Work { disparity, rectified, pose, depth, motion, .. } = w;
         let (Some(pose), Some(rect)) = (pose.as_ref(), rectified.rect.as_ref()) else {
             return Err(RuntimeError::Invalid("depth: a frame without pose or rectification".into()));
         };
         if depth.depth.len() != disparity.len() {
             return Err(RuntimeError::Invalid("depth: no depth buffer (the stage runs on the output lane)".into()));
         }
+        if motion.gated {
+            // too blurred to match: published, but never as valid depth (NaN, empty cloud, flagged)
+            depth.depth.fill(f32::NAN);
+            depth.n_points = 0;
+            self.gated += 1;
+            return Ok(());
+        }
         let valid = &rectified.valid;
         depth.compute(disparity, |i| valid[i] != 0, &rectified.left, cam, rect, &pose.rel_left, &self.cfg);
         Ok(())
+    }
+
+    fn finish(&mut self, stats: &mut crate::stats::RunStats) {
+        stats.frames_motion_gated += self.gated;
     }
 
     fn failure(&self, _e: &RuntimeError) -> &'static str {

@@ -423,6 +423,12 @@ impl Stage for DisparityStage {
     }
 
     fn process(&mut self, w: &mut Work) -> Result<()> {
+        if w.motion.gated {
+            // the motion gate: too blurred to match, so not matched (saves the engine's time during saccades)
+            w.disparity.fill(f32::NAN);
+            w.confidence.fill(0.0);
+            return Ok(());
+        }
         let Work { rectified, disparity, .. } = w;
         self.engine.compute(&rectified.left, &rectified.right, disparity)?;
         if let Some(c) = &mut self.check {

@@ -6,15 +6,16 @@
 //! (conventions.md): T_l^r = T_rel,r^-1 . T_lH^rH . T_rel,l. Runtime poses are in metres.
 use std::path::Path;
 
-use abvs_eye::unit::{UnitFk, UnitStream};
+use abvs_eye::unit::{Conditions, UnitFk, UnitStream};
 use abvs_eye::{Pose, UnitModel};
-use abvs_fk::model::{FkModel, FkState};
+use abvs_fk::model::{FkModel, FkState, Frozen};
 use nalgebra::{Matrix3, Vector3};
 
 use crate::error::{Result, RuntimeError};
 pub use crate::messages::StereoPose;
-use crate::messages::Work;
-use crate::stage::Stage;
+use crate::messages::{FrameMotion, RectifiedCamera, Work};
+use crate::stage::{Stage, StageContext};
+use crate::tasks::motion::{angle_deg, MotionConfig, SPEED_DT_S};
 
 /// One eye's FK evaluator with its stream state (motion history for backlash, warm start).
 pub enum EyeFk {
@@ -72,6 +73,50 @@ impl EyeFk {
     }
 }
 
+/// An eye's FK with the motion history frozen at its last reading: poses at readings a few milliseconds
+/// around it (the rows of a rolling-shutter frame, the speed's central difference) without advancing the
+/// stream, so the frame's own pose and the next frame's are what they would be without them.
+pub enum FrozenFk<'a> {
+    Calibrated { model: &'a FkModel, frozen: Frozen },
+    Unit { fk: &'a UnitFk, cond: Conditions, warm: Matrix3<f64> },
+}
+
+impl FrozenFk<'_> {
+    /// Camera pose relative to home (metres) at readings `theta_deg` (deg, homed).
+    pub fn pose(&mut self, theta_deg: &[f64; 3]) -> Result<Pose> {
+        let inv = |e: &dyn std::fmt::Display| RuntimeError::Invalid(e.to_string());
+        let p = match self {
+            FrozenFk::Calibrated { model, frozen } => {
+                Pose::from_p6(&model.eval_frozen(frozen, theta_deg).map_err(|e| inv(&e))?)
+            }
+            FrozenFk::Unit { fk, cond, warm } => {
+                let (p, r) = fk.pose_unchecked(theta_deg, cond, Some(warm)).map_err(|e| inv(&e))?;
+                *warm = r;
+                p
+            }
+        };
+        Ok(Pose::new(p.r, p.t * 1e-3))
+    }
+}
+
+impl EyeFk {
+    /// The FK frozen at the stream's state for the reading `theta_deg` (the frame's own, already
+    /// evaluated with [`EyeFk::pose`]).
+    pub fn frozen(&self, theta_deg: &[f64; 3], gravity: [f64; 3]) -> Result<FrozenFk<'_>> {
+        let inv = |e: &dyn std::fmt::Display| RuntimeError::Invalid(e.to_string());
+        Ok(match self {
+            EyeFk::Calibrated { model, state } => FrozenFk::Calibrated {
+                model,
+                frozen: model.freeze(state, theta_deg, gravity, None).map_err(|e| inv(&e))?,
+            },
+            EyeFk::Unit { fk, state } => {
+                let (cond, warm) = fk.peek(state, theta_deg, gravity, None).map_err(|e| inv(&e))?;
+                FrozenFk::Unit { fk, cond, warm }
+            }
+        })
+    }
+}
+
 /// The moving extrinsic T_l^r = T_rel,r^-1 . T_lH^rH . T_rel,l.
 pub fn moving_extrinsic(rel_left: &Pose, rel_right: &Pose, home_left_to_right: &Pose) -> Pose {
     rel_right.inverse().compose(home_left_to_right).compose(rel_left)
@@ -109,14 +154,41 @@ impl StereoKinematics {
 }
 
 /// The kinematics stage: both eyes' poses and the moving extrinsic ([`Work::pose`]) from the aligned link
-/// angles.
+/// angles; the eyes' speeds, the per-row rotations and the motion gate ([`Work::motion`]).
 pub struct KinematicsStage {
     pub kin: StereoKinematics,
+    pub motion: MotionConfig,
+    /// Rectified focal length (px): blur in the pixels the disparity engine sees.
+    f_out: f64,
 }
 
 impl KinematicsStage {
     pub fn new(kin: StereoKinematics) -> Self {
-        KinematicsStage { kin }
+        KinematicsStage { kin, motion: MotionConfig::default(), f_out: 0.0 }
+    }
+
+    pub fn with_motion(mut self, motion: MotionConfig) -> Self {
+        self.motion = motion;
+        self
+    }
+
+    /// Speeds, per-row rotations and the gate of one frame (its poses at the frame instant solved).
+    fn frame_motion(&mut self, theta: &[[f64; 3]; 2], rel: [&Pose; 2], m: &mut FrameMotion) -> Result<()> {
+        let g = self.kin.gravity;
+        for (eye, fk) in [&self.kin.left, &self.kin.right].into_iter().enumerate() {
+            let mut frozen = fk.frozen(&theta[eye], g)?;
+            let [before, after] = m.theta_pm[eye];
+            let (a, b) = (frozen.pose(&before)?, frozen.pose(&after)?);
+            m.speed_deg_s[eye] = angle_deg(&a.r, &b.r) / (2.0 * SPEED_DT_S);
+            m.band_rot[eye].clear();
+            for th in &m.band_theta[eye] {
+                let row = frozen.pose(th)?;
+                m.band_rot[eye].push(row.r.transpose() * rel[eye].r);
+            }
+        }
+        m.blur_px = m.max_speed_deg_s().to_radians() * m.exposure_ns as f64 * 1e-9 * self.f_out;
+        m.gated = m.blur_px > self.motion.gate_blur_px;
+        Ok(())
     }
 
     /// Each eye's encoder latency (s) from its unit model (0 for an FK without one): what time alignment
@@ -132,9 +204,16 @@ impl Stage for KinematicsStage {
         "kinematics"
     }
 
-    fn process(&mut self, w: &mut Work) -> Result<()> {
-        w.pose = Some(self.kin.solve(&w.theta[0], &w.theta[1])?);
+    fn start(&mut self, ctx: &mut StageContext) -> Result<()> {
+        let out: RectifiedCamera = ctx.out;
+        self.f_out = out.f;
         Ok(())
+    }
+
+    fn process(&mut self, w: &mut Work) -> Result<()> {
+        let pose = self.kin.solve(&w.theta[0], &w.theta[1])?;
+        w.pose = Some(pose);
+        self.frame_motion(&w.theta, [&pose.rel_left, &pose.rel_right], &mut w.motion)
     }
 
     fn failure(&self, e: &RuntimeError) -> &'static str {

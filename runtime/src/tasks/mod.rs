@@ -9,4 +9,5 @@ pub mod depth;
 pub mod disparity;
 pub mod disparity_fused;
 pub mod kinematics;
+pub mod motion;
 pub mod rectify;

@@ -17,6 +17,7 @@ use opencv::prelude::*;
 use crate::error::{Result, RuntimeError};
 use crate::messages::Work;
 use crate::stage::{Stage, StageContext};
+use crate::tasks::motion::RowRotations;
 
 pub use crate::messages::{Rectification, RectifiedCamera};
 
@@ -41,6 +42,28 @@ pub fn rectify(left_to_right: &Pose) -> Result<Rectification> {
     let e3 = e1.cross(&e2);
     let rect_from_left = Matrix3::from_rows(&[e1.transpose(), e2.transpose(), e3.transpose()]);
     Ok(Rectification { rect_from_left, rect_from_right: rect_from_left * r.transpose(), baseline_m })
+}
+
+/// Source pixel in the raw image of rectified pixel (u, v) through `cam_from_rect`, exactly; with `rows`,
+/// through the rotation of the raw row the pixel lands on (rolling shutter, [`crate::tasks::motion`]).
+pub fn source_pixel(
+    cam: &Camera,
+    out: &RectifiedCamera,
+    cam_from_rect: &Matrix3<f64>,
+    rows: Option<&RowRotations>,
+    u: f64,
+    v: f64,
+) -> Option<Vector2<f64>> {
+    let ray = cam_from_rect * Vector3::new((u - out.cx) / out.f, (v - out.cy) / out.f, 1.0);
+    let mut p = cam.project(&ray)?;
+    if let Some(rows) = rows {
+        // The row depends on the rotation only weakly (a pursuit moves the image a few pixels over the
+        // ~480 rows of a readout): two fixed-point steps leave < 1e-3 px.
+        for _ in 0..2 {
+            p = cam.project(&(rows.at_row(p.y) * ray))?;
+        }
+    }
+    Some(p)
 }
 
 /// Per-eye remap tables, allocated once and rebuilt in place every frame.
@@ -76,22 +99,27 @@ impl RectifyMaps {
         })
     }
 
-    /// Source pixel in the raw image of output pixel (u, v) through `rect_from_cam`, exactly.
     fn exact(
         cam: &Camera,
         out: &RectifiedCamera,
         cam_from_rect: &Matrix3<f64>,
+        rows: Option<&RowRotations>,
         u: f64,
         v: f64,
     ) -> Option<Vector2<f64>> {
-        let ray = cam_from_rect * Vector3::new((u - out.cx) / out.f, (v - out.cy) / out.f, 1.0);
-        cam.project(&ray)
+        source_pixel(cam, out, cam_from_rect, rows, u, v)
     }
 
     /// Rebuilds the map of one eye for the rotation `rect_from_cam`: exact lens projection at the grid nodes,
     /// separable Catmull-Rom interpolation in between (bilinear would err by ~0.2 px at 8 px spacing on a
     /// 118 deg fisheye; the cubic stays under 0.01 px).
     pub fn build(&mut self, cam: &Camera, rect_from_cam: &Matrix3<f64>) {
+        self.build_rows(cam, rect_from_cam, None)
+    }
+
+    /// As [`RectifyMaps::build`], each raw row seen through its own rotation (`rows`: the camera when that
+    /// row exposed, from the virtual camera `rect_from_cam` refers to); `None` is a global shutter.
+    pub fn build_rows(&mut self, cam: &Camera, rect_from_cam: &Matrix3<f64>, rows: Option<&RowRotations>) {
         let cam_from_rect = rect_from_cam.transpose();
         let out = self.out;
         let step = self.grid_step as usize;
@@ -101,7 +129,7 @@ impl RectifyMaps {
             let v = (j as f64 - 1.0) * step as f64;
             for i in 0..self.nodes_w {
                 let u = (i as f64 - 1.0) * step as f64;
-                self.nodes[j * self.nodes_w + i] = match Self::exact(cam, &out, &cam_from_rect, u, v) {
+                self.nodes[j * self.nodes_w + i] = match Self::exact(cam, &out, &cam_from_rect, rows, u, v) {
                     Some(p) => [p.x as f32, p.y as f32],
                     None => [f32::NAN; 2],
                 };
@@ -153,6 +181,16 @@ impl RectifyMaps {
     /// Largest distance (px, in the raw image) between the interpolated map and the exact one, over all
     /// output pixels whose exact source is inside the raw image.
     pub fn map_error_vs_exact(&self, cam: &Camera, rect_from_cam: &Matrix3<f64>) -> f64 {
+        self.map_error_vs_exact_rows(cam, rect_from_cam, None)
+    }
+
+    /// [`RectifyMaps::map_error_vs_exact`] for a map built with per-row rotations.
+    pub fn map_error_vs_exact_rows(
+        &self,
+        cam: &Camera,
+        rect_from_cam: &Matrix3<f64>,
+        rows: Option<&RowRotations>,
+    ) -> f64 {
         let cam_from_rect = rect_from_cam.transpose();
         let mx = self.map_x.data_typed::<f32>().expect("map");
         let my = self.map_y.data_typed::<f32>().expect("map");
@@ -163,7 +201,7 @@ impl RectifyMaps {
                 if mx[y * w + x] < 0.0 {
                     continue;
                 }
-                if let Some(p) = Self::exact(cam, &self.out, &cam_from_rect, x as f64, y as f64) {
+                if let Some(p) = Self::exact(cam, &self.out, &cam_from_rect, rows, x as f64, y as f64) {
                     worst = worst.max((p - Vector2::new(mx[y * w + x] as f64, my[y * w + x] as f64)).norm());
                 }
             }
@@ -236,9 +274,14 @@ impl StereoRectifier {
 
     /// Rectifying rotations for the extrinsic of this frame, and both maps rebuilt for them.
     pub fn update(&mut self, left_to_right: &Pose) -> Result<Rectification> {
+        self.update_rows(left_to_right, [None, None])
+    }
+
+    /// As [`StereoRectifier::update`], each eye's rows through their own rotations (rolling shutter).
+    pub fn update_rows(&mut self, left_to_right: &Pose, rows: [Option<RowRotations>; 2]) -> Result<Rectification> {
         let rect = rectify(left_to_right)?;
-        self.left.build(&self.cam_left, &rect.rect_from_left);
-        self.right.build(&self.cam_right, &rect.rect_from_right);
+        self.left.build_rows(&self.cam_left, &rect.rect_from_left, rows[0].as_ref());
+        self.right.build_rows(&self.cam_right, &rect.rect_from_right, rows[1].as_ref());
         Ok(rect)
     }
 }
@@ -291,7 +334,12 @@ impl Stage for RectifyStage {
     fn process(&mut self, w: &mut Work) -> Result<()> {
         let rectifier = self.rectifier.as_mut().ok_or_else(|| RuntimeError::Invalid("rectify: not started".into()))?;
         let pose = w.pose.as_ref().ok_or_else(|| RuntimeError::Invalid("rectify: a frame without pose".into()))?;
-        let rect = rectifier.update(&pose.left_to_right)?;
+        let raw_h = rectifier.cam_left.height;
+        let rows = |eye: usize| {
+            let nodes = &w.motion.band_rot[eye];
+            (!nodes.is_empty()).then_some(RowRotations { nodes, rows: raw_h })
+        };
+        let rect = rectifier.update_rows(&pose.left_to_right, [rows(0), rows(1)])?;
         let (rw, rh) = (rectifier.cam_left.width, rectifier.cam_left.height);
         let out = &mut w.rectified;
         rectifier.left.remap(&w.raw_left, rw, rh, &mut out.left)?;

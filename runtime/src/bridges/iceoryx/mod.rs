@@ -96,6 +96,11 @@ pub type Ipc = ipc_threadsafe::Service;
 /// The `frame_id` of every sample: points are in the left eye's home camera frame (OpenCV axes, metres).
 pub const FRAME_ID: &str = "left_home_camera";
 
+/// [`FrameHeader::flags`] bit: the eyes moved too fast during this frame's exposure (a saccade): its depth
+/// is all NaN and its cloud empty on purpose, not because the scene has no valid depth. A frame that never
+/// arrives was lost instead: its `seq` is missing.
+pub const FLAG_MOTION_GATED: u32 = 1;
+
 /// User header of both services: what the sample is, when it was seen and sent, and the geometry it was
 /// computed with. iceoryx2 matches types by name, size and alignment: the name `abvs::FrameHeader/1` (and
 /// `abvs::CloudPoint/1`) must change with the layout, so an old subscriber is refused instead of misreading.
@@ -125,7 +130,7 @@ pub struct FrameHeader {
     pub baseline_m: f64,
     /// Number of valid depth pixels / points (for a cloud: set by the publisher to the points written).
     pub valid: u32,
-    /// Reserved for flags, 0 so far.
+    /// Bit flags: [`FLAG_MOTION_GATED`]; the other bits are 0.
     pub flags: u32,
 }
 
