@@ -5,7 +5,7 @@ use crate::error::{CalibError, Result};
 use crate::identify::{fit_unit, static_effects, FitOptions};
 use crate::metrics::evaluate;
 use crate::mlp::{train, Affine, Net, TrainConfig};
-use crate::model::{FkModel, Manifest, ModelParts, PscSplit};
+use crate::model::{FkModel, Manifest, ModelParts, PscSplit, TrainingInfo};
 use crate::mpe::Target;
 use abvs_eye::dataset::Dataset;
 use abvs_eye::psc::percentile;
@@ -130,6 +130,7 @@ fn finish(mut m: Manifest, train_data: &Dataset, val: &Dataset, cfg: &FitConfig,
     m.training.val_samples = val.len();
     m.training.seed = cfg.seed;
     m.training.seconds = t0.elapsed().as_secs_f64();
+    m.training.range_deg = TrainingInfo::range_of(train_data);
     m
 }
 
@@ -246,6 +247,17 @@ fn physics(
             nets.push(("residual".to_string(), net));
         }
     }
+    // validation metrics of what is saved (the unit, plus the residual network when kept), as for every method
+    let mut pred = unit.compile()?.predict_dataset(&va)?;
+    let (xv, yv) = xy(&va);
+    if let Some((_, net)) = nets.first() {
+        for (p, r) in pred.iter_mut().zip(net.eval_batch(&xv)) {
+            for k in 0..6 {
+                p[k] += r[k];
+            }
+        }
+    }
+    m.validation = Some(serde_json::to_value(evaluate(&pred, &yv, &Target::paper())).expect("json"));
     let parts = ModelParts { manifest: finish(m, data, &va, cfg, t0), nets, unit: Some(unit) };
     Ok(parts)
 }
@@ -397,13 +409,21 @@ fn m4f(
             }
         }
     }
-    let (mse, split, ni, no, epochs) =
+    let (_, split, ni, no, epochs) =
         best.ok_or_else(|| CalibError::Data("m4f: too few samples on one side of every PSC split".into()))?;
+    // the full validation metrics of the chosen split, as every method records them
+    let pred: Vec<[f64; 6]> = va
+        .samples
+        .iter()
+        .zip(&s_va)
+        .map(|(s, &sv)| if sv <= split.s_init { ni.eval(&s.theta_deg) } else { no.eval(&s.theta_deg) })
+        .collect();
+    let validation = serde_json::to_value(evaluate(&pred, &xy(va).1, &Target::paper())).expect("json");
     let mut m = Manifest::new(Method::M4f);
     m.psc = Some(split);
     m.training.epochs = epochs;
     m.training.base = base_id;
-    m.validation = Some(serde_json::json!({"mse_total": mse}));
+    m.validation = Some(validation);
     Ok(ModelParts {
         manifest: finish(m, tr, va, cfg, t0),
         nets: vec![("internal".into(), ni), ("external".into(), no)],

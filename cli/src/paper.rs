@@ -16,7 +16,7 @@ pub struct PaperArgs {
     #[arg(long)]
     quick: bool,
     /// Maximum training epochs (default: 1000, or 100 with --quick).
-    #[arg(long)]
+    #[arg(long, value_parser = crate::args::count(1usize, 1_000_000))]
     max_epochs: Option<usize>,
     /// Keep every trained model under OUT/models/ (removed by default).
     #[arg(long)]

@@ -166,6 +166,9 @@ pub struct RunStats {
     pub frames_dropped: u64,
     /// Frames a stage refused (bad frame file, encoders out of span, FK failure...), by reason.
     pub frames_failed: BTreeMap<String, u64>,
+    /// Frames a sink failed to take (a full disk under --dump, ...), by sink: that sink's failure,
+    /// not the frame's; the frame still counts as published to the others.
+    pub sink_failures: BTreeMap<String, u64>,
     pub stages: Vec<(&'static str, Latency)>,
     pub end_to_end: Latency,
     pub depth_error: Option<DepthError>,
@@ -186,6 +189,7 @@ impl RunStats {
             frames_published: 0,
             frames_dropped: 0,
             frames_failed: BTreeMap::new(),
+            sink_failures: BTreeMap::new(),
             stages: stage_names.iter().map(|n| (*n, Latency::default())).collect(),
             end_to_end: Latency::default(),
             depth_error: None,
@@ -226,6 +230,7 @@ impl RunStats {
             "frames_published": self.frames_published,
             "frames_dropped": self.frames_dropped,
             "frames_failed": self.frames_failed,
+            "sink_failures": self.sink_failures,
             "fps": if elapsed_s > 0.0 { self.frames_published as f64 / elapsed_s } else { 0.0 },
             "elapsed_s": elapsed_s,
             "latency_ms": self.end_to_end.json(),
@@ -287,6 +292,9 @@ impl RunStats {
         );
         for (reason, n) in &self.frames_failed {
             s += &format!("  failed: {reason}: {n}\n");
+        }
+        for (sink, n) in &self.sink_failures {
+            s += &format!("  sink {sink} failed on {n} frames\n");
         }
         s += &format!("{:<22} {:>9} {:>9} {:>9} {:>7}\n", "stage (ms)", "p50", "p99", "max", "count");
         for (n, l) in self.stages.iter().map(|(n, l)| (*n, l)).chain(std::iter::once(("end to end", &self.end_to_end)))
