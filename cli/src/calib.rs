@@ -267,12 +267,12 @@ pub fn run(cmd: CalibCmd) -> anyhow::Result<ExitCode> {
             report(&parts, &c)
         }
         CalibCmd::Eval(a) => {
-            let model = FkModel::load(&a.model)?;
             let data = Dataset::read(&a.data)?;
             if data.is_empty() {
                 // nothing scored is not a perfect score
-                bail!("{}: no samples to evaluate (a header without rows)", a.data.display());
+                bail!("--data {}: no samples to evaluate (a header without rows)", a.data.display());
             }
+            let model = FkModel::load(&a.model)?;
             let pred = model.predict_dataset(&data)?;
             let meas: Vec<[f64; 6]> = data.samples.iter().map(|s| s.pose).collect();
             let r = evaluate(&pred, &meas, &Target::paper());

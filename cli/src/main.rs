@@ -82,6 +82,7 @@ fn check(cmd: &Cmd) -> anyhow::Result<()> {
         Cmd::Demo(a) => a.check(),
         Cmd::Calib(c) => c.check(),
         Cmd::Run(a) => a.check(),
+        Cmd::Record(a) => a.check(),
         _ => Ok(()),
     }
 }
@@ -92,7 +93,7 @@ fn main() -> ExitCode {
     let matches = Cli::command().get_matches();
     let cli = Cli::from_arg_matches(&matches).unwrap_or_else(|e| e.exit());
     if let Err(e) = check(&cli.cmd) {
-        eprintln!("error: {e:#}");
+        eprintln!("error: {}", message(&e));
         return ExitCode::FAILURE;
     }
     if cli.validate_only {
@@ -128,10 +129,27 @@ fn main() -> ExitCode {
     match r {
         Ok(code) => code,
         Err(e) => {
-            eprintln!("error: {e:#}");
+            eprintln!("error: {}", message(&e));
             ExitCode::FAILURE
         }
     }
+}
+
+/// The error and its causes on one line, each said once: typed errors print their OS error in
+/// their own message and also return it as their source.
+fn message(e: &anyhow::Error) -> String {
+    let mut out = String::new();
+    for c in e.chain() {
+        let s = c.to_string();
+        if out.contains(&s) {
+            continue;
+        }
+        if !out.is_empty() {
+            out += ": ";
+        }
+        out += &s;
+    }
+    out
 }
 
 /// The kind of value an argument's parser yields, as the door-knocking test feeds it.
@@ -207,7 +225,7 @@ fn cli_tree(root: &clap::Command) -> serde_json::Value {
             .map(|g| {
                 serde_json::json!({
                     "required": g.is_required_set(),
-                    "multiple": g.is_multiple(),
+                    "multiple": g.clone().is_multiple(),
                     "args": g.get_args().map(|i| i.as_str()).collect::<Vec<_>>(),
                 })
             })
@@ -248,13 +266,9 @@ pub fn progress_bar(total: u64, what: &str) -> indicatif::ProgressBar {
     pb
 }
 
-/// Parses "a,b,c" into three numbers.
+/// Parses "a,b,c" into three finite numbers.
 pub fn parse3(s: &str) -> Result<[f64; 3], String> {
-    let v: Vec<f64> = s
-        .split(',')
-        .map(|x| x.trim().parse::<f64>().map_err(|_| format!("'{x}' is not a number")))
-        .collect::<Result<_, _>>()?;
-    v.try_into().map_err(|_| format!("'{s}': expected three comma-separated numbers"))
+    args::vec3(s)
 }
 
 #[cfg(test)]
@@ -283,6 +297,16 @@ mod tests {
         let mut missing = Vec::new();
         walk(&root, "abvs", &mut missing);
         assert!(missing.is_empty(), "flags without a description:\n{}", missing.join("\n"));
+    }
+
+    #[test]
+    fn os_errors_are_said_once() {
+        let io = std::io::Error::from(std::io::ErrorKind::NotFound);
+        let text = io.to_string();
+        let e = anyhow::Error::new(abvs_eye::EyeError::io("/x.csv", io)).context("reading the data");
+        let m = message(&e);
+        assert_eq!(m.matches(&text).count(), 1, "{m}");
+        assert!(m.starts_with("reading the data: /x.csv"), "{m}");
     }
 
     #[test]

@@ -96,6 +96,17 @@ pub struct RecordArgs {
     pub stats_json: Option<PathBuf>,
 }
 
+impl RecordArgs {
+    /// The outputs before the devices are opened and homed.
+    pub fn check(&self) -> anyhow::Result<()> {
+        crate::outputs::check_dir_creatable("--out", &self.out)?;
+        match &self.stats_json {
+            Some(p) => crate::outputs::check_file_writable("--stats-json", p),
+            None => Ok(()),
+        }
+    }
+}
+
 /// Opens the encoder port, then both cameras (in that order: a missing port is the cheaper
 /// mistake), and starts the encoder thread.
 pub fn open_devices(d: &DeviceArgs) -> anyhow::Result<(StereoCapture, EncoderStream)> {

@@ -361,6 +361,7 @@ pub fn run(a: RunArgs, m: &ArgMatches) -> anyhow::Result<ExitCode> {
 
 /// Runs one deployment as its configuration describes it.
 pub fn run_config(c: &RuntimeConfig) -> anyhow::Result<ExitCode> {
+    check_outputs(c)?;
     let input = match c.source.kind {
         SourceKind::Live => Input::Live,
         SourceKind::Session => {
@@ -561,6 +562,26 @@ pub fn run_config(c: &RuntimeConfig) -> anyhow::Result<ExitCode> {
             .with_context(|| format!("writing {}", p.display()))?;
     }
     Ok(ExitCode::SUCCESS)
+}
+
+/// The configuration's output files before the run (a soak must not lose its statistics at the end).
+fn check_outputs(c: &RuntimeConfig) -> anyhow::Result<()> {
+    use crate::outputs::{check_dir_creatable, check_file_writable};
+    let s = &c.sinks;
+    for (field, p) in [
+        ("sinks.stats_json", &s.stats_json),
+        ("sinks.self_check.log", &s.self_check.log),
+        ("sinks.mcap.file", &s.mcap.file),
+        ("sinks.rerun", &s.rerun),
+    ] {
+        if let Some(p) = p {
+            check_file_writable(field, p)?;
+        }
+    }
+    match &s.dump {
+        Some(d) => check_dir_creatable("sinks.dump", d),
+        None => Ok(()),
+    }
 }
 
 /// A flag set by Ctrl-C (SIGINT) or SIGTERM: the run stops taking frames, finishes those in flight and

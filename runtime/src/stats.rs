@@ -146,11 +146,13 @@ pub struct DepthError {
 }
 
 impl DepthError {
+    /// Errors are null when no point was scored: nothing scored is not a perfect score.
     pub fn json(&self) -> Value {
-        let n = self.points.max(1) as f64;
+        let n = self.points as f64;
+        let scored = |v: f64| if self.points > 0 { json!(v) } else { Value::Null };
         json!({
-            "abs_rel": self.abs_rel_sum / n,
-            "rmse_m": (self.sq_sum / n).sqrt(),
+            "abs_rel": scored(self.abs_rel_sum / n),
+            "rmse_m": scored((self.sq_sum / n).sqrt()),
             "valid_fraction": self.points as f64 / self.pixels.max(1) as f64,
             "points": self.points,
         })
@@ -327,7 +329,9 @@ impl RunStats {
                 );
             }
         }
-        if let Some(e) = &self.depth_error {
+        if let Some(e) = self.depth_error.filter(|e| e.points == 0) {
+            s += &format!("depth error vs truth: nothing scored (0 of {} pixels had a valid depth)\n", e.pixels);
+        } else if let Some(e) = &self.depth_error {
             let j = e.json();
             s += &format!(
                 "depth error vs truth: abs_rel {}  rmse {:.4} m  valid {:.3}\n",
