@@ -36,6 +36,26 @@ pub struct FitConfig {
     pub val_fraction: f64,
 }
 
+impl FitConfig {
+    /// Sizes and rates a fit can use (a zero width would panic inside the network code).
+    pub fn check(&self) -> Result<()> {
+        let bad = |what: &str| Err(CalibError::Invalid(format!("fit config: {what}")));
+        if self.hidden == 0 || self.residual_hidden == 0 {
+            return bad("hidden widths must be at least 1");
+        }
+        if self.max_epochs == 0 {
+            return bad("max_epochs must be at least 1");
+        }
+        if !(self.lr.is_finite() && self.lr > 0.0) {
+            return bad("the learning rate must be a positive number");
+        }
+        if !(self.val_fraction > 0.0 && self.val_fraction < 1.0) {
+            return bad("val_fraction must be in (0, 1)");
+        }
+        Ok(())
+    }
+}
+
 impl Default for FitConfig {
     fn default() -> Self {
         FitConfig {
@@ -163,6 +183,11 @@ pub fn fit(
     progress: Progress,
 ) -> Result<ModelParts> {
     check(data, "training data")?;
+    cfg.check()?;
+    if val.is_some_and(|v| v.is_empty()) {
+        // an empty validation set would be recorded as a perfect score
+        return Err(CalibError::Data("validation data: no samples".into()));
+    }
     let t0 = Instant::now();
     match method {
         Method::Mh => physics(method, &UnitModel::nominal(), &[Effect::CameraMount], data, val, cfg, None, progress),
@@ -278,6 +303,11 @@ pub fn finetune(
     progress: Progress,
 ) -> Result<ModelParts> {
     check(data, "fine-tuning data")?;
+    cfg.check()?;
+    if val.is_some_and(|v| v.is_empty()) {
+        // an empty validation set would be recorded as a perfect score
+        return Err(CalibError::Data("validation data: no samples".into()));
+    }
     let t0 = Instant::now();
     let base_id = Some(format!("{} ({})", base.method(), base.manifest.training.data_hash));
     let base_net = || -> Result<Net> {

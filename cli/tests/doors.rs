@@ -157,8 +157,11 @@ fn every_numeric_flag_refuses_bad_values_by_name_without_panic_or_hang() {
         .into_iter()
         .map(|l| {
             let args: Vec<Value> = l["args"].as_array().unwrap().clone();
-            let mut base: Vec<(String, String)> =
-                args.iter().filter(|a| a["required"] == true).map(|a| (str_of(a, "id"), filler(a, tmp.path()))).collect();
+            let mut base: Vec<(String, String)> = args
+                .iter()
+                .filter(|a| a["required"] == true)
+                .map(|a| (str_of(a, "id"), filler(a, tmp.path())))
+                .collect();
             for g in l["groups"].as_array().unwrap() {
                 let m = list(g, "args");
                 if g["required"] == true && !base.iter().any(|(id, _)| m.contains(id)) {
@@ -177,7 +180,11 @@ fn every_numeric_flag_refuses_bad_values_by_name_without_panic_or_hang() {
         let mut base = l.base.clone();
         let o = l.run(&mut base, &[], tmp.path());
         if o.code != Some(0) {
-            failures.push(format!("abvs {}: the plain invocation is refused:\n{}", l.command(&base, &[]).join(" "), o.stderr));
+            failures.push(format!(
+                "abvs {}: the plain invocation is refused:\n{}",
+                l.command(&base, &[]).join(" "),
+                o.stderr
+            ));
         }
         l.base = base;
     }
@@ -198,9 +205,12 @@ fn every_numeric_flag_refuses_bad_values_by_name_without_panic_or_hang() {
             }
         }
     }
-    let flags: BTreeSet<String> =
-        cases.iter().map(|(i, id, _)| format!("{} {}", leaves[*i].path.join(" "), str_of(leaves[*i].arg(id), "name"))).collect();
-    for must in ["kin psc --step-deg", "sim dataset --grid-n", "calib fit --hidden", "echo --timeout-s", "run --frames"] {
+    let flags: BTreeSet<String> = cases
+        .iter()
+        .map(|(i, id, _)| format!("{} {}", leaves[*i].path.join(" "), str_of(leaves[*i].arg(id), "name")))
+        .collect();
+    for must in ["kin psc --step-deg", "sim dataset --grid-n", "calib fit --hidden", "echo --timeout-s", "run --frames"]
+    {
         assert!(flags.contains(must), "{must} not knocked on: {flags:?}");
     }
 

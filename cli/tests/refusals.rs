@@ -63,7 +63,10 @@ fn numeric_arguments_are_refused_where_they_are_parsed() {
     refused(&["sim", "dataset", "--unit", &unit, "--step-deg=1e-9", "--out", &out], &["--step-deg", "poses"]);
     refused(&["sim", "dataset", "--unit", &unit, "--step-deg=-3", "--out", &out], &["--step-deg"]);
     refused(&["sim", "dataset", "--unit", &unit, "--out", &out], &["--step-deg", "--grid-n"]);
-    refused(&["sim", "dataset", "--unit", &unit, "--step-deg", "3", "--gravity", "0,0,0", "--out", &out], &["--gravity"]);
+    refused(
+        &["sim", "dataset", "--unit", &unit, "--step-deg", "3", "--gravity", "0,0,0", "--out", &out],
+        &["--gravity"],
+    );
     refused(&["sim", "dataset", "--unit", &unit, "--step-deg", "3", "--range", "30,0,30", "--out", &out], &["--range"]);
     let m = s(&t.path().join("m"));
     refused(&["calib", "fit", "--method", "m1", "--train", &out, "--out", &m, "--hidden", "0"], &["--hidden"]);
@@ -78,10 +81,10 @@ fn numeric_arguments_are_refused_where_they_are_parsed() {
     let calib = s(&repo().join("fixtures/session/calib"));
     refused(&["gaze", "fixate", "--calib", &calib, "--point", "0,0,1", "--gravity", "0,0,0"], &["--gravity", "unit"]);
     refused(&["gaze", "fixate", "--calib", &calib, "--point", "0,0,1", "--gravity", "0,2,0"], &["--gravity"]);
-    refused(&["gaze", "fixate", "--calib", &calib, "--pixel", "1,1", "--depth", "1", "--left-theta", "0,90,0"], &[
-        "--left-theta",
-        "[-89, 89]",
-    ]);
+    refused(
+        &["gaze", "fixate", "--calib", &calib, "--pixel", "1,1", "--depth", "1", "--left-theta", "0,90,0"],
+        &["--left-theta", "[-89, 89]"],
+    );
 }
 
 #[test]
@@ -104,10 +107,21 @@ fn empty_data_is_an_error_never_a_perfect_score() {
     let empty = t.path().join("empty.csv");
     std::fs::write(&empty, &header).unwrap();
     refused(&["calib", "eval", "--model", &s(&model), "--data", &s(&empty)], &["no samples"]);
-    refused(&["calib", "fit", "--method", "mh", "--train", &s(&data), "--val", &s(&empty), "--out", &s(&t.path().join("v"))], &[
-        "--val",
-        "no samples",
-    ]);
+    refused(
+        &[
+            "calib",
+            "fit",
+            "--method",
+            "mh",
+            "--train",
+            &s(&data),
+            "--val",
+            &s(&empty),
+            "--out",
+            &s(&t.path().join("v")),
+        ],
+        &["--val", "no samples"],
+    );
     let th = t.path().join("th.csv");
     std::fs::write(&th, "theta1_deg,theta2_deg,theta3_deg\n").unwrap();
     refused(&["kin", "fk", "--in", &s(&th), "--out", &s(&t.path().join("p.csv"))], &["no rows"]);
@@ -118,7 +132,8 @@ fn models_are_verified_validated_and_replaced_whole() {
     let t = tempfile::tempdir().unwrap();
     let (data, model) = dataset_and_model(t.path());
     // validation metrics for a physics method, from the --val given
-    let m: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(model.join("manifest.json")).unwrap()).unwrap();
+    let m: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(model.join("manifest.json")).unwrap()).unwrap();
     assert!(m["validation"]["mse_total"].as_f64().is_some(), "{m}");
     assert!(m["training"]["range_deg"].is_array(), "{m}");
     assert!(m["sha256"]["unit.toml"].is_string(), "{m}");
@@ -165,14 +180,13 @@ fn ik_targets_outside_the_calibrated_workspace_and_bad_gravity_rows_are_refused(
     let t = tempfile::tempdir().unwrap();
     let (_, model) = dataset_and_model(t.path());
     let targets = t.path().join("t.csv");
-    std::fs::write(&targets, "alpha_deg,beta_deg,gamma_deg,gx,gy,gz\n5,2,-5,0,1,0\n45,0,0,0,1,0\n0,0,0,0,0,0\n").unwrap();
+    std::fs::write(&targets, "alpha_deg,beta_deg,gamma_deg,gx,gy,gz\n5,2,-5,0,1,0\n45,0,0,0,1,0\n0,0,0,0,0,0\n")
+        .unwrap();
     let out = t.path().join("o.csv");
-    let e = refused(&["calib", "ik", "--model", &s(&model), "--in", &s(&targets), "--out", &s(&out)], &[
-        "t.csv:3",
-        "outside the calibrated workspace",
-        "t.csv:4",
-        "unit vector",
-    ]);
+    let e = refused(
+        &["calib", "ik", "--model", &s(&model), "--in", &s(&targets), "--out", &s(&out)],
+        &["t.csv:3", "outside the calibrated workspace", "t.csv:4", "unit vector"],
+    );
     assert!(!e.contains("t.csv:2"), "{e}");
 }
 
@@ -188,9 +202,9 @@ fn help_lists_what_is_accepted_and_messages_say_what_the_file_holds() {
     std::fs::write(&p, text.replace("d1_deg = 60.0", "d1_deg = -60.0")).unwrap();
     let th = u.path().join("th.csv");
     std::fs::write(&th, "theta1_deg,theta2_deg,theta3_deg\n0,0,0\n").unwrap();
-    let e = refused(&["kin", "fk", "--in", &s(&th), "--out", &s(&u.path().join("o.csv")), "--unit", &s(&p)], &[
-        "geometry.d1_deg",
-        "-60",
-    ]);
+    let e = refused(
+        &["kin", "fk", "--in", &s(&th), "--out", &s(&u.path().join("o.csv")), "--unit", &s(&p)],
+        &["geometry.d1_deg", "-60"],
+    );
     assert!(!e.contains("-120"), "{e}");
 }

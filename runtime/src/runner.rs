@@ -365,7 +365,11 @@ pub fn run<S: PairSource>(graph: Graph<S>, cfg: &RunConfig) -> Result<RunStats> 
                         let n = stats.sink_failures.entry(sink.name().to_string()).or_default();
                         *n += 1;
                         if *n == 1 {
-                            log::warn!("frame {}: sink {}: {e} (further failures of this sink are counted)", w.seq, sink.name());
+                            log::warn!(
+                                "frame {}: sink {}: {e} (further failures of this sink are counted)",
+                                w.seq,
+                                sink.name()
+                            );
                         }
                     }
                 }
