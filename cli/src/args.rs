@@ -80,6 +80,28 @@ pub fn vec2(s: &str) -> Result<[f64; 2], String> {
     v.try_into().map_err(|_| format!("'{s}': expected two comma-separated numbers"))
 }
 
+/// A point "x,y,z" in metres to look at: each coordinate within +-100 m, and at least 1 cm from
+/// the camera (no direction to look in at its centre).
+pub fn point_m(s: &str) -> Result<[f64; 3], String> {
+    let p = vec3(s)?;
+    if let Some(x) = p.iter().find(|x| x.abs() > 100.0) {
+        return Err(format!("coordinate {x} m is outside the accepted range [-100, 100] m"));
+    }
+    if (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt() < 0.01 {
+        return Err(format!("{p:?} is less than 1 cm from the camera"));
+    }
+    Ok(p)
+}
+
+/// A pixel "u,v": finite, within +-100000 px (beyond any sensor).
+pub fn pixel(s: &str) -> Result<[f64; 2], String> {
+    let p = vec2(s)?;
+    if let Some(x) = p.iter().find(|x| x.abs() > 1e5) {
+        return Err(format!("{x} px is outside the accepted range [-100000, 100000] px"));
+    }
+    Ok(p)
+}
+
 /// A gravity direction "gx,gy,gz": a unit vector to 1e-3, as the simulator and sessions demand
 /// (a zero or scaled vector would silently change the modelled sag).
 pub fn gravity(s: &str) -> Result<[f64; 3], String> {
@@ -168,6 +190,8 @@ mod tests {
         assert!(gravity("0,NaN,0").is_err());
         assert!(link_angles("0,90,0").is_err());
         assert!(half_ranges("30,0,30").is_err());
+        assert!(point_m("0,0,0").is_err() && point_m("0,0,1e30").is_err() && point_m("0.05,-0.03,0.5").is_ok());
+        assert!(pixel("1e30,1").is_err() && pixel("320,240").is_ok());
     }
 
     #[test]

@@ -25,12 +25,12 @@ pub struct FixateArgs {
     /// Calibration directory: stereo.yaml (intrinsics, T_lH^rH) and eye0, eye1 (FK models).
     #[arg(long)]
     calib: PathBuf,
-    /// x,y,z in metres, in the left home camera frame (x right, y down, z forward).
-    #[arg(long, value_parser = crate::args::vec3, allow_hyphen_values = true, required_unless_present = "pixel", conflicts_with = "pixel")]
+    /// x,y,z in metres, in the left home camera frame (x right, y down, z forward; each within +-100 m).
+    #[arg(long, value_parser = crate::args::point_m, allow_hyphen_values = true, required_unless_present = "pixel", conflicts_with = "pixel")]
     point: Option<[f64; 3]>,
     /// Instead of --point: a pixel u,v of the current left image (raw, as the camera delivers it;
     /// its intrinsics and distortion from stereo.yaml) ...
-    #[arg(long, value_parser = crate::args::vec2, allow_hyphen_values = true, requires = "depth")]
+    #[arg(long, value_parser = crate::args::pixel, allow_hyphen_values = true, requires = "depth")]
     pixel: Option<[f64; 2]>,
     /// ... its depth in metres (z in the left camera frame, the depth map's convention; up to 100) ...
     #[arg(long, allow_hyphen_values = true, value_parser = crate::args::positive_up_to(100.0))]

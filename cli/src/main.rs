@@ -71,6 +71,12 @@ enum Cmd {
     /// Testing: every subcommand's arguments as JSON (cli/tests/doors.rs).
     #[command(hide = true)]
     CliTree,
+    /// Testing: checks many command lines in one process as `--validate-only` does (one JSON array of
+    /// arguments per stdin line; one JSON answer per line: code 0 accepted, 1 refused by a check, 2 refused
+    /// by clap, 101 panicked; the refusal; milliseconds), so cli/tests/doors.rs knocks on hundreds of doors
+    /// without starting hundreds of processes.
+    #[command(hide = true)]
+    ValidateLines,
 }
 
 /// Checks that need several flags together or the file system (grid sizes, output paths): after
@@ -125,6 +131,7 @@ fn main() -> ExitCode {
             println!("{}", cli_tree(&Cli::command()));
             Ok(ExitCode::SUCCESS)
         }
+        Cmd::ValidateLines => validate_lines(),
     };
     match r {
         Ok(code) => code,
@@ -150,6 +157,32 @@ fn message(e: &anyhow::Error) -> String {
         out += &s;
     }
     out
+}
+
+/// `abvs validate-lines`: clap's parse and `check` of each line's arguments, a panic caught and reported.
+fn validate_lines() -> anyhow::Result<ExitCode> {
+    use std::io::{BufRead, Write};
+    let mut out = std::io::stdout().lock();
+    for line in std::io::stdin().lock().lines() {
+        let argv: Vec<String> = serde_json::from_str(&line?)?;
+        let t0 = std::time::Instant::now();
+        let r = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+            let m = Cli::command()
+                .try_get_matches_from(std::iter::once("abvs".to_string()).chain(argv))
+                .map_err(|e| (e.exit_code(), e.render().to_string()))?;
+            let cli = Cli::from_arg_matches(&m).map_err(|e| (2, e.render().to_string()))?;
+            check(&cli.cmd).map_err(|e| (1, format!("error: {}", message(&e))))
+        }));
+        let (code, error) = match r {
+            Ok(Ok(())) => (0, String::new()),
+            Ok(Err(e)) => e,
+            Err(_) => (101, "panicked".to_string()),
+        };
+        let ms = t0.elapsed().as_secs_f64() * 1e3;
+        writeln!(out, "{}", serde_json::json!({"code": code, "error": error, "ms": ms}))?;
+        out.flush()?;
+    }
+    Ok(ExitCode::SUCCESS)
 }
 
 /// The kind of value an argument's parser yields, as the door-knocking test feeds it.

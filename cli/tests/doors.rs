@@ -1,47 +1,76 @@
 //! Knocks on every door: for every subcommand and every numeric flag of clap's command tree
 //! (`abvs cli-tree`, so a new flag is covered without editing this test), the values 0, -1, NaN,
-//! inf, 1e30 and a huge size. The rule: no panic, abort or signal, no run past a few seconds, and
-//! a refusal exits non-zero naming the flag. Values may be accepted (`--seed 0`): the program
-//! runs with `--validate-only`, which stops after every check that precedes work (clap's value
-//! parsers, grid sizes, output paths), so an accepted value costs nothing here.
+//! inf, 1e30 and a huge size. The rule: no panic, abort or signal, no check taking more than a
+//! few seconds, and a refusal naming the flag. Values may be accepted (`--seed 0`): the cases
+//! stop after every check that precedes work (clap's value parsers, grid sizes, output paths),
+//! as `abvs --validate-only` does, so an accepted value costs nothing. They run in one process
+//! (`abvs validate-lines`, a panic caught per case; an abort ends the process and fails the test);
+//! a few run as their own processes to show the same answers there.
 use serde_json::Value;
 use std::collections::BTreeSet;
+use std::io::{BufRead, BufReader, Write};
 use std::path::Path;
-use std::process::{Command, Stdio};
-use std::sync::atomic::{AtomicUsize, Ordering};
-use std::sync::Mutex;
-use std::time::{Duration, Instant};
+use std::process::{Child, ChildStdin, ChildStdout, Command, Stdio};
+use std::time::Instant;
 
 const ABVS: &str = env!("CARGO_BIN_EXE_abvs");
-const TIMEOUT: Duration = Duration::from_secs(10);
+/// The longest a check may take before its refusal (ms).
+const SLOW_MS: f64 = 3000.0;
 
 struct Outcome {
     code: Option<i32>,
     stderr: String,
-    timed_out: bool,
+    ms: f64,
 }
 
-fn run(args: &[String]) -> Outcome {
-    let mut child = Command::new(ABVS)
-        .arg("--validate-only")
-        .args(args)
-        .stdin(Stdio::null())
-        .stdout(Stdio::null())
-        .stderr(Stdio::piped())
-        .spawn()
-        .expect("start abvs");
-    let t0 = Instant::now();
-    let mut timed_out = false;
-    while child.try_wait().expect("wait").is_none() {
-        if t0.elapsed() > TIMEOUT {
-            let _ = child.kill();
-            timed_out = true;
-            break;
-        }
-        std::thread::sleep(Duration::from_millis(5));
+/// One `abvs validate-lines` process answering a line per case.
+struct Batch {
+    child: Child,
+    stdin: ChildStdin,
+    stdout: BufReader<ChildStdout>,
+}
+
+impl Batch {
+    fn start() -> Batch {
+        let mut child = Command::new(ABVS)
+            .arg("validate-lines")
+            .stdin(Stdio::piped())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::null())
+            .spawn()
+            .expect("start abvs validate-lines");
+        let stdin = child.stdin.take().unwrap();
+        let stdout = BufReader::new(child.stdout.take().unwrap());
+        Batch { child, stdin, stdout }
     }
-    let o = child.wait_with_output().expect("output");
-    Outcome { code: o.status.code(), stderr: String::from_utf8_lossy(&o.stderr).into_owned(), timed_out }
+
+    fn run(&mut self, args: &[String]) -> Outcome {
+        writeln!(self.stdin, "{}", serde_json::to_string(args).unwrap()).expect("write a case");
+        self.stdin.flush().unwrap();
+        let mut line = String::new();
+        let n = self.stdout.read_line(&mut line).expect("read an answer");
+        if n == 0 {
+            let status = self.child.wait().unwrap();
+            panic!("abvs validate-lines died ({status}: an abort?) on: abvs {}", args.join(" "));
+        }
+        let v: Value = serde_json::from_str(&line).expect("a JSON answer");
+        Outcome {
+            code: v["code"].as_i64().map(|c| c as i32),
+            stderr: v["error"].as_str().unwrap_or_default().to_string(),
+            ms: v["ms"].as_f64().unwrap_or(f64::INFINITY),
+        }
+    }
+}
+
+/// A case as its own process, as a user runs it (with --validate-only).
+fn process(args: &[String]) -> Outcome {
+    let t0 = Instant::now();
+    let o = Command::new(ABVS).arg("--validate-only").args(args).output().expect("run abvs");
+    Outcome {
+        code: o.status.code(),
+        stderr: String::from_utf8_lossy(&o.stderr).into_owned(),
+        ms: t0.elapsed().as_secs_f64() * 1e3,
+    }
 }
 
 fn tree() -> Vec<Value> {
@@ -123,9 +152,9 @@ impl Leaf {
     }
 
     /// Runs with `extra`, adding what clap says is missing (required-unless, requires) as plain values.
-    fn run(&self, base: &mut Vec<(String, String)>, extra: &[String], tmp: &Path) -> Outcome {
+    fn run(&self, b: &mut Batch, base: &mut Vec<(String, String)>, extra: &[String], tmp: &Path) -> Outcome {
         for _ in 0..4 {
-            let o = run(&self.command(base, extra));
+            let o = b.run(&self.command(base, extra));
             let add = missing(&o.stderr, &self.args);
             if add.is_empty() || o.code == Some(0) {
                 return o;
@@ -134,7 +163,7 @@ impl Leaf {
                 base.push((str_of(a, "id"), filler(a, tmp)));
             }
         }
-        run(&self.command(base, extra))
+        b.run(&self.command(base, extra))
     }
 
     /// Whether `a` and `b` cannot be given together (clap's conflicts, a one-of group).
@@ -146,6 +175,21 @@ impl Leaf {
                 let m = list(g, "args");
                 g["multiple"] != true && m.iter().any(|x| x == a) && m.iter().any(|x| x == b)
             })
+    }
+}
+
+/// What is wrong with an answer, if anything.
+fn judge(o: &Outcome, name: &str) -> Option<String> {
+    if o.code.is_none() {
+        Some("killed by a signal (an abort?)".into())
+    } else if o.code == Some(101) || o.stderr.contains("panicked") {
+        Some("panicked".into())
+    } else if o.ms > SLOW_MS {
+        Some(format!("took {:.0} ms to answer", o.ms))
+    } else if o.code != Some(0) && !o.stderr.contains(name) {
+        Some(format!("refused without naming {name}"))
+    } else {
+        None
     }
 }
 
@@ -175,10 +219,11 @@ fn every_numeric_flag_refuses_bad_values_by_name_without_panic_or_hang() {
     assert!(leaves.len() > 30, "{} subcommands", leaves.len());
 
     // Each subcommand's plain invocation passes the checks: what a refusal below names is the knocked flag.
+    let mut b = Batch::start();
     let mut failures = Vec::new();
     for l in &mut leaves {
         let mut base = l.base.clone();
-        let o = l.run(&mut base, &[], tmp.path());
+        let o = l.run(&mut b, &mut base, &[], tmp.path());
         if o.code != Some(0) {
             failures.push(format!(
                 "abvs {}: the plain invocation is refused:\n{}",
@@ -214,48 +259,43 @@ fn every_numeric_flag_refuses_bad_values_by_name_without_panic_or_hang() {
         assert!(flags.contains(must), "{must} not knocked on: {flags:?}");
     }
 
-    let next = AtomicUsize::new(0);
-    let found = Mutex::new(Vec::new());
-    let accepted = AtomicUsize::new(0);
-    std::thread::scope(|s| {
-        for _ in 0..4 {
-            s.spawn(|| loop {
-                let k = next.fetch_add(1, Ordering::Relaxed);
-                let Some((i, id, v)) = cases.get(k) else { break };
-                let l = &leaves[*i];
-                let a = l.arg(id);
-                let name = str_of(a, "name");
-                let mut base: Vec<(String, String)> =
-                    l.base.iter().filter(|(b, _)| b != id && !l.exclusive(id, b)).cloned().collect();
-                let o = l.run(&mut base, &words(a, v), tmp.path());
-                let what = format!("abvs {}", l.command(&base, &words(a, v)).join(" "));
-                let bad = if o.timed_out {
-                    Some(format!("no answer within {TIMEOUT:?}"))
-                } else if o.code.is_none() {
-                    Some("killed by a signal (abort?)".to_string())
-                } else if o.code == Some(101) || o.stderr.contains("panicked") {
-                    Some("panicked".to_string())
-                } else if o.code != Some(0) && !o.stderr.contains(&name) {
-                    Some(format!("refused without naming {name}"))
-                } else {
-                    None
-                };
-                if o.code == Some(0) {
-                    accepted.fetch_add(1, Ordering::Relaxed);
-                }
-                if let Some(b) = bad {
-                    found.lock().unwrap().push(format!("{what}: {b}:\n{}", o.stderr));
-                }
-            });
+    let mut found = Vec::new();
+    let mut accepted = 0;
+    for (i, id, v) in &cases {
+        let l = &leaves[*i];
+        let a = l.arg(id);
+        let name = str_of(a, "name");
+        let mut base: Vec<(String, String)> =
+            l.base.iter().filter(|(b, _)| b != id && !l.exclusive(id, b)).cloned().collect();
+        let o = l.run(&mut b, &mut base, &words(a, v), tmp.path());
+        let what = format!("abvs {}", l.command(&base, &words(a, v)).join(" "));
+        if let Some(bad) = judge(&o, &name) {
+            found.push(format!("{what}: {bad}:\n{}", o.stderr));
         }
-    });
-    let found = found.into_inner().unwrap();
+        accepted += usize::from(o.code == Some(0));
+        if o.code == Some(0) && std::env::var_os("DOORS_VERBOSE").is_some() {
+            eprintln!("accepted: {what}");
+        }
+    }
+    // the same answers as processes of their own: a refusal, a size refused by a check, an accepted value
+    for (args, flag) in [
+        (vec!["kin", "psc", "--step-deg=NaN", "--out", "x.csv"], "--step-deg"),
+        (vec!["kin", "psc", "--step-deg=1e-9", "--out", "x.csv"], "--step-deg"),
+        (vec!["sim", "unit", "--seed=0", "--out", "x.toml"], "--seed"),
+    ] {
+        let args: Vec<String> = args.into_iter().map(String::from).collect();
+        let (o, p) = (b.run(&args), process(&args));
+        assert_eq!(o.code, p.code, "abvs {args:?}: {} vs {}", o.stderr, p.stderr);
+        if let Some(bad) = judge(&p, flag) {
+            found.push(format!("abvs {args:?} (process): {bad}:\n{}", p.stderr));
+        }
+    }
     eprintln!(
         "{} cases on {} flags of {} subcommands, {} accepted, in {:.1} s",
         cases.len(),
         flags.len(),
         leaves.len(),
-        accepted.load(Ordering::Relaxed),
+        accepted,
         t0.elapsed().as_secs_f64()
     );
     assert!(found.is_empty(), "{} doors failed:\n{}", found.len(), found.join("\n"));
