@@ -36,7 +36,10 @@ pub fn finite_in(lo: f64, hi: f64) -> impl Fn(&str) -> Result<f64, String> + Clo
 pub fn positive_up_to(hi: f64) -> impl Fn(&str) -> Result<f64, String> + Clone + Send + Sync + 'static {
     move |s| {
         let v = number(s)?;
-        if !(v > 0.0 && v <= hi) {
+        if v <= 0.0 {
+            return Err(format!("{v} is not positive: the accepted range is (0, {hi}]"));
+        }
+        if v > hi {
             return Err(format!("{v} is outside the accepted range (0, {hi}]"));
         }
         Ok(v)
