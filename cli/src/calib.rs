@@ -55,16 +55,16 @@ pub struct Common {
     /// Replace an existing model directory at --out whole (its old files removed).
     #[arg(long)]
     force: bool,
-    /// Most training epochs (early stopping may end sooner).
+    /// Most training epochs (1 to 1000000; early stopping may end sooner).
     #[arg(long, default_value_t = 1000, value_parser = crate::args::count(1usize, 1_000_000))]
     max_epochs: usize,
     /// Seed of the validation split and of the networks' initial weights.
     #[arg(long, default_value_t = 0)]
     seed: u64,
-    /// Hidden width of the networks (units per layer).
+    /// Hidden width of the networks (units per layer, 1 to 4096).
     #[arg(long, default_value_t = 64, value_parser = crate::args::count(1usize, 4096))]
     hidden: usize,
-    /// Adam learning rate (the paper: 1e-4).
+    /// Adam learning rate (in (0, 1]; the paper: 1e-4).
     #[arg(long, default_value_t = 1e-4, value_parser = crate::args::positive_up_to(1.0))]
     lr: f64,
 }
