@@ -111,6 +111,11 @@ pub struct CalibratedIk<'m> {
     tol: f64,
 }
 
+/// Step (deg) of the central differences that measure a network model's conditioning: a ReLU
+/// network is piecewise linear, and a step smaller than its pieces measures one piece (at home
+/// a degenerate one of an m2 network), not the map the solver moves on.
+const NET_CONDITIONING_STEP_DEG: f64 = 0.25;
+
 /// Offsets (deg) of the restarts around the nominal IK, nearest first: 1 and 2 deg along each
 /// link, then the corners of the 1 deg cube.
 fn restarts() -> impl Iterator<Item = Vector3<f64>> {
@@ -217,6 +222,26 @@ impl<'m> CalibratedIk<'m> {
             tp[k] += self.h;
             let fk = self.residual(fr, &tp, t, evals)?;
             j.set_column(k, &((fk - f0) / self.h));
+        }
+        Ok(j)
+    }
+
+    /// Central-difference d(Fick)/d(theta) with step `h` (deg).
+    fn central_jacobian(
+        &self,
+        fr: &mut Frozen,
+        th: &Vector3<f64>,
+        t: &[f64; 3],
+        h: f64,
+        evals: &mut usize,
+    ) -> Result<Matrix3<f64>> {
+        let mut j = Matrix3::zeros();
+        for k in 0..3 {
+            let (mut tp, mut tm) = (*th, *th);
+            tp[k] += h;
+            tm[k] -= h;
+            let d = self.residual(fr, &tp, t, evals)? - self.residual(fr, &tm, t, evals)?;
+            j.set_column(k, &(d / (2.0 * h)));
         }
         Ok(j)
     }
@@ -441,9 +466,12 @@ impl<'m> CalibratedIk<'m> {
         let mut conditioning = cond(&jac.expect("Jacobian"));
         if conditioning < self.cfg.min_conditioning {
             let th = Vector3::from(theta_deg);
-            let fd = self
-                .residual(&mut fr, &th, &target, &mut evals)
-                .and_then(|f| self.jacobian(&mut fr, &th, &f, &target, &mut evals));
+            let fd = if self.model.unit().is_some() {
+                self.residual(&mut fr, &th, &target, &mut evals)
+                    .and_then(|f| self.jacobian(&mut fr, &th, &f, &target, &mut evals))
+            } else {
+                self.central_jacobian(&mut fr, &th, &target, NET_CONDITIONING_STEP_DEG, &mut evals)
+            };
             conditioning = fd.map(|j| cond(&j)).unwrap_or(0.0);
         }
         if conditioning < self.cfg.min_conditioning {

@@ -191,7 +191,14 @@ fn write_camera(fs: &mut FileStorage, cam: &Camera, info: &CalibInfo) -> opencv:
 fn open(path: &Path, flags: i32) -> Result<FileStorage> {
     let err = |message: String| CameraError::Open { path: path.to_path_buf(), message };
     if flags == core::FileStorage_READ && !path.is_file() {
-        return Err(err("no such file".into()));
+        // say what is there: /dev/null exists, it is just not a file to read a calibration from
+        let why = match std::fs::metadata(path) {
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => "no such file".into(),
+            Err(e) => e.to_string(),
+            Ok(m) if m.is_dir() => "is a directory, expected a YAML file".into(),
+            Ok(_) => "not a regular file (a device, pipe or socket), expected a YAML file".into(),
+        };
+        return Err(err(why));
     }
     let fs = FileStorage::new(path, flags, "").map_err(|e| err(e.message))?;
     if !fs.is_opened().map_err(|e| err(e.message))? {

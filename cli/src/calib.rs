@@ -5,6 +5,7 @@ use abvs_calib::metrics::evaluate;
 use abvs_calib::model::{save_model, FkModel};
 use abvs_calib::mpe::Target;
 use abvs_eye::dataset::Dataset;
+use anyhow::bail;
 use clap::{Args, Subcommand};
 use indicatif::ProgressBar;
 use std::path::PathBuf;
@@ -41,69 +42,119 @@ pub enum CalibCmd {
 
 #[derive(Args)]
 pub struct Common {
-    #[arg(long, value_enum)]
-    method: Method,
+    /// Training data: a dataset CSV (docs/spec/dataset.md).
     #[arg(long)]
     train: PathBuf,
+    /// Validation data (dataset CSV; default: a seeded 10% of --train held out); its metrics go into the manifest.
     #[arg(long)]
     val: Option<PathBuf>,
+    /// Model directory to write (manifest.json, networks, unit.toml); an existing model is refused
+    /// unless --force.
     #[arg(long)]
     out: PathBuf,
-    #[arg(long, default_value_t = 1000)]
+    /// Replace an existing model directory at --out whole (its old files removed).
+    #[arg(long)]
+    force: bool,
+    /// Most training epochs (1 to 1000000; early stopping may end sooner).
+    #[arg(long, default_value_t = 1000, value_parser = crate::args::count(1usize, 1_000_000))]
     max_epochs: usize,
+    /// Seed of the validation split and of the networks' initial weights.
     #[arg(long, default_value_t = 0)]
     seed: u64,
-    /// Hidden width of the networks.
-    #[arg(long, default_value_t = 64)]
+    /// Hidden width of the networks (units per layer, 1 to 4096).
+    #[arg(long, default_value_t = 64, value_parser = crate::args::count(1usize, 4096))]
     hidden: usize,
-    /// Adam learning rate (the paper: 1e-4).
-    #[arg(long, default_value_t = 1e-4)]
+    /// Adam learning rate (in (0, 1]; the paper: 1e-4).
+    #[arg(long, default_value_t = 1e-4, value_parser = crate::args::positive_up_to(1.0))]
     lr: f64,
 }
 
 #[derive(Args)]
 pub struct FitArgs {
+    /// Method to fit from scratch: mh (hand-eye), m1, m2 (the paper's networks) or hybrid (the unit's
+    /// static effects plus a residual network).
+    #[arg(long, value_parser = method_parser(&[Method::Mh, Method::M1, Method::M2, Method::Hybrid]))]
+    method: Method,
     #[command(flatten)]
     c: Common,
 }
 
 #[derive(Args)]
 pub struct FinetuneArgs {
+    /// Method: m1f, m2f (fine-tune an m1 / m2 network), m4f (split an m2 network by the PSC), mh or hybrid
+    /// (refit a physics model).
+    #[arg(long, value_parser = method_parser(&[Method::M1f, Method::M2f, Method::M4f, Method::Mh, Method::Hybrid]))]
+    method: Method,
+    /// The model of another unit to start from (a model directory).
     #[arg(long)]
     base: PathBuf,
     #[command(flatten)]
     c: Common,
 }
 
+/// `--method` offering only the methods the subcommand accepts (clap lists exactly these in the help).
+fn method_parser(ok: &'static [Method]) -> impl clap::builder::TypedValueParser<Value = Method> {
+    use clap::builder::TypedValueParser;
+    clap::builder::PossibleValuesParser::new(ok.iter().map(|m| m.name()))
+        .map(|s| Method::parse(&s).expect("one of the listed methods"))
+}
+
 #[derive(Args)]
 pub struct EvalArgs {
+    /// Model directory (manifest.json + networks).
     #[arg(long)]
     model: PathBuf,
+    /// Dataset CSV to score the model on (at least one sample).
     #[arg(long)]
     data: PathBuf,
+    /// Print JSON instead of the table.
     #[arg(long)]
     json: bool,
 }
 
 #[derive(Args)]
 pub struct PredictArgs {
+    /// Model directory (manifest.json + networks).
     #[arg(long)]
     model: PathBuf,
+    /// CSV with theta1_deg..theta3_deg (deg; optional gx, gy, gz; other columns kept), visited in order.
     #[arg(long = "in")]
     input: PathBuf,
+    /// Output CSV: the input's columns plus the predicted pose (deg, mm).
     #[arg(long)]
     out: PathBuf,
 }
 
 #[derive(Args)]
 pub struct IkArgs {
+    /// Model directory (manifest.json + networks).
     #[arg(long)]
     model: PathBuf,
     /// CSV with alpha_deg, beta_deg, gamma_deg (optional gx, gy, gz; other columns kept), visited in order.
     #[arg(long = "in")]
     input: PathBuf,
+    /// Output CSV: the input's columns plus link angles (deg), predicted pose, residual (deg), counts.
     #[arg(long)]
     out: PathBuf,
+    /// Also solve targets outside the calibrated workspace (the training data's range of each Fick
+    /// angle, recorded in the manifest), where the model extrapolates; refused per row by default.
+    #[arg(long)]
+    allow_outside: bool,
+}
+
+/// How far (deg) past the training range a target is still inside the calibrated workspace.
+const WORKSPACE_MARGIN_DEG: f64 = 0.5;
+
+/// Why a target lies outside the model's calibrated workspace, if it does.
+fn outside_workspace(range: &[[f64; 2]; 3], t: [f64; 3]) -> Option<String> {
+    let names = ["alpha", "beta", "gamma"];
+    (0..3).find(|&k| t[k] < range[k][0] - WORKSPACE_MARGIN_DEG || t[k] > range[k][1] + WORKSPACE_MARGIN_DEG).map(|k| {
+        format!(
+            "{} {} deg is outside the calibrated workspace [{:.2}, {:.2}] deg (the training data's range; \
+             --allow-outside solves it anyway)",
+            names[k], t[k], range[k][0], range[k][1]
+        )
+    })
 }
 
 /// One progress bar per stage of training.
@@ -140,7 +191,31 @@ fn cfg(c: &Common) -> FitConfig {
     FitConfig { max_epochs: c.max_epochs, seed: c.seed, hidden: c.hidden, lr: c.lr, ..FitConfig::default() }
 }
 
+/// `--out` before any training: an existing model is refused unless `--force`, and the directory
+/// must be creatable (a fit of minutes must not end in a path error).
+fn check_out(c: &Common) -> anyhow::Result<()> {
+    crate::outputs::check_dir_creatable("--out", &c.out)?;
+    if c.out.join(abvs_fk::model::MANIFEST).exists() && !c.force {
+        bail!("--out {}: a model is already there; give --force to replace it whole", c.out.display());
+    }
+    Ok(())
+}
+
+/// `--val`: an empty validation set would be stored as a perfect score.
+fn read_val(c: &Common) -> anyhow::Result<Option<Dataset>> {
+    let Some(p) = &c.val else { return Ok(None) };
+    let d = Dataset::read(p)?;
+    if d.is_empty() {
+        bail!("--val {}: no samples (a header without rows); give validation data or leave --val out", p.display());
+    }
+    Ok(Some(d))
+}
+
 fn report(parts: &abvs_calib::model::ModelParts, c: &Common) -> anyhow::Result<ExitCode> {
+    if c.force {
+        // replaced whole: no network of the old model left beside the new manifest
+        abvs_fk::model::remove_model(&c.out)?;
+    }
     save_model(&c.out, parts)?;
     let m = &parts.manifest;
     eprintln!(
@@ -157,24 +232,33 @@ fn report(parts: &abvs_calib::model::ModelParts, c: &Common) -> anyhow::Result<E
     Ok(ExitCode::SUCCESS)
 }
 
+impl CalibCmd {
+    /// Output paths before any work.
+    pub fn check(&self) -> anyhow::Result<()> {
+        match self {
+            CalibCmd::Fit(a) => check_out(&a.c),
+            CalibCmd::Finetune(a) => check_out(&a.c),
+            _ => Ok(()),
+        }
+    }
+}
+
 pub fn run(cmd: CalibCmd) -> anyhow::Result<ExitCode> {
     match cmd {
         CalibCmd::Paper(a) => crate::paper::run(a),
-        CalibCmd::Fit(FitArgs { c }) => {
-            let method = c.method;
+        CalibCmd::Fit(FitArgs { method, c }) => {
             let train = Dataset::read(&c.train)?;
-            let val = c.val.as_ref().map(|p| Dataset::read(p)).transpose()?;
+            let val = read_val(&c)?;
             let mut bars = Bars { stage: String::new(), bar: None };
             let parts =
                 methods::fit(method, &train, val.as_ref(), &cfg(&c), &mut |w, s, t, a, b| bars.update(w, s, t, a, b))?;
             bars.done();
             report(&parts, &c)
         }
-        CalibCmd::Finetune(FinetuneArgs { base, c }) => {
-            let method = c.method;
+        CalibCmd::Finetune(FinetuneArgs { method, base, c }) => {
             let base = FkModel::load(&base)?;
             let train = Dataset::read(&c.train)?;
-            let val = c.val.as_ref().map(|p| Dataset::read(p)).transpose()?;
+            let val = read_val(&c)?;
             let mut bars = Bars { stage: String::new(), bar: None };
             let parts = methods::finetune(method, &base, &train, val.as_ref(), &cfg(&c), &mut |w, s, t, a, b| {
                 bars.update(w, s, t, a, b)
@@ -183,8 +267,12 @@ pub fn run(cmd: CalibCmd) -> anyhow::Result<ExitCode> {
             report(&parts, &c)
         }
         CalibCmd::Eval(a) => {
-            let model = FkModel::load(&a.model)?;
             let data = Dataset::read(&a.data)?;
+            if data.is_empty() {
+                // nothing scored is not a perfect score
+                bail!("--data {}: no samples to evaluate (a header without rows)", a.data.display());
+            }
+            let model = FkModel::load(&a.model)?;
             let pred = model.predict_dataset(&data)?;
             let meas: Vec<[f64; 6]> = data.samples.iter().map(|s| s.pose).collect();
             let r = evaluate(&pred, &meas, &Target::paper());
@@ -229,6 +317,7 @@ pub fn run(cmd: CalibCmd) -> anyhow::Result<ExitCode> {
 fn ik(a: IkArgs) -> anyhow::Result<ExitCode> {
     let model = FkModel::load(&a.model)?;
     let solver = abvs_calib::ik::CalibratedIk::new(&model);
+    let range = model.manifest.training.range_deg;
     let mut st = model.state();
     let t = Table::read(&a.input)?;
     let g = GravityCols::find(&t);
@@ -255,6 +344,11 @@ fn ik(a: IkArgs) -> anyhow::Result<ExitCode> {
         ],
         |v, line, row| {
             let gr = g.of(&a.input, line, row)?;
+            if let (Some(r), false) = (&range, a.allow_outside) {
+                if let Some(why) = outside_workspace(r, [v[0], v[1], v[2]]) {
+                    return Err(why);
+                }
+            }
             let s = solver.solve_and_move(&mut st, [v[0], v[1], v[2]], gr).map_err(|e| e.to_string())?;
             worst = worst.max(s.residual_deg);
             evals += s.evaluations;

@@ -24,18 +24,20 @@ pub struct IntrinsicsArgs {
     /// aprilgrid[:COLSxROWS:TAG_MM:SPACING] or chessboard:COLSxROWS:SQUARE_MM.
     #[arg(long, default_value = "aprilgrid")]
     target: String,
+    /// Lens model to fit.
     #[arg(long, value_enum, default_value_t = Model::Fisheye)]
     model: Model,
+    /// Camera calibration to write (OpenCV YAML).
     #[arg(long)]
     out: PathBuf,
     /// AprilGrid detector: aprilgrid (the aprilgrid crate) or opencv (aruco).
     #[arg(long, value_enum, default_value_t = AprilDetector::AprilGridCrate)]
     detector: AprilDetector,
-    /// Fewest corners of one board in one image for it to be used.
-    #[arg(long, default_value_t = 12)]
+    /// Fewest corners of one board in one image for it to be used (4 to 10000).
+    #[arg(long, default_value_t = 12, value_parser = crate::args::count(4usize, 10_000))]
     min_corners: usize,
-    /// Images whose RMS error exceeds this many times the median (and 0.3 px) are dropped.
-    #[arg(long, default_value_t = 3.0)]
+    /// Images whose RMS error exceeds this many times the median (and 0.3 px) are dropped (1 to 100).
+    #[arg(long, default_value_t = 3.0, value_parser = crate::args::finite_in(1.0, 100.0))]
     outlier_factor: f64,
 }
 
@@ -122,10 +124,11 @@ pub struct MeasureArgs {
     /// Dataset file to write (dataset.md).
     #[arg(long)]
     out: PathBuf,
+    /// AprilGrid detector: aprilgrid (the aprilgrid crate) or opencv (aruco).
     #[arg(long, value_enum, default_value_t = AprilDetector::AprilGridCrate)]
     detector: AprilDetector,
-    /// Fewest corners (all boards) for an image to be measured.
-    #[arg(long, default_value_t = 20)]
+    /// Fewest corners (all boards) for an image to be measured (4 to 10000).
+    #[arg(long, default_value_t = 20, value_parser = crate::args::count(4usize, 10_000))]
     min_corners: usize,
     /// Also write the per-image report (JSON).
     #[arg(long)]
@@ -169,11 +172,14 @@ pub struct StereoArgs {
     /// Stereo session directory (camcal/README.md): stereo.toml, pairs.csv, images.
     #[arg(long)]
     session: PathBuf,
+    /// Stereo calibration to write (OpenCV YAML: both intrinsics and T_lH^rH).
     #[arg(long)]
     out: PathBuf,
+    /// AprilGrid detector: aprilgrid (the aprilgrid crate) or opencv (aruco).
     #[arg(long, value_enum, default_value_t = AprilDetector::AprilGridCrate)]
     detector: AprilDetector,
-    #[arg(long, default_value_t = 12)]
+    /// Fewest corners of one board in one image for it to be used (4 to 10000).
+    #[arg(long, default_value_t = 12, value_parser = crate::args::count(4usize, 10_000))]
     min_corners: usize,
 }
 
@@ -215,31 +221,35 @@ pub fn stereo(a: StereoArgs) -> anyhow::Result<ExitCode> {
 
 #[derive(Args)]
 pub struct SimSessionArgs {
+    /// Session directory to write (session.toml, index.csv, images, truth.csv, camera.yaml).
     #[arg(long)]
     out: PathBuf,
     /// Unit model (TOML); default: a unit drawn with --seed, all kinematic effects, no measurement noise.
     #[arg(long)]
     unit: Option<PathBuf>,
+    /// Seed of the drawn unit and of the image noise.
     #[arg(long, default_value_t = 0)]
     seed: u64,
-    /// n values per axis of the commanded grid (n^3 poses) ...
-    #[arg(long, default_value_t = 3)]
+    /// n values per axis of the commanded grid (n^3 poses; 2 to 20) ...
+    #[arg(long, default_value_t = 3, value_parser = crate::args::count(2usize, 20))]
     grid_n: usize,
-    /// ... or this many random poses of the 3 deg grid.
-    #[arg(long)]
+    /// ... or this many random poses of the 3 deg grid (1 to 10000).
+    #[arg(long, value_parser = crate::args::count(1usize, 10_000))]
     random: Option<usize>,
-    /// Home images at the start.
-    #[arg(long, default_value_t = 2)]
+    /// Home images at the start (0 to 100).
+    #[arg(long, default_value_t = 2, value_parser = crate::args::count(0usize, 100))]
     home: usize,
-    /// Image noise sigma (grey levels), blur sigma (px), supersampling (n x n per pixel).
-    #[arg(long, default_value_t = 1.0)]
+    /// Image noise sigma (grey levels, 0 to 100).
+    #[arg(long, default_value_t = 1.0, value_parser = crate::args::finite_in(0.0, 100.0))]
     noise: f64,
-    #[arg(long, default_value_t = 0.6)]
+    /// Blur sigma (px, 0 to 10).
+    #[arg(long, default_value_t = 0.6, value_parser = crate::args::finite_in(0.0, 10.0))]
     blur: f64,
-    #[arg(long, default_value_t = 4)]
+    /// Supersampling (n x n samples per pixel, 1 to 8).
+    #[arg(long, default_value_t = 4, value_parser = crate::args::count(1u32, 8))]
     supersample: u32,
     /// Every n-th image is replaced by an unreadable file (0: none), to exercise failure handling.
-    #[arg(long, default_value_t = 0)]
+    #[arg(long, default_value_t = 0, value_parser = crate::args::count(0usize, 1_000_000))]
     corrupt_every: usize,
 }
 
@@ -280,22 +290,27 @@ pub struct SimStereoArgs {
     /// The pair to render (OpenCV YAML of `abvs calib stereo`: both intrinsics and T_lH^rH).
     #[arg(long)]
     truth: PathBuf,
+    /// Session directory to write (stereo.toml, pairs.csv, images).
     #[arg(long)]
     out: PathBuf,
     /// n x n head orientations (alpha, gamma over +-range). On the fixture's 800x600 fisheye pair,
     /// 3 x 3 over 20 deg leaves 0.08 deg of rotation error, 5 x 5 over 25 deg 0.02 deg.
-    #[arg(long, default_value_t = 5)]
+    #[arg(long, default_value_t = 5, value_parser = crate::args::count(2usize, 20))]
     n: usize,
-    #[arg(long, default_value_t = 25.0)]
+    /// Half-range of the head orientations (deg, up to 60).
+    #[arg(long, default_value_t = 25.0, value_parser = crate::args::positive_up_to(60.0))]
     range_deg: f64,
+    /// Seed of the image noise.
     #[arg(long, default_value_t = 0)]
     seed: u64,
-    /// Image noise sigma (grey levels), blur sigma (px), supersampling (n x n per pixel).
-    #[arg(long, default_value_t = 1.0)]
+    /// Image noise sigma (grey levels, 0 to 100).
+    #[arg(long, default_value_t = 1.0, value_parser = crate::args::finite_in(0.0, 100.0))]
     noise: f64,
-    #[arg(long, default_value_t = 0.6)]
+    /// Blur sigma (px, 0 to 10).
+    #[arg(long, default_value_t = 0.6, value_parser = crate::args::finite_in(0.0, 10.0))]
     blur: f64,
-    #[arg(long, default_value_t = 2)]
+    /// Supersampling (n x n samples per pixel, 1 to 8).
+    #[arg(long, default_value_t = 2, value_parser = crate::args::count(1u32, 8))]
     supersample: u32,
 }
 

@@ -24,12 +24,23 @@ pub struct DemoArgs {
     /// Unit model (default: the embedded fixtures/units/c0.toml).
     #[arg(long)]
     unit: Option<PathBuf>,
+    /// Output directory (CSV, PNG heatmaps, model, summary.json).
     #[arg(long, default_value = "out/demo")]
     out: PathBuf,
-    #[arg(long, default_value_t = 3.0)]
+    /// Grid step of the simulated data collection and the PSC map (deg; the grid may hold at most 2e6 poses).
+    #[arg(long, default_value_t = 3.0, value_parser = crate::args::positive_up_to(30.0))]
     step_deg: f64,
+    /// Seed of the simulated measurements and of the fit.
     #[arg(long, default_value_t = 0)]
     seed: u64,
+}
+
+impl DemoArgs {
+    /// The grid's size and the output directory before any work.
+    pub fn check(&self) -> anyhow::Result<()> {
+        crate::args::check_grid("--step-deg", abvs_eye::WORKSPACE_DEG, self.step_deg)?;
+        crate::outputs::check_dir_creatable("--out", &self.out)
+    }
 }
 
 /// Mean |error| per axis and mean rotation / translation error norms.
@@ -136,7 +147,7 @@ pub fn run(a: DemoArgs) -> anyhow::Result<ExitCode> {
         percentile(&s, 0.5),
         percentile(&s, 1.0)
     );
-    println!("heatmaps (gamma across, alpha down): {}, {}", dev_png.display(), psc_png.display());
+    println!("heatmaps (gamma across, alpha up): {}, {}", dev_png.display(), psc_png.display());
 
     // Calibration: hand-eye and the physics-based hybrid from the 3 deg set, scored on a
     // separate random session (the networks of the paper take minutes: `abvs calib paper`).

@@ -25,8 +25,10 @@ use crate::pfm::write_pfm;
 
 #[derive(Args)]
 pub struct DisparityArgs {
+    /// Left rectified image (PNG or any format OpenCV reads).
     #[arg(long)]
     left: PathBuf,
+    /// Right rectified image, the same size as the left.
     #[arg(long)]
     right: PathBuf,
     /// Output PFM (left-view disparity in pixels at the input resolution, invalid = inf).
@@ -40,14 +42,16 @@ pub struct DisparityArgs {
     /// onnx: the network alone; sgbm: SGBM alone (both at the model's resolution).
     #[arg(long, value_enum, default_value_t = EngineKind::Fused)]
     engine: EngineKind,
-    #[arg(long, default_value_t = 2)]
+    /// Threads of the ONNX engine (1 to 256).
+    #[arg(long, default_value_t = 2, value_parser = crate::args::count(1usize, 256))]
     threads: usize,
     /// Left-right consistency check: the right view's disparity is computed too (the pair mirrored and
     /// swapped) and a left pixel whose match disagrees by more than --lr-max-diff (px at the engine's
     /// resolution) or falls outside the right image is invalid.
     #[arg(long)]
     lr_check: bool,
-    #[arg(long, default_value_t = 1.0)]
+    /// Largest left-right disagreement of a valid pixel (px, in (0, 1000]).
+    #[arg(long, default_value_t = 1.0, value_parser = crate::args::positive_up_to_f32(1000.0))]
     lr_max_diff: f32,
     /// Per-pixel confidence in [0, 1] as PFM at the input resolution (implies the left-right check), 0 where
     /// invalid: exp(-|d_left - d_right|) of the left-right check; with the fused engine

@@ -22,22 +22,26 @@ use crate::pfm::read_pfm;
 
 #[derive(Args)]
 pub struct EvalArgs {
+    /// Left rectified image.
     #[arg(long)]
     left: PathBuf,
+    /// Right rectified image, the same size as the left.
     #[arg(long)]
     right: PathBuf,
     /// Ground truth: PFM (pixels, inf/NaN/0 = unknown) or an 8/16-bit PNG divided by --gt-scale (0 = unknown).
     #[arg(long)]
     gt: PathBuf,
-    #[arg(long, default_value_t = 1.0)]
+    /// Divisor of a PNG ground truth's values (pixels = value / scale; up to 1e6).
+    #[arg(long, default_value_t = 1.0, value_parser = crate::args::positive_up_to(1e6))]
     gt_scale: f64,
     /// Model directories or .onnx files to score (default: the shipped variants).
     #[arg(long)]
     model: Vec<PathBuf>,
     /// Timed runs per engine (median reported).
-    #[arg(long, default_value_t = 20)]
+    #[arg(long, default_value_t = 20, value_parser = crate::args::count(1usize, 10_000))]
     runs: usize,
-    #[arg(long, default_value_t = 2)]
+    /// Threads of the ONNX engine (1 to 256).
+    #[arg(long, default_value_t = 2, value_parser = crate::args::count(1usize, 256))]
     threads: usize,
     /// Print JSON instead of the table.
     #[arg(long)]

@@ -10,9 +10,11 @@ use clap::{Args, ValueEnum};
 
 #[derive(Clone, Copy, Debug, ValueEnum)]
 pub enum Topic {
+    /// The depth maps (m per pixel).
     Depth,
     /// The depth's per-pixel confidence (published by `abvs run --confidence`).
     Confidence,
+    /// The point clouds (left home camera frame, m).
     Cloud,
 }
 
@@ -20,26 +22,26 @@ pub enum Topic {
 pub struct EchoArgs {
     /// What to receive: depth maps, their confidence, or point clouds.
     topic: Topic,
-    /// Exit after this many samples.
-    #[arg(long)]
+    /// Exit after this many samples (at least 1).
+    #[arg(long, value_parser = crate::args::count(1u64, u64::MAX))]
     count: Option<u64>,
     /// Print one JSON object at the end (received, fps, latency_ms {p50, p99}, points_mean, and the
     /// subscriber's counts: seq_gaps, seq_restarts, dead_nodes_cleaned, malformed) instead of the periodic
     /// lines (those go to stderr then).
     #[arg(long)]
     json: bool,
-    /// Fail if no sample arrives for this long (seconds).
-    #[arg(long, default_value_t = 10.0)]
+    /// Fail if no sample arrives for this long (s, up to 1e9).
+    #[arg(long, default_value_t = 10.0, value_parser = crate::args::seconds())]
     timeout_s: f64,
     /// Service name prefix (the runtime's BridgeConfig prefix).
     #[arg(long, default_value = "abvs")]
     prefix: String,
     /// Testing: abort the process right after receiving K samples, still holding the last one.
-    #[arg(long, hide = true)]
+    #[arg(long, hide = true, value_parser = crate::args::count(1u64, u64::MAX))]
     abort_after: Option<u64>,
     /// Testing: after K samples, keep the last two borrowed (the most a subscriber may hold), say
     /// "holding" on stderr and sleep until killed.
-    #[arg(long, hide = true)]
+    #[arg(long, hide = true, value_parser = crate::args::count(1u64, u64::MAX))]
     hold_after: Option<u64>,
 }
 

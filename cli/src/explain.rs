@@ -10,18 +10,21 @@ use std::time::Instant;
 
 #[derive(Args)]
 pub struct ExplainArgs {
+    /// Measured dataset CSV (docs/spec/dataset.md).
     #[arg(long)]
     data: PathBuf,
     /// Starting unit model (default: the nominal unit with the geometric effects every real
     /// unit has, fitted first as the known model).
     #[arg(long)]
     model: Option<PathBuf>,
+    /// Report directory (report.md, PNGs, unit.toml, summary.json).
     #[arg(long)]
     out: PathBuf,
+    /// Seed of the cross-validation folds.
     #[arg(long, default_value_t = 0)]
     seed: u64,
-    /// Cross-validation folds.
-    #[arg(long, default_value_t = 3)]
+    /// Cross-validation folds (2 to 20).
+    #[arg(long, default_value_t = 3, value_parser = crate::args::count(2usize, 20))]
     folds: usize,
 }
 

@@ -25,24 +25,24 @@ pub struct FixateArgs {
     /// Calibration directory: stereo.yaml (intrinsics, T_lH^rH) and eye0, eye1 (FK models).
     #[arg(long)]
     calib: PathBuf,
-    /// x,y,z in metres, in the left home camera frame (x right, y down, z forward).
-    #[arg(long, value_parser = crate::parse3, allow_hyphen_values = true, required_unless_present = "pixel", conflicts_with = "pixel")]
+    /// x,y,z in metres, in the left home camera frame (x right, y down, z forward; each within +-100 m).
+    #[arg(long, value_parser = crate::args::point_m, allow_hyphen_values = true, required_unless_present = "pixel", conflicts_with = "pixel")]
     point: Option<[f64; 3]>,
     /// Instead of --point: a pixel u,v of the current left image (raw, as the camera delivers it;
     /// its intrinsics and distortion from stereo.yaml) ...
-    #[arg(long, value_parser = parse2, allow_hyphen_values = true, requires = "depth")]
+    #[arg(long, value_parser = crate::args::pixel, allow_hyphen_values = true, requires = "depth")]
     pixel: Option<[f64; 2]>,
-    /// ... its depth in metres (z in the left camera frame, the depth map's convention) ...
-    #[arg(long, allow_hyphen_values = true)]
+    /// ... its depth in metres (z in the left camera frame, the depth map's convention; up to 100) ...
+    #[arg(long, allow_hyphen_values = true, value_parser = crate::args::positive_up_to(100.0))]
     depth: Option<f64>,
-    /// ... and the left eye's link angles when the image was taken (deg; default home).
-    #[arg(long, value_parser = crate::parse3, allow_hyphen_values = true, default_value = "0,0,0")]
+    /// ... and the left eye's link angles when the image was taken (deg, each within +-89; default home).
+    #[arg(long, value_parser = crate::args::link_angles, allow_hyphen_values = true, default_value = "0,0,0")]
     left_theta: [f64; 3],
     /// Torsion about the line of sight: listing (Listing's law) or zero-fick (Fick roll 0).
     #[arg(long, value_enum, default_value_t = Torsion::Listing)]
     torsion: Torsion,
     /// Gravity in both eyes' base frames (unit vector; default: head upright).
-    #[arg(long, value_parser = crate::parse3, allow_hyphen_values = true, default_value = "0,1,0")]
+    #[arg(long, value_parser = crate::args::gravity, allow_hyphen_values = true, default_value = "0,1,0")]
     gravity: [f64; 3],
     /// Print JSON instead of the table.
     #[arg(long)]
@@ -54,14 +54,6 @@ pub fn run(cmd: GazeCmd) -> anyhow::Result<ExitCode> {
         GazeCmd::Fixate(a) => fixate(a),
         GazeCmd::Saccade(a) => crate::saccade::saccade(a),
     }
-}
-
-fn parse2(s: &str) -> Result<[f64; 2], String> {
-    let v: Vec<f64> = s
-        .split(',')
-        .map(|x| x.trim().parse::<f64>().map_err(|_| format!("'{x}' is not a number")))
-        .collect::<Result<_, _>>()?;
-    v.try_into().map_err(|_| format!("'{s}': expected two comma-separated numbers"))
 }
 
 /// Pixel of a point (mm, home frame) in the camera at the aim's predicted pose.

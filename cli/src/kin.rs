@@ -21,16 +21,20 @@ pub enum KinCmd {
 
 #[derive(Args)]
 pub struct IoArgs {
+    /// Input CSV with alpha_deg, beta_deg, gamma_deg columns (deg; other columns kept).
     #[arg(long = "in")]
     input: PathBuf,
+    /// Output CSV: the input's columns plus theta1_deg..theta3_deg.
     #[arg(long)]
     out: PathBuf,
 }
 
 #[derive(Args)]
 pub struct FkArgs {
+    /// Input CSV with theta1_deg..theta3_deg columns (deg; optional gx, gy, gz; other columns kept).
     #[arg(long = "in")]
     input: PathBuf,
+    /// Output CSV: the input's columns plus the pose (alpha/beta/gamma deg, x/y/z mm).
     #[arg(long)]
     out: PathBuf,
     /// Unit model (TOML); nominal geometry with the camera at O1 when absent.
@@ -40,13 +44,22 @@ pub struct FkArgs {
 
 #[derive(Args)]
 pub struct PscArgs {
-    #[arg(long, default_value_t = 2.0)]
+    /// Grid step over the workspace (deg; a grid of at most 2e6 poses: from about 0.38 deg).
+    #[arg(long, default_value_t = 2.0, value_parser = crate::args::positive_up_to(30.0))]
     step_deg: f64,
+    /// Output CSV: Fick angles, link angles and S per pose.
     #[arg(long)]
     out: PathBuf,
     /// Heatmap over alpha x gamma (max over beta) as PNG.
     #[arg(long)]
     png: Option<PathBuf>,
+}
+
+impl PscArgs {
+    /// The grid's size, before any work.
+    pub fn check(&self) -> anyhow::Result<()> {
+        crate::args::check_grid("--step-deg", abvs_eye::WORKSPACE_DEG, self.step_deg)
+    }
 }
 
 pub fn run(cmd: KinCmd) -> anyhow::Result<ExitCode> {

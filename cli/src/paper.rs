@@ -15,8 +15,8 @@ pub struct PaperArgs {
     /// Smaller grids, fewer epochs and sizes, C1 only: a smoke test in well under a minute.
     #[arg(long)]
     quick: bool,
-    /// Maximum training epochs (default: 1000, or 100 with --quick).
-    #[arg(long)]
+    /// Maximum training epochs (1 to 1000000; default: 1000, or 100 with --quick).
+    #[arg(long, value_parser = crate::args::count(1usize, 1_000_000))]
     max_epochs: Option<usize>,
     /// Keep every trained model under OUT/models/ (removed by default).
     #[arg(long)]

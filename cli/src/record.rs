@@ -27,28 +27,32 @@ pub struct DeviceArgs {
     /// Serial port of the drive board's encoder stream.
     #[arg(long, default_value = "/dev/ttyACM0")]
     pub encoders: String,
-    #[arg(long, default_value_t = 1_000_000)]
+    /// Serial baud rate of the encoder stream (1200 to 20000000).
+    #[arg(long, default_value_t = 1_000_000, value_parser = crate::args::count(1200u32, 20_000_000))]
     pub baud: u32,
-    #[arg(long, default_value_t = 1600)]
+    /// Capture width (px, 16 to 8192).
+    #[arg(long, default_value_t = 1600, value_parser = crate::args::count(16u32, 8192))]
     pub width: u32,
-    #[arg(long, default_value_t = 1200)]
+    /// Capture height (px, 16 to 8192).
+    #[arg(long, default_value_t = 1200, value_parser = crate::args::count(16u32, 8192))]
     pub height: u32,
-    #[arg(long, default_value_t = 25)]
+    /// Camera frame rate (Hz, 1 to 1000).
+    #[arg(long, default_value_t = 25, value_parser = crate::args::count(1u32, 1000))]
     pub fps: u32,
     /// V4L2 FourCC to ask for: pgAA (RAW10 MIPI-packed GRBG, the OV8856 default), BA10, YUYV, NV12, ...
     #[arg(long, default_value = "pgAA")]
     pub fourcc: String,
-    /// Exposure (ms); default: read once from the camera (exposure must be manual).
-    #[arg(long)]
+    /// Exposure (ms, up to 1000); default: read once from the camera (exposure must be manual).
+    #[arg(long, value_parser = crate::args::positive_up_to(1000.0))]
     pub exposure_ms: Option<f64>,
-    /// Rolling-shutter readout time (ms), to move end-of-frame timestamps to the start of exposure.
-    #[arg(long, default_value_t = 30.0)]
+    /// Rolling-shutter readout time (ms, 0 to 1000), to move end-of-frame timestamps to the start of exposure.
+    #[arg(long, default_value_t = 30.0, value_parser = crate::args::finite_in(0.0, 1000.0))]
     pub readout_ms: f64,
-    /// Largest left/right start-of-exposure difference of a pair (ms).
-    #[arg(long, default_value_t = 2.0)]
+    /// Largest left/right start-of-exposure difference of a pair (ms, up to 1000).
+    #[arg(long, default_value_t = 2.0, value_parser = crate::args::positive_up_to(1000.0))]
     pub pair_tolerance_ms: f64,
     /// Seconds both eyes have to home (their links roll through the index markers at start-up).
-    #[arg(long, default_value_t = 30.0)]
+    #[arg(long, default_value_t = 30.0, value_parser = crate::args::seconds())]
     pub homing_timeout: f64,
 }
 
@@ -81,15 +85,26 @@ pub struct RecordArgs {
     /// Session directory to create (must not exist or be empty).
     #[arg(long)]
     pub out: PathBuf,
-    /// Stop after this many pairs (default: run until --seconds or Ctrl-C).
-    #[arg(long)]
+    /// Stop after this many pairs (at least 1; default: run until --seconds or Ctrl-C).
+    #[arg(long, value_parser = crate::args::count(1u64, u64::MAX))]
     pub frames: Option<u64>,
     /// Stop after this many seconds.
-    #[arg(long)]
+    #[arg(long, value_parser = crate::args::seconds())]
     pub seconds: Option<f64>,
     /// Write the recording's counts as JSON.
     #[arg(long)]
     pub stats_json: Option<PathBuf>,
+}
+
+impl RecordArgs {
+    /// The outputs before the devices are opened and homed.
+    pub fn check(&self) -> anyhow::Result<()> {
+        crate::outputs::check_dir_creatable("--out", &self.out)?;
+        match &self.stats_json {
+            Some(p) => crate::outputs::check_file_writable("--stats-json", p),
+            None => Ok(()),
+        }
+    }
 }
 
 /// Opens the encoder port, then both cameras (in that order: a missing port is the cheaper

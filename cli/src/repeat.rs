@@ -10,6 +10,7 @@ use std::process::ExitCode;
 
 #[derive(Args)]
 pub struct SimRepeatArgs {
+    /// Unit model to simulate (TOML).
     #[arg(long)]
     unit: PathBuf,
     /// Measured session (dataset CSV with target, approach and image columns).
@@ -18,14 +19,14 @@ pub struct SimRepeatArgs {
     /// The same rows with the true, noise-free poses.
     #[arg(long)]
     truth: Option<PathBuf>,
-    /// Approaches per target, each from a random start (ISO 9283: 30).
-    #[arg(long, default_value_t = 30)]
+    /// Approaches per target, each from a random start (ISO 9283: 30; 1 to 1000).
+    #[arg(long, default_value_t = 30, value_parser = crate::args::count(1usize, 1000))]
     approaches: usize,
-    /// Images per approach (the links standing still).
-    #[arg(long, default_value_t = 10)]
+    /// Images per approach (the links standing still; 1 to 100).
+    #[arg(long, default_value_t = 10, value_parser = crate::args::count(1usize, 100))]
     images: usize,
-    /// The servo stops within this many encoder counts of the command.
-    #[arg(long, default_value_t = 2)]
+    /// The servo stops within this many encoder counts of the command (0 to 1000).
+    #[arg(long, default_value_t = 2, value_parser = crate::args::count(0i64, 1000))]
     settle_counts: i64,
     /// Targets "a,b,g;a,b,g;..." (Fick deg); default ISO 9283's P1..P5 on the workspace.
     #[arg(long, allow_hyphen_values = true)]
@@ -33,19 +34,18 @@ pub struct SimRepeatArgs {
     /// Measurement noise "rot_deg,trans_mm" instead of the unit's own (e.g. a laser tracker).
     #[arg(long, value_parser = parse2)]
     measurement: Option<(f64, f64)>,
+    /// Seed of the random starts and the noise.
     #[arg(long, default_value_t = 0)]
     seed: u64,
 }
 
+/// "rot_deg,trans_mm": two finite standard deviations, each in [0, 10].
 fn parse2(s: &str) -> Result<(f64, f64), String> {
-    let v: Vec<f64> = s
-        .split(',')
-        .map(|x| x.trim().parse::<f64>().map_err(|_| format!("'{x}' is not a number")))
-        .collect::<Result<_, _>>()?;
-    match v[..] {
-        [a, b] => Ok((a, b)),
-        _ => Err(format!("'{s}': expected rot_deg,trans_mm")),
+    let [a, b] = crate::args::vec2(s).map_err(|e| format!("{e} (rot_deg,trans_mm)"))?;
+    if !((0.0..=10.0).contains(&a) && (0.0..=10.0).contains(&b)) {
+        return Err(format!("'{s}': each of rot_deg,trans_mm must be in [0, 10]"));
     }
+    Ok((a, b))
 }
 
 #[derive(Args)]
@@ -53,6 +53,7 @@ pub struct RepeatArgs {
     /// Session: dataset CSV with the commanded pose of each row (cmd_*), optionally target/approach columns.
     #[arg(long)]
     data: PathBuf,
+    /// Print JSON instead of the table.
     #[arg(long)]
     json: bool,
 }

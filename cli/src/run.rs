@@ -38,23 +38,24 @@ pub struct RunArgs {
     pub calib: Option<PathBuf>,
     #[command(flatten)]
     pub devices: crate::record::DeviceArgs,
-    /// Number of frames (the session loops when shorter, timestamps kept increasing); default one pass.
-    #[arg(long)]
+    /// Number of frames (at least 1; the session loops when shorter, timestamps kept increasing); default one pass.
+    #[arg(long, value_parser = crate::args::count(1u64, u64::MAX))]
     pub frames: Option<u64>,
     /// Loop the session without end: until --seconds (or --frames), or until stopped.
     #[arg(long = "loop")]
     pub looping: bool,
     /// Stop taking frames this many seconds after the start (with --loop: a soak test).
-    #[arg(long)]
+    #[arg(long, value_parser = crate::args::seconds())]
     pub seconds: Option<f64>,
     /// Length of a statistics window in seconds: latency p50/p99, counts and resident memory (RSS) per
     /// window, in the table and the stats JSON (`windows`, `rss`).
-    #[arg(long, default_value_t = 60.0)]
+    #[arg(long, default_value_t = 60.0, value_parser = crate::args::seconds())]
     pub stats_window: f64,
     /// Write the statistics as JSON.
     #[arg(long)]
     pub stats_json: Option<PathBuf>,
-    /// Disparity engine: onnx (the shipped network) or sgbm (OpenCV).
+    /// Disparity engine: onnx (the shipped network), sgbm (OpenCV) or fused (SGBM where its checks accept a
+    /// match, the network elsewhere).
     #[arg(long, value_enum, default_value = "onnx")]
     pub engine: EngineKind,
     /// Disparity model directory or .onnx (default: models/hitnet/hitnet-s at 320x240, hitnet-m at 640x480).
@@ -63,8 +64,8 @@ pub struct RunArgs {
     /// Network resolution "WxH" (640x480 or 320x240 for the shipped models).
     #[arg(long, default_value = "640x480")]
     pub resolution: String,
-    /// Horizontal field of view of the rectified images (deg).
-    #[arg(long, default_value_t = 100.0)]
+    /// Horizontal field of view of the rectified images (deg, 10 to 170).
+    #[arg(long, default_value_t = 100.0, value_parser = crate::args::finite_in(10.0, 170.0))]
     pub rect_hfov: f64,
     /// FK used for the eyes: the session's calibrated models, the ideal mechanism (nominal), or the true units
     /// of a synthetic session (truth: the floor set by stereo matching alone).
@@ -76,11 +77,11 @@ pub struct RunArgs {
     /// Do not pace the replay at the recorded frame rate.
     #[arg(long)]
     pub no_pace: bool,
-    /// Nearest depth to match (m): sets the disparity range f B / min_depth.
-    #[arg(long, default_value_t = 0.2)]
+    /// Nearest depth to match (m, up to 100): sets the disparity range f B / min_depth.
+    #[arg(long, default_value_t = 0.2, value_parser = crate::args::positive_up_to(100.0))]
     pub min_depth: f64,
-    /// Threads of the ONNX engine.
-    #[arg(long, default_value_t = 2)]
+    /// Threads of the ONNX engine (1 to 256).
+    #[arg(long, default_value_t = 2, value_parser = crate::args::count(1usize, 256))]
     pub threads: usize,
     /// Per-pixel confidence of the disparity by a left-right check (the engine runs a second time on the
     /// mirrored pair: about doubles the disparity stage), published on the iceoryx2 service {prefix}/confidence.
@@ -91,7 +92,7 @@ pub struct RunArgs {
     #[arg(long)]
     pub lr_check: bool,
     /// Score depth against the session's ground truth every N-th point (synthetic sessions; 0: off).
-    #[arg(long, default_value_t = 8)]
+    #[arg(long, default_value_t = 8, value_parser = crate::args::count(0usize, 1_000_000))]
     pub truth_stride: usize,
     /// Write each frame's rectified pair and depth as PNG into this directory (slow; for looking).
     #[arg(long)]
@@ -134,15 +135,15 @@ pub struct RunArgs {
     pub rolling_shutter: Option<OnOff>,
     /// Motion gate (rectified px): frames whose blur (the faster eye's speed x exposure) exceeds this are
     /// published with depth NaN and an empty cloud, flagged in the header [default: 3].
-    #[arg(long, value_name = "PX")]
+    #[arg(long, value_name = "PX", value_parser = crate::args::positive_up_to(1e9))]
     pub motion_gate_px: Option<f64>,
     /// encoder_time_offset of both eyes (ms; the encoder stream is stamped this much late), overriding the
     /// FK models' (e.g. a timing measured by `abvs calib self-check`, or a wrong one on purpose).
     /// (`--readout-ms` overrides the session's or the cameras' rolling-shutter readout the same way.)
-    #[arg(long, value_name = "MS", allow_negative_numbers = true)]
+    #[arg(long, value_name = "MS", allow_negative_numbers = true, value_parser = crate::args::finite_in(-1000.0, 1000.0))]
     pub time_offset_ms: Option<f64>,
-    /// Self-check every N-th frame (implies --self-check).
-    #[arg(long)]
+    /// Self-check every N-th frame (at least 1; implies --self-check).
+    #[arg(long, value_parser = crate::args::count(1u64, u64::MAX))]
     pub self_check_every: Option<u64>,
     /// Per-frame self-check log as CSV: seq, time, both eyes' link angles, vertical px, rotation error
     /// (implies --self-check).
@@ -155,6 +156,27 @@ pub struct RunArgs {
 pub enum OnOff {
     On,
     Off,
+}
+
+impl RunArgs {
+    /// The outputs given as flags, before the run: a soak must not lose its statistics at the end.
+    pub fn check(&self) -> anyhow::Result<()> {
+        use crate::outputs::{check_dir_creatable, check_file_writable};
+        for (flag, p) in [
+            ("--stats-json", &self.stats_json),
+            ("--self-check-log", &self.self_check_log),
+            ("--mcap", &self.mcap),
+            ("--rerun", &self.rerun),
+        ] {
+            if let Some(p) = p {
+                check_file_writable(flag, p)?;
+            }
+        }
+        if let Some(d) = &self.dump {
+            check_dir_creatable("--dump", d)?;
+        }
+        Ok(())
+    }
 }
 
 /// The checkout's directory of a shipped resource (fixtures/, models/), found next to the executable's
@@ -370,6 +392,7 @@ pub fn run(a: RunArgs, m: &ArgMatches) -> anyhow::Result<ExitCode> {
 
 /// Runs one deployment as its configuration describes it.
 pub fn run_config(c: &RuntimeConfig) -> anyhow::Result<ExitCode> {
+    check_outputs(c)?;
     let input = match c.source.kind {
         SourceKind::Live => Input::Live,
         SourceKind::Session => {
@@ -603,6 +626,26 @@ pub fn run_config(c: &RuntimeConfig) -> anyhow::Result<ExitCode> {
             .with_context(|| format!("writing {}", p.display()))?;
     }
     Ok(ExitCode::SUCCESS)
+}
+
+/// The configuration's output files before the run (a soak must not lose its statistics at the end).
+fn check_outputs(c: &RuntimeConfig) -> anyhow::Result<()> {
+    use crate::outputs::{check_dir_creatable, check_file_writable};
+    let s = &c.sinks;
+    for (field, p) in [
+        ("sinks.stats_json", &s.stats_json),
+        ("sinks.self_check.log", &s.self_check.log),
+        ("sinks.mcap.file", &s.mcap.file),
+        ("sinks.rerun", &s.rerun),
+    ] {
+        if let Some(p) = p {
+            check_file_writable(field, p)?;
+        }
+    }
+    match &s.dump {
+        Some(d) => check_dir_creatable("sinks.dump", d),
+        None => Ok(()),
+    }
 }
 
 /// A flag set by Ctrl-C (SIGINT) or SIGTERM: the run stops taking frames, finishes those in flight and

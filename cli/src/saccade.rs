@@ -125,12 +125,13 @@ pub struct SaccadeArgs {
     /// Torsion rule for --point: listing or zero-fick.
     #[arg(long, value_enum, default_value_t = Torsion::Listing)]
     torsion: Torsion,
-    /// Peak link speed of the minimum-jerk moves (deg/s).
-    #[arg(long, default_value_t = PEAK_SPEED_DEG_S)]
+    /// Peak link speed of the minimum-jerk moves (deg/s, up to 5000).
+    #[arg(long, default_value_t = PEAK_SPEED_DEG_S, value_parser = crate::args::positive_up_to(5000.0))]
     peak_deg_s: f64,
-    /// Give up waiting for homing or for an arrival after this long (s).
-    #[arg(long, default_value_t = 10.0)]
+    /// Give up waiting for homing or for an arrival after this long (s, up to 1e9).
+    #[arg(long, default_value_t = 10.0, value_parser = crate::args::seconds())]
     timeout_s: f64,
+    /// Print JSON instead of the table.
     #[arg(long)]
     json: bool,
 }

@@ -33,8 +33,8 @@ pub struct SelfCheckArgs {
     /// Output directory (report.md, summary.json, PNGs).
     #[arg(long)]
     pub out: PathBuf,
-    /// Heatmap cell size (deg of gaze).
-    #[arg(long, default_value_t = 2.0)]
+    /// Heatmap cell size (deg of gaze, 0.1 to 30).
+    #[arg(long, default_value_t = 2.0, value_parser = crate::args::finite_in(0.1, 30.0))]
     pub cell_deg: f64,
 }
 

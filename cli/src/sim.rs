@@ -27,42 +27,47 @@ pub enum SimCmd {
 
 #[derive(Args)]
 pub struct SessionArgs {
+    /// Session directory to write (session.toml, frames.csv, encoders.csv, frames/, calib/, truth/).
     #[arg(long)]
     out: PathBuf,
+    /// Seed of the scene, the units and the eye movements.
     #[arg(long, default_value_t = 1)]
     seed: u64,
-    #[arg(long, default_value_t = 50)]
+    /// Number of stereo frames to render (1 to 100000).
+    #[arg(long, default_value_t = 50, value_parser = crate::args::count(1usize, 100_000))]
     frames: usize,
-    #[arg(long, default_value_t = 25.0)]
+    /// Frame rate (Hz, up to 1000).
+    #[arg(long, default_value_t = 25.0, value_parser = crate::args::positive_up_to(1000.0))]
     fps: f64,
-    /// Frame size (the OV8856 binned 2x2 by default; the lens is scaled).
-    #[arg(long, default_value_t = 800)]
+    /// Frame width (px, 16 to 8192; the OV8856 binned 2x2 by default; the lens is scaled).
+    #[arg(long, default_value_t = 800, value_parser = crate::args::count(16u32, 8192))]
     width: u32,
-    #[arg(long, default_value_t = 600)]
+    /// Frame height (px, 16 to 8192).
+    #[arg(long, default_value_t = 600, value_parser = crate::args::count(16u32, 8192))]
     height: u32,
     /// FK calibration method fitted for each eye on a simulated calibration dataset.
     #[arg(long, value_enum, default_value_t = abvs_calib::methods::Method::Hybrid)]
     fk_method: abvs_calib::methods::Method,
-    /// Grid step (deg) of that calibration dataset.
-    #[arg(long, default_value_t = 6.0)]
+    /// Grid step (deg, 1 to 30) of that calibration dataset.
+    #[arg(long, default_value_t = 6.0, value_parser = crate::args::finite_in(1.0, 30.0))]
     calib_step_deg: f64,
-    /// Anti-aliasing samples per pixel side.
-    #[arg(long, default_value_t = 2)]
+    /// Anti-aliasing samples per pixel side (1 to 8).
+    #[arg(long, default_value_t = 2, value_parser = crate::args::count(1u32, 8))]
     supersample: u32,
     /// Rolling-shutter readout (ms): first row's start of exposure to the last row's (the OV8856 binned
     /// mode: ~32 ms); 0 = global shutter.
-    #[arg(long, default_value_t = 30.0)]
+    #[arg(long, default_value_t = 30.0, value_parser = crate::args::finite_in(0.0, 1000.0))]
     readout_ms: f64,
     /// Exposure of each row (ms); every row integrates it (motion blur); 0 = an instant.
-    #[arg(long, default_value_t = 4.0)]
+    #[arg(long, default_value_t = 4.0, value_parser = crate::args::finite_in(0.0, 1000.0))]
     exposure_ms: f64,
     /// Peak angular speed of the smooth pursuits (deg/s); the targets also move in depth (the eyes verge);
     /// 0 = fixations and saccades only.
-    #[arg(long, default_value_t = 30.0)]
+    #[arg(long, default_value_t = 30.0, value_parser = crate::args::finite_in(0.0, 500.0))]
     pursuit_deg_s: f64,
     /// encoder_time_offset of both eyes (ms): the encoder stream is stamped this much later than the
     /// camera clock (effects.md; default: each simulated unit's own, 0.1-5 ms).
-    #[arg(long)]
+    #[arg(long, value_parser = crate::args::finite_in(0.0, 10.0))]
     time_offset_ms: Option<f64>,
 }
 
@@ -71,18 +76,20 @@ pub struct BoardArgs {
     /// Serial device to write to (a /dev/pts/N for tests).
     #[arg(long)]
     port: String,
-    #[arg(long, default_value_t = 1000)]
+    /// Encoder frames to send (plain roll; 1 to 1e9).
+    #[arg(long, default_value_t = 1000, value_parser = crate::args::count(1usize, 1_000_000_000))]
     frames: usize,
-    #[arg(long, default_value_t = 1000.0)]
+    /// Encoder frame rate (Hz, up to 100000).
+    #[arg(long, default_value_t = 1000.0, value_parser = crate::args::positive_up_to(100_000.0))]
     rate_hz: f64,
     /// Flip a byte in every n-th frame (0: never).
-    #[arg(long, default_value_t = 0)]
+    #[arg(long, default_value_t = 0, value_parser = crate::args::count(0usize, 1_000_000_000))]
     corrupt_every: usize,
     /// Leave out every n-th frame (0: never).
-    #[arg(long, default_value_t = 0)]
+    #[arg(long, default_value_t = 0, value_parser = crate::args::count(0usize, 1_000_000_000))]
     drop_every: usize,
     /// Restart the board (sequence and clock from zero) after this many frames.
-    #[arg(long)]
+    #[arg(long, value_parser = crate::args::count(1usize, 1_000_000_000))]
     reset_after: Option<usize>,
     /// Replay this session's encoder stream instead of a plain roll: each eye first rolls through its
     /// index markers (start-up homing), then sends the session's samples as raw counts, in real time.
@@ -91,7 +98,7 @@ pub struct BoardArgs {
     /// With --session: CLOCK_MONOTONIC time (ns) at which the session's first encoder sample is sent
     /// (default: right after the roll, which starts now). Other processes replaying the same session's
     /// frames use the same anchor.
-    #[arg(long)]
+    #[arg(long, value_parser = crate::args::count(0i64, i64::MAX / 2))]
     start_ns: Option<i64>,
     /// With --session: draws the links' raw-count origins and roll starts.
     #[arg(long, default_value_t = 1)]
@@ -100,14 +107,17 @@ pub struct BoardArgs {
     /// --rate-hz) for --seconds; `abvs gaze saccade` drives it.
     #[arg(long)]
     serve: bool,
-    #[arg(long, default_value_t = 10.0)]
+    /// With --serve: how long to serve (s).
+    #[arg(long, default_value_t = 10.0, value_parser = crate::args::seconds())]
     seconds: f64,
 }
 
 #[derive(Args)]
 pub struct UnitArgs {
+    /// Seed of the drawn effect sizes.
     #[arg(long)]
     seed: u64,
+    /// Unit model file to write (TOML).
     #[arg(long)]
     out: PathBuf,
     /// Comma-separated effect names to switch on, or "all".
@@ -119,31 +129,45 @@ pub struct UnitArgs {
 }
 
 #[derive(Args)]
+#[command(group(clap::ArgGroup::new("grid").required(true).args(["step_deg", "grid_n"])))]
 pub struct DatasetArgs {
+    /// Unit model to simulate (TOML).
     #[arg(long)]
     unit: PathBuf,
-    /// Grid step of the commanded Fick grid (deg).
-    #[arg(long, conflicts_with = "grid_n")]
+    /// Grid step of the commanded Fick grid (deg; the grid may hold at most 2e6 poses).
+    #[arg(long, value_parser = crate::args::positive_up_to(90.0))]
     step_deg: Option<f64>,
-    /// Instead of a step: n values per axis (the paper's n^3 fine-tuning sets).
-    #[arg(long)]
+    /// Instead of a step: n values per axis (the paper's n^3 fine-tuning sets; 2 to 125).
+    #[arg(long, value_parser = crate::args::count(2usize, 125))]
     grid_n: Option<usize>,
-    /// Keep N commanded poses drawn at random, visited in random order.
-    #[arg(long)]
+    /// Keep N commanded poses drawn at random, visited in random order (1 to 2e6).
+    #[arg(long, value_parser = crate::args::count(1usize, 2_000_000))]
     random: Option<usize>,
+    /// Seed of the noise, dropouts and random subset.
     #[arg(long, default_value_t = 0)]
     seed: u64,
-    /// Probability that a measurement fails and the sample is absent.
-    #[arg(long, default_value_t = 0.05)]
+    /// Probability in [0, 0.99] that a measurement fails and the sample is absent.
+    #[arg(long, default_value_t = 0.05, value_parser = crate::args::finite_in(0.0, 0.99))]
     dropout: f64,
-    /// Gravity direction in B, "gx,gy,gz" (default head upright: 0,1,0).
-    #[arg(long, default_value = "0,1,0")]
-    gravity: String,
-    /// Half-ranges of alpha, beta, gamma (deg), "a,b,g" (default the paper's 30,15,30).
-    #[arg(long, default_value = "30,15,30")]
-    range: String,
+    /// Gravity direction in B, "gx,gy,gz", a unit vector (default head upright: 0,1,0).
+    #[arg(long, default_value = "0,1,0", value_parser = crate::args::gravity, allow_hyphen_values = true)]
+    gravity: [f64; 3],
+    /// Half-ranges of alpha, beta, gamma (deg, each in (0, 90]), "a,b,g" (default the paper's 30,15,30).
+    #[arg(long, default_value = "30,15,30", value_parser = crate::args::half_ranges)]
+    range: [f64; 3],
+    /// Dataset CSV to write (docs/spec/dataset.md).
     #[arg(long)]
     out: PathBuf,
+}
+
+impl DatasetArgs {
+    /// The commanded grid's size before any work.
+    pub fn check(&self) -> anyhow::Result<()> {
+        if let Some(s) = self.step_deg {
+            crate::args::check_grid("--step-deg", self.range, s)?;
+        }
+        crate::outputs::check_file_writable("--out", &self.out)
+    }
 }
 
 pub fn parse_effects(s: &str) -> anyhow::Result<Vec<Effect>> {
@@ -268,11 +292,11 @@ pub fn run(cmd: SimCmd) -> anyhow::Result<ExitCode> {
             };
             let spec = SimSpec {
                 commanded,
-                range_deg: crate::parse3(&a.range).map_err(anyhow::Error::msg).context("--range")?,
+                range_deg: a.range,
                 random: a.random,
                 seed: a.seed,
                 dropout: a.dropout,
-                gravity: crate::parse3(&a.gravity).map_err(anyhow::Error::msg).context("--gravity")?,
+                gravity: a.gravity,
             };
             let t0 = std::time::Instant::now();
             let pb = crate::progress_bar(0, "simulating");

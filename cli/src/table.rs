@@ -85,6 +85,14 @@ impl GravityCols {
         for k in 0..3 {
             g[k] = num(path, line, ["gx", "gy", "gz"][k], &row[c[k]])?;
         }
+        // as the simulator and sessions demand: a zero or scaled vector would change the modelled sag
+        let norm = (g[0] * g[0] + g[1] * g[1] + g[2] * g[2]).sqrt();
+        if (norm - 1.0).abs() > 1e-3 {
+            return Err(format!(
+                "{}:{line}: columns gx, gy, gz: {g:?} has length {norm:.4}, expected a unit vector",
+                path.display()
+            ));
+        }
         Ok(g)
     }
 }
@@ -101,6 +109,10 @@ pub fn map_rows(
 ) -> anyhow::Result<ExitCode> {
     let ic: Vec<usize> = inputs.iter().map(|n| t.col(input, n)).collect::<anyhow::Result<_>>()?;
     let oc: Vec<usize> = outputs.iter().map(|n| t.out_col(n)).collect();
+    if t.rows.is_empty() {
+        // nothing computed is not a success
+        anyhow::bail!("{}: no rows to compute (a header without data)", input.display());
+    }
     let mut failed = 0usize;
     for (k, row) in t.rows.iter_mut().enumerate() {
         let line = k + 2;

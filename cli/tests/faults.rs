@@ -124,6 +124,7 @@ fn subscribers_killed_while_holding_samples_do_not_disturb_the_publisher() {
         s["frames_in"], s["frames_published"], s["frames_dropped"], s["publish"]
     );
     assert_eq!(s["frames_failed"], serde_json::json!({}), "no frame failed to publish: {s}");
+    assert_eq!(s["sink_failures"], serde_json::json!({}), "no sink failed: {s}");
     let n = |k: &str| s[k].as_u64().unwrap();
     assert_eq!(n("frames_in"), n("frames_published") + n("frames_dropped"), "{s}");
     for topic in ["depth", "cloud"] {

@@ -16,6 +16,7 @@
 
 pub mod batch;
 pub mod error;
+pub mod hash;
 pub mod method;
 pub mod model;
 pub mod net;

@@ -48,6 +48,26 @@ pub struct TrainingInfo {
     /// Manifest method and data hash of the model this one was fine-tuned from.
     #[serde(default)]
     pub base: Option<String>,
+    /// Smallest and largest alpha, beta, gamma (deg) of the training poses: the calibrated
+    /// workspace (calibrated IK flags targets outside it). Absent in older manifests.
+    #[serde(default)]
+    pub range_deg: Option<[[f64; 2]; 3]>,
+}
+
+impl TrainingInfo {
+    /// Each axis' [min, max] of the samples' Fick angles (None without samples).
+    pub fn range_of(data: &Dataset) -> Option<[[f64; 2]; 3]> {
+        if data.is_empty() {
+            return None;
+        }
+        let mut r = [[f64::INFINITY, f64::NEG_INFINITY]; 3];
+        for s in &data.samples {
+            for k in 0..3 {
+                r[k] = [r[k][0].min(s.pose[k]), r[k][1].max(s.pose[k])];
+            }
+        }
+        Some(r)
+    }
 }
 
 #[derive(Debug, Clone, Serialize, Deserialize)]
@@ -76,6 +96,10 @@ pub struct Manifest {
     /// Metrics on the validation data at the end of training.
     #[serde(default)]
     pub validation: Option<serde_json::Value>,
+    /// File -> hex SHA-256 of every network and unit file, written by `save_model` and checked by
+    /// `FkModel::load` (absent in older manifests: nothing to check).
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub sha256: BTreeMap<String, String>,
 }
 
 impl Manifest {
@@ -93,6 +117,7 @@ impl Manifest {
             held_parameters: vec![],
             training: TrainingInfo::default(),
             validation: None,
+            sha256: BTreeMap::new(),
         }
     }
 }
@@ -111,16 +136,36 @@ pub fn save_model(dir: &Path, parts: &ModelParts) -> Result<()> {
     for (role, net) in &parts.nets {
         let file = format!("{role}.onnx");
         export_onnx(net, &dir.join(&file))?;
+        m.sha256.insert(file.clone(), crate::hash::sha256_file(&dir.join(&file))?);
         m.networks.insert(role.clone(), file);
         m.normalization.insert(role.clone(), serde_json::json!({"input": net.input_norm, "output": net.output_norm}));
     }
     if let Some(u) = &parts.unit {
         u.save(&dir.join("unit.toml"))?;
+        m.sha256.insert("unit.toml".into(), crate::hash::sha256_file(&dir.join("unit.toml"))?);
         m.physics = Some("unit.toml".into());
     }
     let text = serde_json::to_string_pretty(&m).expect("manifest serialises");
     let p = dir.join(MANIFEST);
     std::fs::write(&p, text).map_err(|e| CalibError::io(&p, e))
+}
+
+/// Removes a model directory's manifest and the files it names (and the files any method
+/// writes), so that a new model written there is whole; other files are left alone.
+pub fn remove_model(dir: &Path) -> Result<()> {
+    let mp = dir.join(MANIFEST);
+    let mut files: Vec<String> =
+        ["net.onnx", "internal.onnx", "external.onnx", "residual.onnx", "unit.toml"].map(String::from).to_vec();
+    if let Ok(Ok(m)) = std::fs::read_to_string(&mp).map(|t| serde_json::from_str::<Manifest>(&t)) {
+        files.extend(m.networks.into_values().chain(m.physics));
+    }
+    for f in files.iter().map(|f| dir.join(f)).chain([mp]) {
+        // only files inside the directory, never a path a manifest smuggles out of it
+        if f.parent() == Some(dir) && f.is_file() {
+            std::fs::remove_file(&f).map_err(|e| CalibError::io(&f, e))?;
+        }
+    }
+    Ok(())
 }
 
 /// Twice the largest |first-order S - exact S| over the workspace's 3 deg grid (computed once).
@@ -256,6 +301,12 @@ impl FkModel {
             serde_json::from_str(&text).map_err(|e| CalibError::model(&mp, format!("bad manifest: {e}")))?;
         if manifest.format != MODEL_FORMAT {
             return Err(CalibError::model(&mp, format!("format '{}', expected '{MODEL_FORMAT}'", manifest.format)));
+        }
+        for (file, hash) in &manifest.sha256 {
+            // a missing file is reported by its loader below, with what it is for
+            if dir.join(file).is_file() {
+                crate::hash::verify_sha256(&dir.join(file), &mp, hash)?;
+            }
         }
         let net = |role: &str| -> Result<NetRunner> {
             let f = manifest

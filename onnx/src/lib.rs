@@ -86,7 +86,14 @@ pub fn session(path: &Path, threads: usize) -> Result<ort::session::Session> {
     let rt = init()?;
     let err = |e: ort::Error| OnnxError::Model { path: path.to_path_buf(), msg: e.to_string() };
     if !path.is_file() {
-        return Err(OnnxError::Model { path: path.to_path_buf(), msg: "no such file".into() });
+        // say what is there: /dev/null exists, it is just not a model file
+        let msg = match std::fs::metadata(path) {
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => "no such file".into(),
+            Err(e) => e.to_string(),
+            Ok(m) if m.is_dir() => "is a directory, expected an .onnx file".into(),
+            Ok(_) => "not a regular file (a device, pipe or socket), expected an .onnx file".into(),
+        };
+        return Err(OnnxError::Model { path: path.to_path_buf(), msg });
     }
     ort::session::Session::builder(&rt.env)
         .map_err(err)?

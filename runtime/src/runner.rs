@@ -360,23 +360,27 @@ pub fn run<S: PairSource>(graph: Graph<S>, cfg: &RunConfig) -> Result<RunStats> 
             if let Err(reason) = process(&mut output.stages, &mut w) {
                 stats.fail(reason);
             } else if let Some(published) = w.published(&cam) {
-                let mut ok = true;
                 for sink in sinks.iter_mut() {
                     if let Err(e) = sink.consume(&published) {
-                        ok = false;
-                        log::warn!("frame {}: sink {}: {e}", w.seq, sink.name());
-                        stats.fail("sink failed");
+                        // that sink's failure, not the frame's: the other sinks took it
+                        let n = stats.sink_failures.entry(sink.name().to_string()).or_default();
+                        *n += 1;
+                        if *n == 1 {
+                            log::warn!(
+                                "frame {}: sink {}: {e} (further failures of this sink are counted)",
+                                w.seq,
+                                sink.name()
+                            );
+                        }
                     }
                 }
                 let t1 = monotonic_ns();
                 stats.stage_mut(output.name).record_ns(t1 - t0);
-                if ok {
-                    stats.frames_published += 1;
-                    stats.points_total += w.depth.n_points as u64;
-                    stats.end_to_end.record_ns(t1 - w.t_frame_ns);
-                    win.latency.record_ns(t1 - w.t_frame_ns);
-                    stats.digest(&w.depth.depth);
-                }
+                stats.frames_published += 1;
+                stats.points_total += w.depth.n_points as u64;
+                stats.end_to_end.record_ns(t1 - w.t_frame_ns);
+                win.latency.record_ns(t1 - w.t_frame_ns);
+                stats.digest(&w.depth.depth);
             }
             std::mem::swap(&mut w.depth, &mut depth);
             let _ = free_tx.send(w);

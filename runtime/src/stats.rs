@@ -146,11 +146,13 @@ pub struct DepthError {
 }
 
 impl DepthError {
+    /// Errors are null when no point was scored: nothing scored is not a perfect score.
     pub fn json(&self) -> Value {
-        let n = self.points.max(1) as f64;
+        let n = self.points as f64;
+        let scored = |v: f64| if self.points > 0 { json!(v) } else { Value::Null };
         json!({
-            "abs_rel": self.abs_rel_sum / n,
-            "rmse_m": (self.sq_sum / n).sqrt(),
+            "abs_rel": scored(self.abs_rel_sum / n),
+            "rmse_m": scored((self.sq_sum / n).sqrt()),
             "valid_fraction": self.points as f64 / self.pixels.max(1) as f64,
             "points": self.points,
         })
@@ -168,6 +170,9 @@ pub struct RunStats {
     pub frames_failed: BTreeMap<String, u64>,
     /// Published with depth invalid because the eyes moved too fast during the exposure (the motion gate).
     pub frames_motion_gated: u64,
+    /// Frames a sink failed to take (a full disk under --dump, ...), by sink: that sink's failure,
+    /// not the frame's; the frame still counts as published to the others.
+    pub sink_failures: BTreeMap<String, u64>,
     pub stages: Vec<(&'static str, Latency)>,
     pub end_to_end: Latency,
     pub depth_error: Option<DepthError>,
@@ -189,6 +194,7 @@ impl RunStats {
             frames_dropped: 0,
             frames_failed: BTreeMap::new(),
             frames_motion_gated: 0,
+            sink_failures: BTreeMap::new(),
             stages: stage_names.iter().map(|n| (*n, Latency::default())).collect(),
             end_to_end: Latency::default(),
             depth_error: None,
@@ -230,6 +236,7 @@ impl RunStats {
             "frames_dropped": self.frames_dropped,
             "frames_failed": self.frames_failed,
             "frames_motion_gated": self.frames_motion_gated,
+            "sink_failures": self.sink_failures,
             "fps": if elapsed_s > 0.0 { self.frames_published as f64 / elapsed_s } else { 0.0 },
             "elapsed_s": elapsed_s,
             "latency_ms": self.end_to_end.json(),
@@ -293,6 +300,9 @@ impl RunStats {
         for (reason, n) in &self.frames_failed {
             s += &format!("  failed: {reason}: {n}\n");
         }
+        for (sink, n) in &self.sink_failures {
+            s += &format!("  sink {sink} failed on {n} frames\n");
+        }
         s += &format!("{:<22} {:>9} {:>9} {:>9} {:>7}\n", "stage (ms)", "p50", "p99", "max", "count");
         for (n, l) in self.stages.iter().map(|(n, l)| (*n, l)).chain(std::iter::once(("end to end", &self.end_to_end)))
         {
@@ -324,7 +334,9 @@ impl RunStats {
                 );
             }
         }
-        if let Some(e) = &self.depth_error {
+        if let Some(e) = self.depth_error.filter(|e| e.points == 0) {
+            s += &format!("depth error vs truth: nothing scored (0 of {} pixels had a valid depth)\n", e.pixels);
+        } else if let Some(e) = &self.depth_error {
             let j = e.json();
             s += &format!(
                 "depth error vs truth: abs_rel {}  rmse {:.4} m  valid {:.3}\n",

@@ -84,6 +84,18 @@ impl Sink for Recorder {
     }
 }
 
+/// A sink that fails on every frame (a full disk under --dump).
+struct Failing;
+
+impl Sink for Failing {
+    fn name(&self) -> &'static str {
+        "failing"
+    }
+    fn consume(&mut self, _: &Published) -> abvs_runtime::Result<()> {
+        Err(abvs_runtime::RuntimeError::Invalid("disk full".into()))
+    }
+}
+
 #[test]
 fn a_sink_and_side_stages_join_the_graph_without_touching_the_runner() {
     let plain = runner::run(standard(), &cfg().run_config()).unwrap();
@@ -98,6 +110,7 @@ fn a_sink_and_side_stages_join_the_graph_without_touching_the_runner() {
     let own = Brightness { name: "brightness_lane", seen: Arc::clone(&own_lane), started: false };
     let at = g.lanes.len() - 1;
     g.lanes.insert(at, Lane { name: "check", stages: vec![Box::new(own)] });
+    g.add_sink(Box::new(Failing));
     g.add_sink(Box::new(Recorder(Arc::clone(&sunk))));
     assert_eq!(g.stage_names(), ["source", "rectify", "disparity", "check", "output"]);
     let stats = runner::run(g, &cfg().run_config()).unwrap();
@@ -116,9 +129,11 @@ fn a_sink_and_side_stages_join_the_graph_without_touching_the_runner() {
     assert_eq!(stats.extra["brightness_lane_frames"], serde_json::json!(FRAMES));
     let check = stats.stages.iter().find(|s| s.0 == "check").expect("the lane's latency");
     assert_eq!(check.1.count(), FRAMES);
-    // and the published result is what the standard graph publishes
+    // and the published result is what the standard graph publishes; the failing sink is that sink's
+    // failure, not an unpublished frame
     assert_eq!(stats.frames_published, FRAMES);
     assert!(stats.frames_failed.is_empty(), "{:?}", stats.frames_failed);
+    assert_eq!(stats.sink_failures.get("failing"), Some(&FRAMES), "{:?}", stats.sink_failures);
     assert_eq!(stats.output_digest, plain.output_digest);
     assert_eq!(stats.points_total, plain.points_total);
 }

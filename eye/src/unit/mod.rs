@@ -126,14 +126,20 @@ impl UnitModel {
         }
         let g = &self.geometry;
         let geometry = [
-            ("geometry.d1_deg", g.d1_deg - NOMINAL_D1_DEG, 20.0),
-            ("geometry.d2_deg", g.d2_deg - NOMINAL_D2_DEG, 20.0),
-            ("geometry.psi_deg", g.psi_deg[0] - NOMINAL_PSI_DEG[0], 30.0),
-            ("geometry.psi_deg", g.psi_deg[1] - NOMINAL_PSI_DEG[1], 30.0),
-            ("geometry.psi_deg", g.psi_deg[2] - NOMINAL_PSI_DEG[2], 30.0),
+            ("geometry.d1_deg", g.d1_deg, NOMINAL_D1_DEG, 20.0),
+            ("geometry.d2_deg", g.d2_deg, NOMINAL_D2_DEG, 20.0),
+            ("geometry.psi_deg", g.psi_deg[0], NOMINAL_PSI_DEG[0], 30.0),
+            ("geometry.psi_deg", g.psi_deg[1], NOMINAL_PSI_DEG[1], 30.0),
+            ("geometry.psi_deg", g.psi_deg[2], NOMINAL_PSI_DEG[2], 30.0),
         ];
-        for (name, v, lim) in geometry {
-            check_limit(name, v, lim)?;
+        for (name, v, nominal, lim) in geometry {
+            // the limit is on the deviation; the message gives the value the file holds
+            if !v.is_finite() {
+                return Err(format!("{name}: not a finite number"));
+            }
+            if (v - nominal).abs() > lim {
+                return Err(format!("{name}: {v} is beyond the plausible range {nominal} +-{lim}"));
+            }
         }
         for eff in Effect::ALL {
             let (names, values, limits) = (eff.param_names(), self.params(eff), eff.param_limits());

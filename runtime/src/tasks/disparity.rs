@@ -39,6 +39,9 @@ pub struct DisparityManifest {
     pub metrics: serde_json::Value,
     #[serde(default)]
     pub training: serde_json::Value,
+    /// Hex SHA-256 of the model file, checked on load (a damaged model would silently change the depth).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub onnx_sha256: Option<String>,
 }
 
 /// A stereo matcher on rectified 8-bit gray images of a fixed size.
@@ -97,6 +100,12 @@ impl OnnxEngine {
             crate::session::check_inside(&m.file)
                 .map_err(|e| RuntimeError::Model { path: mp.clone(), msg: format!("bad manifest: `file`: {e}") })?;
             let f = path.join(&m.file);
+            if let Some(h) = &m.onnx_sha256 {
+                abvs_fk::hash::verify_sha256(&f, &mp, h).map_err(|e| match e {
+                    abvs_fk::FkError::Model { path, msg } => RuntimeError::Model { path, msg },
+                    e => err(e.to_string()),
+                })?;
+            }
             (Some(m), f)
         } else {
             (None, path.to_path_buf())
@@ -203,6 +212,7 @@ fn describe(
             output_name: o.name().into(),
             metrics: serde_json::Value::Null,
             training: serde_json::Value::Null,
+            onnx_sha256: None,
         },
     };
     Ok((m, [1, shape[1] as usize, h as usize, w as usize]))
