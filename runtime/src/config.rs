@@ -47,6 +47,10 @@ pub enum EngineKind {
     /// SGBM where its own checks accept a match, the network elsewhere: the best depth on real images, at
     /// about the cost of both (`tasks::disparity_fused`).
     Fused,
+    /// The network's disparity refined by a census search within a few pixels of it
+    /// (`tasks::disparity_census`): the runtime's default, better than SGBM on real images at about its cost.
+    #[serde(rename = "census-refine")]
+    CensusRefine,
 }
 
 impl EngineKind {
@@ -55,6 +59,7 @@ impl EngineKind {
             EngineKind::Onnx => "onnx",
             EngineKind::Sgbm => "sgbm",
             EngineKind::Fused => "fused",
+            EngineKind::CensusRefine => "census-refine",
         }
     }
 }
@@ -338,8 +343,9 @@ impl Default for IceoryxConfig {
 }
 
 impl RuntimeConfig {
-    /// The default deployment: replay `session` with the shipped network at 640x480, the best depth this
-    /// 2-core machine sustains at 25 fps (runtime/BENCHMARKS.md, `scripts/bench_depth.sh`).
+    /// The default deployment: replay `session` with the shipped network refined by a census search at
+    /// 640x480, the best depth this 2-core machine sustains at 25 fps (runtime/BENCHMARKS.md,
+    /// `scripts/bench_depth.sh`).
     pub fn for_session(session: PathBuf) -> Self {
         RuntimeConfig {
             format: FORMAT.into(),
@@ -355,7 +361,7 @@ impl RuntimeConfig {
             },
             calibration: CalibrationConfig { fk: FkSource::Calibrated, dir: None },
             disparity: DisparityConfig {
-                engine: EngineKind::Onnx,
+                engine: EngineKind::CensusRefine,
                 model: None,
                 width: 640,
                 height: 480,
