@@ -186,7 +186,7 @@ pub struct DisparityConfig {
     pub rect_hfov_deg: f64,
     /// Nearest depth to match (m): sets the disparity range, f B / min_depth.
     pub min_depth_m: f64,
-    /// Threads of the ONNX engine.
+    /// Threads of the ONNX engine, and of OpenCV's pool (SGBM_3WAY, remap): one budget for every engine.
     pub threads: usize,
     /// Per-pixel confidence of the disparity by a left-right check (the engine run a second time on the
     /// mirrored pair: about doubles the disparity stage), published on `{prefix}/confidence`.
