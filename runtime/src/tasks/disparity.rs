@@ -381,14 +381,9 @@ pub fn engine(
             Ok(Box::new(e))
         }
         // these two resize the network's input, so any model size goes
-        "census-refine" => {
-            Ok(Box::new(super::disparity_census::CensusRefineEngine::new(load()?.1, size.0, size.1)?))
-        }
+        "census-refine" => Ok(Box::new(super::disparity_census::CensusRefineEngine::new(load()?.1, size.0, size.1)?)),
         "fused" => Ok(Box::new(super::disparity_fused::FusedEngine::new(load()?.1, size.0, size.1)?)),
-        other => Err(RuntimeError::Invalid(format!(
-            "unknown disparity engine `{other}` ({})",
-            ENGINES.join(" | ")
-        ))),
+        other => Err(RuntimeError::Invalid(format!("unknown disparity engine `{other}` ({})", ENGINES.join(" | ")))),
     }
 }
 
