@@ -56,7 +56,7 @@ pub struct RunArgs {
     #[arg(long)]
     pub stats_json: Option<PathBuf>,
     /// Disparity engine: census-refine (the shipped network refined by a census search: better than SGBM on
-    /// real images at about its cost), onnx (the network alone), sgbm (OpenCV SGBM_3WAY), fused (SGBM where
+    /// real images), onnx (the network alone), sgbm (OpenCV SGBM_3WAY), fused (SGBM where
     /// its checks accept a match, the network elsewhere; costs both).
     #[arg(long, value_enum, default_value = "census-refine")]
     pub engine: EngineKind,

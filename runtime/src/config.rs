@@ -48,7 +48,7 @@ pub enum EngineKind {
     /// about the cost of both (`tasks::disparity_fused`).
     Fused,
     /// The network's disparity refined by a census search within a few pixels of it
-    /// (`tasks::disparity_census`): the runtime's default, better than SGBM on real images at about its cost.
+    /// (`tasks::disparity_census`): the runtime's default, better than SGBM_3WAY on real images.
     #[serde(rename = "census-refine")]
     CensusRefine,
 }
