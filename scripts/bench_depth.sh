@@ -1,10 +1,12 @@
 #!/usr/bin/env bash
-# Issue 13's speed bar, as a benchmark (not a timed test): paced replays of the fixture at its recorded
-# 25 fps, ROUNDS rounds, each running the network engine and SGBM back to back (order alternating) at
-# the runtime's default resolution (or --resolution WxH given after the counts). Prints, per engine, the
-# medians over rounds of the achieved fps, the end-to-end latency p50 and p99 (frame mid-exposure ->
-# cloud published), the frames dropped (all rounds) and the disparity stage's p50, and the median of the
-# paired ratio disparity(network) / disparity(SGBM) of the same round.
+# Issue 28's speed bars, as a benchmark (not a timed test): paced replays of the fixture at its recorded
+# 25 fps, ROUNDS rounds, each running `abvs run` as the README runs it (no flags: the default engine, truth
+# scoring on its side lane) and the same with `--engine sgbm` (OpenCV SGBM_3WAY, the same 2 threads) back to
+# back, order alternating, at the runtime's default resolution (or the run flags given after the counts).
+# Prints, per run, the medians over rounds of the achieved fps, the end-to-end latency p50 and p99 (frame
+# mid-exposure -> cloud published), the frames dropped (all rounds), the frames the truth scored, the
+# disparity stage's p50, and the median of the paired ratio disparity(default) / disparity(SGBM_3WAY) of the
+# same round.
 #   cargo build --release -p abvs && scripts/bench_depth.sh [ROUNDS=5] [FRAMES=125] [run flags]
 set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
@@ -16,9 +18,10 @@ OUT=$(mktemp -d)
 trap 'rm -rf "$OUT"' EXIT
 echo "load average: $(cut -d' ' -f1-3 /proc/loadavg); $(nproc) cores; $BIN"
 for i in $(seq 1 "$ROUNDS"); do
-  if (( i % 2 )); then order=(onnx sgbm); else order=(sgbm onnx); fi
+  if (( i % 2 )); then order=(default sgbm); else order=(sgbm default); fi
   for e in "${order[@]}"; do
-    "$BIN" run --quiet --truth-stride 0 --frames "$FRAMES" --engine "$e" --service-prefix "abvs-bench-$$" "$@" \
+    if [[ $e == sgbm ]]; then flags=(--engine sgbm); else flags=(); fi
+    "$BIN" run --quiet --frames "$FRAMES" ${flags[@]+"${flags[@]}"} --service-prefix "abvs-bench-$$" "$@" \
       --stats-json "$OUT/$e-$i.json" >/dev/null 2>&1
   done
 done
@@ -27,13 +30,17 @@ python3 - "$OUT" "$ROUNDS" <<'PY'
 import json, statistics as st, sys
 out, n = sys.argv[1], int(sys.argv[2])
 load = lambda e: [json.load(open(f"{out}/{e}-{i}.json")) for i in range(1, n + 1)]
-runs = {e: load(e) for e in ["onnx", "sgbm"]}
+runs = {e: load(e) for e in ["default", "sgbm"]}
 for e, vs in runs.items():
     med = lambda f: st.median(f(v) for v in vs)
-    print(f"{vs[0]['engine']:16} {vs[0]['resolution'][0]}x{vs[0]['resolution'][1]}: "
+    lane = [v.get("truth_side_lane", {}) for v in vs]
+    print(f"{e:8} {vs[0]['engine']:22} {vs[0]['resolution'][0]}x{vs[0]['resolution'][1]}: "
           f"fps {med(lambda v: v['fps']):.1f}, end-to-end p50 {med(lambda v: v['latency_ms']['p50']):.1f} ms, "
           f"p99 {med(lambda v: v['latency_ms']['p99']):.1f} ms, dropped {sum(v['frames_dropped'] for v in vs)} "
-          f"of {sum(v['frames_in'] for v in vs)}, disparity stage p50 {med(lambda v: v['stages']['disparity']['p50']):.1f} ms")
-r = [a["stages"]["disparity"]["p50"] / b["stages"]["disparity"]["p50"] for a, b in zip(runs["onnx"], runs["sgbm"])]
-print(f"disparity stage network / SGBM, paired by round: median {st.median(r):.3f} (min {min(r):.3f}, max {max(r):.3f})")
+          f"of {sum(v['frames_in'] for v in vs)}, truth scored {sum(l.get('frames_consumed', 0) for l in lane)} "
+          f"of {sum(l.get('frames_in', 0) for l in lane)}, "
+          f"disparity stage p50 {med(lambda v: v['stages']['disparity']['p50']):.1f} ms, "
+          f"abs_rel {med(lambda v: v.get('depth_error', {}).get('abs_rel', float('nan'))):.4f}")
+r = [a["stages"]["disparity"]["p50"] / b["stages"]["disparity"]["p50"] for a, b in zip(runs["default"], runs["sgbm"])]
+print(f"disparity stage default / SGBM_3WAY, paired by round: median {st.median(r):.3f} (min {min(r):.3f}, max {max(r):.3f})")
 PY

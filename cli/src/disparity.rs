@@ -1,10 +1,13 @@
-//! `abvs disparity`: the left-view disparity of a rectified image pair, by the fused engine (default), the
-//! network or SGBM, with an optional left-right check, confidence and invalid reasons.
+//! `abvs disparity`: the left-view disparity of a rectified image pair, by any engine of `abvs run` under
+//! the same names (`abvs_runtime::config::EngineKind`; default: fused), with an optional left-right check,
+//! confidence and invalid reasons.
 //!
 //! The network and the plain SGBM engine run at the model's resolution: inputs are resized to it
 //! (INTER_AREA; anisotropic resizes keep rows epipolar) and disparities resampled back (bilinear) and
 //! scaled by the width ratio. The fused engine runs SGBM at the input resolution and the network at its
-//! own (`abvs_runtime::tasks::disparity_fused`). The output is PFM at the input resolution, invalid = inf.
+//! own (`abvs_runtime::tasks::disparity_fused`); census-refine refines the network's answer at the input
+//! resolution (`abvs_runtime::tasks::disparity_census`). The output is PFM at the input resolution,
+//! invalid = inf.
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
@@ -14,6 +17,7 @@ use abvs_runtime::tasks::confidence::{
     reason::{NO_ESTIMATE, VALID},
 };
 use abvs_runtime::tasks::disparity::{self, DisparityEngine};
+use abvs_runtime::tasks::disparity_census::CensusRefineEngine;
 use abvs_runtime::tasks::disparity_fused::{upsample_disparity, FusedEngine, Source};
 use anyhow::{bail, Context};
 use clap::Args;
@@ -39,7 +43,8 @@ pub struct DisparityArgs {
     #[arg(long)]
     model: Option<PathBuf>,
     /// fused: SGBM where its own checks accept a match, the network elsewhere (the best on real images);
-    /// onnx: the network alone; sgbm: SGBM alone (both at the model's resolution).
+    /// census-refine: the network refined by a census search within 3 px (the runtime's default; at the
+    /// input resolution); onnx: the network alone; sgbm: SGBM_3WAY alone (both at the model's resolution).
     #[arg(long, value_enum, default_value_t = EngineKind::Fused)]
     engine: EngineKind,
     /// Threads of the ONNX engine (1 to 256).
@@ -186,10 +191,30 @@ pub fn estimate(
     if l.size()? != r.size()? {
         bail!("left {}x{} and right {}x{} differ in size", l.cols(), l.rows(), r.cols(), r.rows());
     }
+    disparity::set_opencv_threads(threads)?;
     let onnx = disparity::OnnxEngine::load(model, threads)?;
     let (mw, mh) = (onnx.manifest.width, onnx.manifest.height);
     let (iw, ih) = (l.cols() as u32, l.rows() as u32);
     let isize = (iw as usize, ih as usize);
+    if kind == EngineKind::CensusRefine {
+        let mut e = CensusRefineEngine::new(onnx, iw, ih)?;
+        let (lb, rb) = (l.data_bytes()?.to_vec(), r.data_bytes()?.to_vec());
+        let mut d = compute(&mut e, &lb, &rb)?;
+        let checked = match lr_max_diff {
+            None => None,
+            Some(max_diff) => {
+                let dr = right_view(&mut e, &lb, &rb)?;
+                let (reason, conf) = lr_check(&d, &dr, iw as usize, max_diff);
+                for (v, &why) in d.iter_mut().zip(&reason) {
+                    if why != VALID {
+                        *v = f32::NAN;
+                    }
+                }
+                Some((conf, reason))
+            }
+        };
+        return Ok(Estimate { engine: e.name().to_string(), model_size: (mw, mh), disparity: d, checked });
+    }
     if kind == EngineKind::Fused {
         let mut e = FusedEngine::new(onnx, iw, ih)?;
         let (lb, rb) = (l.data_bytes()?.to_vec(), r.data_bytes()?.to_vec());

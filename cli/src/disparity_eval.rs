@@ -2,8 +2,10 @@
 //!
 //! EPE over the pixels an engine answers, bad-1/2/3 as % of valid ground-truth pixels (a pixel without an
 //! estimate counts as bad), and each engine's time (median of repeated runs). By default it scores what
-//! `abvs disparity` gives at the input's resolution (the default engine, each network, SGBM with the ground
-//! truth's range), with the left-right check's density and the bad-2 against density curve;
+//! `abvs disparity` gives at the input's resolution (the default engine, the runtime's default engine
+//! census-refine, each network, SGBM_3WAY with the ground truth's range, all with the same threads), with
+//! the left-right check's density and the bad-2 against density curve; `--resolution WxH` first resamples
+//! the pair (and the ground truth, scaled by the horizontal factor) to the runtime's size;
 //! `--at-model-resolution` scores every model at its own resolution against SGBM at the same one.
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
@@ -60,6 +62,20 @@ pub struct EvalArgs {
     /// alone (not with --at-model-resolution).
     #[arg(long, conflicts_with = "at_model_resolution")]
     curve: Option<PathBuf>,
+    /// Resample the pair to WxH first (INTER_AREA; the ground truth nearest-neighbour, its values scaled by
+    /// the horizontal factor) and score there: e.g. 640x480, the runtime's resolution.
+    #[arg(long, conflicts_with = "at_model_resolution", value_parser = parse_size)]
+    resolution: Option<(u32, u32)>,
+}
+
+fn parse_size(s: &str) -> Result<(u32, u32), String> {
+    let bad = || format!("`{s}` is not WxH (e.g. 640x480)");
+    let (w, h) = s.split_once('x').ok_or_else(bad)?;
+    let (w, h): (u32, u32) = (w.parse().map_err(|_| bad())?, h.parse().map_err(|_| bad())?);
+    if w < 16 || h < 16 || w > 8192 || h > 8192 {
+        return Err(format!("{s}: each side must be in 16..=8192"));
+    }
+    Ok((w, h))
 }
 
 /// Ground truth at the engine resolution (nearest neighbour, values scaled by the width ratio; NaN unknown).
@@ -103,7 +119,15 @@ fn score(d: &[f32], gt: &[f32], max_disp: f64) -> serde_json::Value {
 }
 
 pub fn run_eval(a: EvalArgs) -> anyhow::Result<ExitCode> {
-    let (l, r) = (gray(&a.left)?, gray(&a.right)?);
+    let (mut l, mut r) = (gray(&a.left)?, gray(&a.right)?);
+    if let Some((w, h)) = a.resolution {
+        let to = |m: &Mat| -> anyhow::Result<Mat> {
+            let v = resize_to(m, w as i32, h as i32)?;
+            Ok(Mat::new_rows_cols_with_data(h as i32, w as i32, &v)?.try_clone()?)
+        };
+        (l, r) = (to(&l)?, to(&r)?);
+    }
+    disparity::set_opencv_threads(a.threads)?;
     if !a.at_model_resolution {
         let rows = run_native(&a, &l, &r)?;
         return print_rows(&rows, a.json);
@@ -223,7 +247,11 @@ fn run_native(a: &EvalArgs, l: &Mat, r: &Mat) -> anyhow::Result<Vec<serde_json::
     let default_model = default_model_for(iw, ih);
     let mut nets: Vec<PathBuf> = if a.model.is_empty() { default_models() } else { a.model.clone() };
     nets.retain(|m| m != &default_model);
-    let mut cases = vec![(EngineKind::Fused, default_model.clone(), true), (EngineKind::Onnx, default_model, true)];
+    let mut cases = vec![
+        (EngineKind::Fused, default_model.clone(), true),
+        (EngineKind::CensusRefine, default_model.clone(), false),
+        (EngineKind::Onnx, default_model, true),
+    ];
     cases.extend(nets.into_iter().map(|m| (EngineKind::Onnx, m, false)));
     for (kind, model, default) in cases {
         let est = estimate(l, r, kind, &model, a.threads, None)?;
@@ -234,6 +262,10 @@ fn run_native(a: &EvalArgs, l: &Mat, r: &Mat) -> anyhow::Result<Vec<serde_json::
             let (mw, mh) = onnx.size();
             if kind == EngineKind::Fused {
                 let mut e = abvs_runtime::tasks::disparity_fused::FusedEngine::new(onnx, iw, ih)?;
+                let mut out = vec![0f32; (iw * ih) as usize];
+                median_ms(a.runs, || Ok(e.compute(&lb, &rb, &mut out)?))?
+            } else if kind == EngineKind::CensusRefine {
+                let mut e = abvs_runtime::tasks::disparity_census::CensusRefineEngine::new(onnx, iw, ih)?;
                 let mut out = vec![0f32; (iw * ih) as usize];
                 median_ms(a.runs, || Ok(e.compute(&lb, &rb, &mut out)?))?
             } else {
@@ -276,12 +308,13 @@ fn run_native(a: &EvalArgs, l: &Mat, r: &Mat) -> anyhow::Result<Vec<serde_json::
         }
         s["engine"] = serde_json::json!(est.engine);
         s["default"] = serde_json::json!(default && kind == EngineKind::Fused);
+        s["runtime_default"] = serde_json::json!(kind == EngineKind::CensusRefine);
         s["resolution"] = serde_json::json!(format!("{iw}x{ih}"));
         s["network_resolution"] = serde_json::json!(format!("{}x{}", est.model_size.0, est.model_size.1));
         s["ms_median"] = serde_json::json!(ms);
         rows.push(s);
     }
-    // SGBM as users run it: the input resolution, the ground truth's range
+    // SGBM as users run it: SGBM_3WAY at the input resolution, the ground truth's range
     let mut sgbm = disparity::SgbmEngine::new(iw, ih, gt_max + 1.0)?;
     let d = compute(&mut sgbm, &lb, &rb)?;
     let mut s = score(&d, &gt, max);
@@ -289,6 +322,7 @@ fn run_native(a: &EvalArgs, l: &Mat, r: &Mat) -> anyhow::Result<Vec<serde_json::
     s["ms_median"] = serde_json::json!(median_ms(a.runs, || Ok(sgbm.compute(&lb, &rb, &mut buf)?))?);
     s["engine"] = serde_json::json!(format!("sgbm (range {})", sgbm.max_disparity()));
     s["default"] = serde_json::json!(false);
+    s["runtime_default"] = serde_json::json!(false);
     s["resolution"] = serde_json::json!(format!("{iw}x{ih}"));
     s["network_resolution"] = serde_json::json!("-");
     rows.push(s);

@@ -47,6 +47,10 @@ pub enum EngineKind {
     /// SGBM where its own checks accept a match, the network elsewhere: the best depth on real images, at
     /// about the cost of both (`tasks::disparity_fused`).
     Fused,
+    /// The network's disparity refined by a census search within a few pixels of it
+    /// (`tasks::disparity_census`): the runtime's default, better than SGBM_3WAY on real images.
+    #[serde(rename = "census-refine")]
+    CensusRefine,
 }
 
 impl EngineKind {
@@ -55,6 +59,7 @@ impl EngineKind {
             EngineKind::Onnx => "onnx",
             EngineKind::Sgbm => "sgbm",
             EngineKind::Fused => "fused",
+            EngineKind::CensusRefine => "census-refine",
         }
     }
 }
@@ -183,7 +188,7 @@ pub struct DisparityConfig {
     pub rect_hfov_deg: f64,
     /// Nearest depth to match (m): sets the disparity range, f B / min_depth.
     pub min_depth_m: f64,
-    /// Threads of the ONNX engine.
+    /// Threads of the ONNX engine, and of OpenCV's pool (SGBM_3WAY, remap): one budget for every engine.
     pub threads: usize,
     /// Per-pixel confidence of the disparity by a left-right check (the engine run a second time on the
     /// mirrored pair: about doubles the disparity stage), published on `{prefix}/confidence`.
@@ -411,8 +416,9 @@ impl MotionSettings {
 }
 
 impl RuntimeConfig {
-    /// The default deployment: replay `session` with the shipped network at 640x480, the best depth this
-    /// 2-core machine sustains at 25 fps (runtime/BENCHMARKS.md, `scripts/bench_depth.sh`).
+    /// The default deployment: replay `session` with the shipped network refined by a census search at
+    /// 640x480, the best depth this 2-core machine sustains at 25 fps (runtime/BENCHMARKS.md,
+    /// `scripts/bench_depth.sh`).
     pub fn for_session(session: PathBuf) -> Self {
         RuntimeConfig {
             format: FORMAT.into(),
@@ -428,7 +434,7 @@ impl RuntimeConfig {
             },
             calibration: CalibrationConfig { fk: FkSource::Calibrated, dir: None },
             disparity: DisparityConfig {
-                engine: EngineKind::Onnx,
+                engine: EngineKind::CensusRefine,
                 model: None,
                 width: 640,
                 height: 480,

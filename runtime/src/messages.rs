@@ -123,7 +123,8 @@ pub struct FrameMotion {
 }
 
 impl FrameMotion {
-    fn new() -> Self {
+    /// Empty buffers sized for [`MAX_ROW_BANDS`].
+    pub fn new() -> Self {
         let angles = || Vec::with_capacity(MAX_ROW_BANDS + 1);
         let rots = || Vec::with_capacity(MAX_ROW_BANDS + 1);
         FrameMotion {
@@ -136,6 +137,19 @@ impl FrameMotion {
             speed_deg_s: [0.0; 2],
             blur_px: 0.0,
             gated: false,
+        }
+    }
+
+    /// Copies `other` into this frame's buffers (no allocation once they have grown to its size).
+    pub fn copy_from(&mut self, other: &FrameMotion) {
+        (self.t_start_ns, self.exposure_ns, self.readout_ns) = (other.t_start_ns, other.exposure_ns, other.readout_ns);
+        (self.theta_pm, self.speed_deg_s, self.blur_px, self.gated) =
+            (other.theta_pm, other.speed_deg_s, other.blur_px, other.gated);
+        for eye in 0..2 {
+            self.band_theta[eye].clear();
+            self.band_theta[eye].extend_from_slice(&other.band_theta[eye]);
+            self.band_rot[eye].clear();
+            self.band_rot[eye].extend_from_slice(&other.band_rot[eye]);
         }
     }
 

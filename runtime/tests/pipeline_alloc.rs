@@ -97,7 +97,7 @@ fn per_frame_allocations(engine: &str) -> Vec<(u64, u64)> {
 
 #[test]
 fn steady_state_frames_do_not_allocate() {
-    for engine in ["sgbm", "onnx"] {
+    for engine in ["sgbm", "onnx", "census-refine"] {
         let d = per_frame_allocations(engine);
         // after a warm-up of 20 frames (lazy one-time initialisation in OpenCV / ONNX Runtime bindings)
         let steady = &d[20..];

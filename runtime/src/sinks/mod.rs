@@ -7,6 +7,7 @@ pub mod rerun_log;
 pub mod ros2_out;
 pub mod self_check;
 pub mod session_writer;
+pub mod side_lane;
 /// The run's statistics (moved to [`crate::stats`]; the path sinks have always used still works).
 pub use crate::stats;
 

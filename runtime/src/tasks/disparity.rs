@@ -1,5 +1,6 @@
 //! Disparity engines behind one interface: an ONNX stereo network run by ONNX Runtime (`ort`), and OpenCV's
-//! StereoSGBM as the classical second engine.
+//! StereoSGBM (its parallel SGBM_3WAY mode) as the classical second engine; [`engine`] builds any of them by
+//! name, the network-based [`super::disparity_census`] and [`super::disparity_fused`] included.
 //!
 //! ONNX models follow the published HITNet exports' contract (PINTO model zoo), so those drop in: input
 //! "input" [1,2,H,W] (left gray, right gray) or [1,6,H,W] (left RGB, right RGB), scaled /255; output
@@ -278,7 +279,15 @@ impl DisparityEngine for OnnxEngine {
     }
 }
 
-/// OpenCV StereoSGBM with settings for our rectified eyes.
+/// OpenCV's worker threads (one pool per process: SGBM_3WAY's stripes, remap): the same budget as the
+/// network's intra-op threads, so that the two engines are compared and deployed on equal terms.
+pub fn set_opencv_threads(threads: usize) -> Result<()> {
+    opencv::core::set_num_threads(threads.max(1) as i32)
+        .map_err(|e| RuntimeError::Invalid(format!("opencv threads: {}", e.message)))
+}
+
+/// OpenCV StereoSGBM with settings for our rectified eyes, in MODE_SGBM_3WAY: parallel stripes on OpenCV's
+/// pool ([`set_opencv_threads`]) with MODE_SGBM's accuracy (plain MODE_SGBM runs on one thread).
 pub struct SgbmEngine {
     width: u32,
     height: u32,
@@ -304,7 +313,7 @@ impl SgbmEngine {
             10,
             100,
             2,
-            opencv::calib3d::StereoSGBM_MODE_SGBM,
+            opencv::calib3d::StereoSGBM_MODE_SGBM_3WAY,
         )
         .map_err(cv)?;
         let disp =
@@ -352,7 +361,11 @@ impl DisparityEngine for SgbmEngine {
     }
 }
 
-/// Builds an engine by name: "sgbm", or "onnx" / "fused" with a model path.
+/// The engines [`engine`] builds, by name (`config::EngineKind::as_str`).
+pub const ENGINES: [&str; 4] = ["census-refine", "onnx", "sgbm", "fused"];
+
+/// Builds an engine by name ([`ENGINES`]): "sgbm", or "onnx" / "census-refine" / "fused" with a model path;
+/// `threads` for ONNX Runtime and OpenCV alike.
 pub fn engine(
     kind: &str,
     model: Option<&Path>,
@@ -364,6 +377,7 @@ pub fn engine(
         let p = model.ok_or_else(|| RuntimeError::Invalid(format!("engine {kind} needs a model")))?;
         OnnxEngine::load(p, threads).map(|e| (p, e))
     };
+    set_opencv_threads(threads)?;
     match kind {
         "sgbm" => Ok(Box::new(SgbmEngine::new(size.0, size.1, max_disparity)?)),
         "onnx" => {
@@ -376,9 +390,10 @@ pub fn engine(
             }
             Ok(Box::new(e))
         }
-        // the fused engine resizes the network's input, so any model size goes
+        // these two resize the network's input, so any model size goes
+        "census-refine" => Ok(Box::new(super::disparity_census::CensusRefineEngine::new(load()?.1, size.0, size.1)?)),
         "fused" => Ok(Box::new(super::disparity_fused::FusedEngine::new(load()?.1, size.0, size.1)?)),
-        other => Err(RuntimeError::Invalid(format!("unknown disparity engine `{other}` (onnx | sgbm | fused)"))),
+        other => Err(RuntimeError::Invalid(format!("unknown disparity engine `{other}` ({})", ENGINES.join(" | ")))),
     }
 }
 

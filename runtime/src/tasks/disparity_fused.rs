@@ -53,7 +53,7 @@ fn cv(e: opencv::Error) -> RuntimeError {
 }
 
 /// Resizes an 8-bit gray image (area averaging when shrinking, bilinear when enlarging).
-fn resize_gray(src: &[u8], (sw, sh): (u32, u32), dst: &mut [u8], (dw, dh): (u32, u32)) -> Result<()> {
+pub(crate) fn resize_gray(src: &[u8], (sw, sh): (u32, u32), dst: &mut [u8], (dw, dh): (u32, u32)) -> Result<()> {
     if (sw, sh) == (dw, dh) {
         dst.copy_from_slice(src);
         return Ok(());

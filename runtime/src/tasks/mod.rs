@@ -1,12 +1,14 @@
 //! Tasks: the processing stages between sources and sinks, in data-flow order:
 //! [`align`] (encoder angles at each frame's mid-exposure) -> [`kinematics`] (per-eye FK, moving extrinsic) ->
-//! [`rectify`] (per-frame rectification maps and remap) -> [`disparity`] (ONNX network or SGBM; [`disparity_fused`] both;
+//! [`rectify`] (per-frame rectification maps and remap) -> [`disparity`] (ONNX network or SGBM; [`disparity_census`] the network refined by a census search, the
+//! runtime's default; [`disparity_fused`] SGBM and the network;
 //! [`confidence`]: its left-right check, run by the disparity stage) ->
 //! [`depth`] (depth map and point cloud in the left home camera frame).
 pub mod align;
 pub mod confidence;
 pub mod depth;
 pub mod disparity;
+pub mod disparity_census;
 pub mod disparity_fused;
 pub mod kinematics;
 pub mod motion;
