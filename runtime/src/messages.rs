@@ -122,6 +122,12 @@ pub struct FrameMotion {
     pub gated: bool,
 }
 
+impl Default for FrameMotion {
+    fn default() -> Self {
+        FrameMotion::new()
+    }
+}
+
 impl FrameMotion {
     /// Empty buffers sized for [`MAX_ROW_BANDS`].
     pub fn new() -> Self {
