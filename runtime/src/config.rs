@@ -402,7 +402,7 @@ impl MotionSettings {
             return Err(format!("motion.gate_blur_px: {} must be positive", self.gate_blur_px));
         }
         if let Some(r) = self.readout_ms {
-            if !(r >= 0.0 && r <= 1000.0) {
+            if !(0.0..=1000.0).contains(&r) {
                 return Err(format!("motion.readout_ms: {r} must be in [0, 1000]"));
             }
         }

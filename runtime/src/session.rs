@@ -321,7 +321,7 @@ fn parse_meta(mp: &Path, text: &str) -> Result<(SessionMeta, MetaSpans)> {
     }
     // a readout longer than a frame period would overlap the next frame's first rows
     let frame_ms = 1e3 / meta.fps;
-    if !(meta.readout_ms >= 0.0 && meta.readout_ms <= frame_ms) {
+    if !(0.0..=frame_ms).contains(&meta.readout_ms) {
         return bad(
             sp(&spans.readout_ms),
             "readout_ms",
@@ -329,7 +329,7 @@ fn parse_meta(mp: &Path, text: &str) -> Result<(SessionMeta, MetaSpans)> {
         );
     }
     if let Some(e) = meta.exposure_ms {
-        if !(e >= 0.0 && e <= MAX_EXPOSURE_NS as f64 * 1e-6) {
+        if !(0.0..=MAX_EXPOSURE_NS as f64 * 1e-6).contains(&e) {
             return bad(sp(&spans.exposure_ms), "exposure_ms", format!("{e} is out of range (0 ..= 1000 ms)"));
         }
     }

@@ -197,19 +197,19 @@ impl SessionSpec {
             return bad(format!("fps {} must be in (0, 200]", self.fps));
         }
         let frame_ms = 1e3 / self.fps;
-        if !(0.0 <= self.exposure_ms && self.exposure_ms <= frame_ms) {
+        if !(0.0..=frame_ms).contains(&self.exposure_ms) {
             return bad(format!("exposure {} ms must be in [0, {frame_ms}] (one frame period)", self.exposure_ms));
         }
         // The encoder stream spans one loop period; every row's mid-exposure (and 1 ms either side, for the
         // runtime's speed) must fall inside it: the rows of one frame may span at most a frame period - 4 ms.
-        if !(0.0 <= self.readout_ms && self.readout_ms <= frame_ms - 4.0) {
+        if !(0.0..=frame_ms - 4.0).contains(&self.readout_ms) {
             return bad(format!(
                 "readout {} ms must be in [0, {}] (frame period - 4 ms)",
                 self.readout_ms,
                 frame_ms - 4.0
             ));
         }
-        if !(0.0 <= self.pursuit_deg_s && self.pursuit_deg_s <= 500.0) {
+        if !(0.0..=500.0).contains(&self.pursuit_deg_s) {
             return bad(format!("pursuit peak {} deg/s must be in [0, 500]", self.pursuit_deg_s));
         }
         if let Some(t) = self.time_offset_ms {

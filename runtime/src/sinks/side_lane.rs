@@ -344,7 +344,7 @@ mod tests {
         for seq in 0..10 {
             publish(&mut lane, seq, &d, &cam);
         }
-        let mut stats = RunStats::default();
+        let mut stats = RunStats::new(&[]);
         lane.finish(&mut stats);
         let got = seen.lock().unwrap().clone();
         assert_eq!(got, (0..10).map(|s| (s, 5)).collect::<Vec<_>>());
@@ -362,7 +362,7 @@ mod tests {
         for seq in 0..20 {
             publish(&mut lane, seq, &d, &cam);
         }
-        let mut stats = RunStats::default();
+        let mut stats = RunStats::new(&[]);
         lane.finish(&mut stats);
         let st = &stats.extra["slow_side_lane"];
         let (consumed, skipped) = (st["frames_consumed"].as_u64().unwrap(), st["frames_skipped"].as_u64().unwrap());
