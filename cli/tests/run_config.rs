@@ -28,7 +28,10 @@ fn digest(stats: &Path) -> String {
 fn printed_config_reproduces_the_run() {
     let d = tempfile::tempdir().unwrap();
     let printed = ok(&["run", "--print-config"]);
-    assert!(printed.contains("format = \"abvs-runtime/1\"") && printed.contains("engine = \"onnx\""), "{printed}");
+    assert!(
+        printed.contains("format = \"abvs-runtime/1\"") && printed.contains("engine = \"census-refine\""),
+        "{printed}"
+    );
     let f = d.path().join("f.toml");
     std::fs::write(&f, &printed).unwrap();
     let (a, b) = (d.path().join("a.json"), d.path().join("b.json"));

@@ -96,7 +96,8 @@ class IoxCollector:
                     self.bad_confidence.append(["shape", list(c.shape), h.height, h.width])
                 elif not (np.all(c >= 0.0) and np.all(c <= 1.0)):  # (NaN fails both)
                     self.bad_confidence.append(["range", h.seq, float(np.nanmin(c)), float(np.nanmax(c))])
-                elif not np.any(c > 0.0):
+                elif not np.any(c > 0.0) and not (h.flags & abvs.FLAG_MOTION_GATED):
+                    # (a motion-gated frame has no valid pixel on purpose)
                     self.bad_confidence.append(["all zero", h.seq])
                 self.confidence_headers[h.seq] = (h.t_frame_ns, h.width, h.height, h.valid)
                 self.confidence_frames += 1

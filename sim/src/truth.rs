@@ -32,6 +32,11 @@ pub const HIGH_CONFIDENCE: f32 = 0.8;
 /// instant): fixation, slow pursuit, fast pursuit, slow saccade, saccade.
 pub const SPEED_BANDS_DEG_S: [f64; 5] = [0.0, 5.0, 30.0, 100.0, 300.0];
 
+/// Bin width (mm) and range of the point-error histogram of a speed band: a soak scores frames for as long
+/// as it runs, so the median comes from a fixed histogram, not from every distance kept.
+const DIST_BIN_MM: f64 = 0.05;
+const DIST_BINS: usize = 40_000; // 0 .. 2 m; farther lands in the last bin
+
 /// The error of the frames of one speed band.
 #[derive(Debug, Clone, Default)]
 pub struct SpeedBand {
@@ -41,18 +46,36 @@ pub struct SpeedBand {
     pub gated: u64,
     pub abs_rel_sum: f64,
     pub points: u64,
-    /// 3D distance (mm) of each scored point to the true surface point, for the median.
-    pub dist_mm: Vec<f32>,
+    /// Histogram of each scored point's 3D distance to the true surface point ([`DIST_BIN_MM`] bins),
+    /// allocated at the band's first point.
+    dist_hist: Vec<u32>,
 }
 
 impl SpeedBand {
-    /// Median 3D point error (mm), NaN without points.
-    pub fn point_mm_p50(&mut self) -> f64 {
-        if self.dist_mm.is_empty() {
+    fn add_distance(&mut self, mm: f64) {
+        if self.dist_hist.is_empty() {
+            self.dist_hist = vec![0; DIST_BINS];
+        }
+        let bin = ((mm / DIST_BIN_MM) as usize).min(DIST_BINS - 1);
+        self.dist_hist[bin] = self.dist_hist[bin].saturating_add(1);
+    }
+
+    /// Median 3D point error (mm, to the histogram's 0.05 mm), NaN without points.
+    pub fn point_mm_p50(&self) -> f64 {
+        let n: u64 = self.dist_hist.iter().map(|&c| c as u64).sum();
+        if n == 0 {
             return f64::NAN;
         }
-        let mid = self.dist_mm.len() / 2;
-        *self.dist_mm.select_nth_unstable_by(mid, f32::total_cmp).1 as f64
+        let (half, mut below) = (n as f64 / 2.0, 0u64);
+        for (i, &c) in self.dist_hist.iter().enumerate() {
+            let c = c as u64;
+            if c > 0 && (below + c) as f64 >= half {
+                // linear within the bin
+                return (i as f64 + (half - below as f64) / c as f64) * DIST_BIN_MM;
+            }
+            below += c;
+        }
+        DIST_BINS as f64 * DIST_BIN_MM
     }
 
     pub fn abs_rel(&self) -> f64 {
@@ -245,7 +268,7 @@ impl Sink for TruthSink {
             self.err.points += 1;
             band.abs_rel_sum += abs_rel;
             band.points += 1;
-            band.dist_mm.push((sq.sqrt() * 1e3) as f32);
+            band.add_distance(sq.sqrt() * 1e3);
             if let Some(conf) = out.confidence {
                 let e = &mut self.by_confidence.get_or_insert_with(Default::default)
                     [if conf[i] > HIGH_CONFIDENCE { 0 } else { 1 }];
@@ -279,7 +302,7 @@ impl Sink for TruthSink {
             |x: f64| if x.is_finite() { serde_json::json!((x * 1e6).round() / 1e6) } else { serde_json::Value::Null };
         let bands: Vec<serde_json::Value> = self
             .by_speed
-            .iter_mut()
+            .iter()
             .enumerate()
             .map(|(i, b)| {
                 let hi = SPEED_BANDS_DEG_S.get(i + 1).map_or(serde_json::Value::Null, |h| serde_json::json!(h));
