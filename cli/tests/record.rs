@@ -23,14 +23,16 @@ fn fixture() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../fixtures/session")
 }
 
-/// A camera delivering recorded frames when CLOCK_MONOTONIC reaches their end of exposure, stamped
-/// with their recorded start of exposure + `shift`.
+/// A camera delivering recorded frames when CLOCK_MONOTONIC reaches their last row's end of exposure
+/// (a rolling shutter reads its last row `readout` after the first), stamped with their recorded start of
+/// exposure + `shift`.
 struct ReplayCamera {
     frames: Vec<(i64, i64, Vec<u8>)>,
     width: u32,
     height: u32,
     shift: i64,
     next: usize,
+    readout_ns: i64,
 }
 
 impl FrameSource for ReplayCamera {
@@ -40,7 +42,7 @@ impl FrameSource for ReplayCamera {
             return Err(CaptureError::Timeout { path: "replay".into() });
         };
         let t_start = t + self.shift;
-        let wait = t_start + exposure - monotonic_ns();
+        let wait = t_start + self.readout_ns + exposure - monotonic_ns();
         if wait > 0 {
             std::thread::sleep(Duration::from_nanos(wait as u64));
         }
@@ -136,7 +138,8 @@ fn rig_with(early: i64, left_frames: Option<usize>) -> Rig {
     if let Some(n) = left_frames {
         l.truncate(early as usize + n);
     }
-    let cam = |frames| ReplayCamera { frames, width: w, height: h, shift, next: 0 };
+    let readout_ns = (fx.meta.readout_ms * 1e6).round() as i64;
+    let cam = |frames| ReplayCamera { frames, width: w, height: h, shift, next: 0, readout_ns };
     let capture = StereoCapture::from_sources(cam(l), cam(r), PairerConfig::default());
     Rig { fx, capture, encoders, board, _slave: slave, shift }
 }
