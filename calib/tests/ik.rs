@@ -182,6 +182,13 @@ fn as_foreign(src: &Path, dst: &Path) {
         });
     }
     std::fs::write(dst.join("net.onnx"), proto.write_to_bytes().unwrap()).unwrap();
+    // the network was replaced on purpose: its manifest records the new file's hash (the load checks it)
+    let mp = dst.join("manifest.json");
+    let mut v: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&mp).unwrap()).unwrap();
+    if let Some(h) = v.get_mut("sha256").and_then(|h| h.as_object_mut()) {
+        h.insert("net.onnx".into(), abvs_fk::hash::sha256_file(&dst.join("net.onnx")).unwrap().into());
+    }
+    std::fs::write(&mp, serde_json::to_string_pretty(&v).unwrap()).unwrap();
 }
 
 #[test]

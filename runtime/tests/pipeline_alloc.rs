@@ -118,6 +118,7 @@ fn steady_state_frames_do_not_allocate() {
         // The decoder: a constant handful per decoded pair (the PNG reader of each file), nothing that grows.
         // (It runs up to the ring's depth ahead, so a frame's interval may see 0 or several pairs decoded.)
         let per_pair = decode as f64 / steady.len() as f64;
-        assert!(per_pair > 0.0 && per_pair <= 30.0, "{engine}: decoder allocations per pair {per_pair}");
+        // (~31 with the fixture's optipng-recompressed files: a bound against growth, not a count)
+        assert!(per_pair > 0.0 && per_pair <= 40.0, "{engine}: decoder allocations per pair {per_pair}");
     }
 }

@@ -149,7 +149,7 @@ fn bad_frames_csv_rows_name_file_and_line() {
     let e = ix.open(&ix.toml, &text[..text.len() - 30]).map(|_| ()).unwrap_err();
     assert!(e.contains(&format!("frames.csv:{}", lines.len())) && e.contains("fields"), "{e}");
     // a value that is not a number: the column is named
-    let bad = ix.frames.replace("7,1278000000,", "7,12780O0000,");
+    let bad = ix.frames.replace("7,1263000000,", "7,12630O0000,");
     assert_ne!(bad, ix.frames);
     let e = ix.open(&ix.toml, &bad).map(|_| ()).unwrap_err();
     assert!(e.contains("frames.csv:9") && e.contains("field `t_start_ns`"), "{e}");

@@ -125,7 +125,9 @@ mod tests {
         let r = RowRotations { nodes: &n, rows: 101 };
         assert!((r.at_row(0.0) - n[0]).abs().max() < 1e-15);
         assert!((r.at_row(100.0) - n[2]).abs().max() < 1e-15);
-        assert!((angle_deg(&r.at_row(25.0), &n[0]) - 0.5).abs() < 1e-4);
+        // a quarter down: half way between the first two nodes (0 and 1 deg of yaw) turns a ray by 0.5 deg
+        let z = nalgebra::Vector3::z();
+        assert!(((r.at_row(25.0) * z).angle(&z).to_degrees() - 0.5).abs() < 1e-4);
         assert!((r.at_row(-5.0) - n[0]).abs().max() < 1e-15);
     }
 }
