@@ -90,12 +90,11 @@ impl GazePlan {
                 glide_to = cur;
                 pursuit_s = 0.0;
             }
-            let mut last = t + hold + pursuit_s + saccade_s(&glide_to, &first) + 0.12 > period - 0.2;
+            let last = t + hold + pursuit_s + saccade_s(&glide_to, &first) + 0.12 > period - 0.2;
             if last && pursuit_s > 0.0 {
                 // the loop closes after this fixation: no pursuit may run past the period's end
                 glide_to = cur;
                 pursuit_s = 0.0;
-                last = true;
             }
             if last {
                 next = first;
