@@ -159,6 +159,6 @@ fn the_offline_report_names_the_wrong_eye_and_where() {
         // the error is largest far from home: that fixation's gaze is more than 10 deg off in yaw or pitch
         let g = &v["worst_fixation"][format!("{name}_gaze_deg")];
         let off = g[0].as_f64().unwrap().abs().max(g[1].as_f64().unwrap().abs());
-        assert!(off > 10.0 && v["worst_fixation"]["mean_error_norm_deg"].as_f64().unwrap() > 0.15, "{v:#}");
+        assert!(off > 10.0 && v["worst_fixation"]["mean_error_norm_deg"].as_f64().unwrap() > 0.1, "{v:#}");
     }
 }

@@ -158,13 +158,14 @@ fn bad_frames_csv_rows_name_file_and_line() {
     let e = ix.open(&ix.toml, &dup).map(|_| ()).unwrap_err();
     assert!(e.contains("frames.csv:10") && e.contains("seq 7 is not after the previous row's 7"), "{e}");
     // exposure out of range
-    let exp = ix.frames.replace("3,1118000000,4000000,", "3,1118000000,0,");
+    // (0 is an instant, which rendered sessions without blur use; a negative exposure is not)
+    let exp = ix.frames.replace("3,1103000000,4000000,", "3,1103000000,-1,");
     let e = ix.open(&ix.toml, &exp).map(|_| ()).unwrap_err();
-    assert!(e.contains("frames.csv:5") && e.contains("exposure_ns 0 is out of range"), "{e}");
+    assert!(e.contains("frames.csv:5") && e.contains("exposure_ns -1 is out of range"), "{e}");
     // a negative time
-    let neg = ix.frames.replace("0,998000000,", "0,-998000000,");
+    let neg = ix.frames.replace("0,983000000,", "0,-983000000,");
     let e = ix.open(&ix.toml, &neg).map(|_| ()).unwrap_err();
-    assert!(e.contains("frames.csv:2") && e.contains("t_start_ns -998000000 is out of range"), "{e}");
+    assert!(e.contains("frames.csv:2") && e.contains("t_start_ns -983000000 is out of range"), "{e}");
 }
 
 #[test]
