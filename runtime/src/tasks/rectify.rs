@@ -99,17 +99,6 @@ impl RectifyMaps {
         })
     }
 
-    fn exact(
-        cam: &Camera,
-        out: &RectifiedCamera,
-        cam_from_rect: &Matrix3<f64>,
-        rows: Option<&RowRotations>,
-        u: f64,
-        v: f64,
-    ) -> Option<Vector2<f64>> {
-        source_pixel(cam, out, cam_from_rect, rows, u, v)
-    }
-
     /// Rebuilds the map of one eye for the rotation `rect_from_cam`: exact lens projection at the grid nodes,
     /// separable Catmull-Rom interpolation in between (bilinear would err by ~0.2 px at 8 px spacing on a
     /// 118 deg fisheye; the cubic stays under 0.01 px).
@@ -129,7 +118,7 @@ impl RectifyMaps {
             let v = (j as f64 - 1.0) * step as f64;
             for i in 0..self.nodes_w {
                 let u = (i as f64 - 1.0) * step as f64;
-                self.nodes[j * self.nodes_w + i] = match Self::exact(cam, &out, &cam_from_rect, rows, u, v) {
+                self.nodes[j * self.nodes_w + i] = match source_pixel(cam, &out, &cam_from_rect, rows, u, v) {
                     Some(p) => [p.x as f32, p.y as f32],
                     None => [f32::NAN; 2],
                 };
@@ -201,7 +190,7 @@ impl RectifyMaps {
                 if mx[y * w + x] < 0.0 {
                     continue;
                 }
-                if let Some(p) = Self::exact(cam, &self.out, &cam_from_rect, rows, x as f64, y as f64) {
+                if let Some(p) = source_pixel(cam, &self.out, &cam_from_rect, rows, x as f64, y as f64) {
                     worst = worst.max((p - Vector2::new(mx[y * w + x] as f64, my[y * w + x] as f64)).norm());
                 }
             }
