@@ -378,8 +378,12 @@ pub fn run<S: PairSource>(graph: Graph<S>, cfg: &RunConfig) -> Result<RunStats> 
                 stats.stage_mut(output.name).record_ns(t1 - t0);
                 stats.frames_published += 1;
                 stats.points_total += w.depth.n_points as u64;
-                stats.end_to_end.record_ns(t1 - w.t_frame_ns);
-                win.latency.record_ns(t1 - w.t_frame_ns);
+                // from the moment the frame exists (its last row's exposure ended): the runtime's own latency;
+                // the depth describes the frame's instant, readout / 2 + exposure / 2 before that
+                let m = &w.motion;
+                let ready = m.t_start_ns[0] + m.readout_ns + m.exposure_ns;
+                stats.end_to_end.record_ns(t1 - ready);
+                win.latency.record_ns(t1 - ready);
                 stats.digest(&w.depth.depth);
             }
             std::mem::swap(&mut w.depth, &mut depth);

@@ -174,6 +174,8 @@ pub struct RunStats {
     /// not the frame's; the frame still counts as published to the others.
     pub sink_failures: BTreeMap<String, u64>,
     pub stages: Vec<(&'static str, Latency)>,
+    /// From the moment a frame exists (its last row's exposure ended, as a camera delivers it) to its
+    /// publication.
     pub end_to_end: Latency,
     pub depth_error: Option<DepthError>,
     pub points_total: u64,

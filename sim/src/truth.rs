@@ -179,7 +179,7 @@ impl TruthSink {
 
 /// The true pose when raw row `y` exposed: between the frame's row nodes (node n at row n (H - 1) / N);
 /// the frame's pose without nodes (global shutter).
-fn pose_at_row(frame: &Pose, nodes: &[Pose], y: f64, rows: u32) -> Pose {
+fn pose_at_row(frame: &Pose, nodes: &[(UnitQuaternion<f64>, Vector3<f64>)], y: f64, rows: u32) -> Pose {
     if nodes.len() < 2 {
         return *frame;
     }
@@ -187,9 +187,8 @@ fn pose_at_row(frame: &Pose, nodes: &[Pose], y: f64, rows: u32) -> Pose {
     let g = (y / (rows.max(2) - 1) as f64 * n as f64).clamp(0.0, n as f64);
     let i = (g as usize).min(n - 1);
     let f = g - i as f64;
-    let q = |p: &Pose| UnitQuaternion::from_matrix(&p.r);
-    let r = q(&nodes[i]).slerp(&q(&nodes[i + 1]), f).to_rotation_matrix().into_inner();
-    Pose::new(r, nodes[i].t * (1.0 - f) + nodes[i + 1].t * f)
+    let r = nodes[i].0.slerp(&nodes[i + 1].0, f).to_rotation_matrix().into_inner();
+    Pose::new(r, nodes[i].1 * (1.0 - f) + nodes[i + 1].1 * f)
 }
 
 /// Rows of a truth angles file: `seq,l1..r3` or, `with_node`, `seq,node,l1..r3`: (seq, node, angles).
@@ -236,7 +235,9 @@ impl Sink for TruthSink {
             self.unscored += 1;
             return Ok(());
         };
-        let row_nodes = row_nodes.to_vec();
+        // the nodes' rotations as quaternions once per frame, not per scored point (from_matrix iterates)
+        let row_nodes: Vec<(UnitQuaternion<f64>, Vector3<f64>)> =
+            row_nodes.iter().map(|p| (UnitQuaternion::from_matrix(&p.r), p.t)).collect();
         let band = &mut self.by_speed[speed_band(out.motion.max_speed_deg_s())];
         if out.motion.gated {
             // invalid on purpose: counted by speed, not scored

@@ -43,11 +43,33 @@ pub struct CensusRefineEngine {
     census_r: Vec<u32>,
     /// The network's disparity rounded to whole pixels, the centre of each pixel's search.
     base: Vec<i32>,
-    /// One offset's per-pixel costs, then the running column sums of the box.
-    raw: Vec<u8>,
-    col: Vec<u16>,
-    /// Aggregated cost per offset (OFFSETS planes of width x height).
-    agg: Vec<u16>,
+    /// The rows of the aggregation window, streamed down the image.
+    rows: RowWindow,
+}
+
+/// Buffers of the row-streaming aggregation: the per-offset costs of the last WINDOW rows (a ring), their
+/// column sums and the current row's box sums, a few tens of kilobytes that stay in cache (a whole-image
+/// cost volume, OFFSETS x 2 bytes per pixel, does not).
+struct RowWindow {
+    w: usize,
+    /// Raw costs: ring slot s holds OFFSETS rows of w costs.
+    ring: Vec<u8>,
+    /// Column sums per offset, with WINDOW / 2 zeros either side of each offset's w columns.
+    col: Vec<i16>,
+    /// Box sums of the current row per offset (at most WINDOW^2 x 24 = 1176: i16, whose compares are
+    /// single SIMD instructions, unlike u16's).
+    sum: Vec<i16>,
+}
+
+impl RowWindow {
+    fn new(w: usize) -> RowWindow {
+        RowWindow {
+            w,
+            ring: vec![0; WINDOW * OFFSETS * w],
+            col: vec![0; OFFSETS * (w + WINDOW - 1)],
+            sum: vec![0; OFFSETS * w],
+        }
+    }
 }
 
 impl CensusRefineEngine {
@@ -70,9 +92,7 @@ impl CensusRefineEngine {
             census_l: vec![0; n],
             census_r: vec![0; n],
             base: vec![0; n],
-            raw: vec![0; n],
-            col: vec![0; width as usize],
-            agg: vec![0; OFFSETS * n],
+            rows: RowWindow::new(width as usize),
         })
     }
 
@@ -115,33 +135,108 @@ impl DisparityEngine for CensusRefineEngine {
         census(left, w, h, &mut self.census_l);
         census(right, w, h, &mut self.census_r);
         for (b, g) in self.base.iter_mut().zip(&self.guess) {
-            *b = if g.is_finite() { g.round() as i32 } else { 0 };
+            // round half away from zero without a libm call (NaN: a search around 0, never used)
+            *b = if g.is_finite() { (g.abs() + 0.5) as i32 * if *g < 0.0 { -1 } else { 1 } } else { 0 };
         }
-        for (o, plane) in self.agg.chunks_exact_mut(w * h).enumerate() {
-            let offset = o as i32 - SEARCH_PX;
-            costs(&self.census_l, &self.census_r, &self.base, offset, w, &mut self.raw);
-            box_sum(&self.raw, w, h, &mut self.col, plane);
-        }
-        winner(&self.agg, &self.base, &self.guess, out);
+        refine(&self.census_l, &self.census_r, &self.base, &self.guess, h, &mut self.rows, out);
         Ok(())
+    }
+}
+
+/// The refinement, streamed down the rows: each row's costs at every offset are computed once, enter the
+/// column sums WINDOW / 2 rows ahead and leave them WINDOW / 2 + 1 rows behind; each output row's box sums
+/// are WINDOW shifted adds of the column sums, and its winner is taken at once. The box is clipped at the
+/// image's border, for every offset alike, so the comparison between offsets stays fair.
+fn refine(cl: &[u32], cr: &[u32], base: &[i32], guess: &[f32], h: usize, win: &mut RowWindow, out: &mut [f32]) {
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("popcnt") {
+        // SAFETY: the CPU has the instruction sets the function is compiled for (checked just above).
+        unsafe { refine_avx2(cl, cr, base, guess, h, win, out) };
+        return;
+    }
+    refine_generic(cl, cr, base, guess, h, win, out)
+}
+
+/// [`refine`] compiled for AVX2 (16 costs per instruction instead of SSE2's 8; the baseline x86-64 target
+/// has only SSE2).
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,popcnt")]
+unsafe fn refine_avx2(
+    cl: &[u32],
+    cr: &[u32],
+    base: &[i32],
+    guess: &[f32],
+    h: usize,
+    win: &mut RowWindow,
+    out: &mut [f32],
+) {
+    refine_generic(cl, cr, base, guess, h, win, out)
+}
+
+#[inline(always)]
+fn refine_generic(cl: &[u32], cr: &[u32], base: &[i32], guess: &[f32], h: usize, win: &mut RowWindow, out: &mut [f32]) {
+    let (w, r) = (win.w, WINDOW / 2);
+    let cw = w + 2 * r;
+    win.col.fill(0);
+    for y in 0..r.min(h) {
+        update(cl, cr, base, win, y, true);
+    }
+    for y in 0..h {
+        // the row leaving the window shares its ring slot with the row entering it: out first
+        if y > r {
+            update(cl, cr, base, win, y - r - 1, false);
+        }
+        if y + r < h {
+            update(cl, cr, base, win, y + r, true);
+        }
+        for o in 0..OFFSETS {
+            let col = &win.col[o * cw..(o + 1) * cw];
+            let sum = &mut win.sum[o * w..(o + 1) * w];
+            sum.copy_from_slice(&col[..w]);
+            for k in 1..WINDOW {
+                for (a, &c) in sum.iter_mut().zip(&col[k..k + w]) {
+                    *a += c;
+                }
+            }
+        }
+        let row = y * w..(y + 1) * w;
+        winner(&win.sum, &base[row.clone()], &guess[row.clone()], &mut out[row]);
     }
 }
 
 /// 5x5 census code of every pixel (bit set where the neighbour is darker than the centre), the image's
 /// border replicated.
 pub fn census(img: &[u8], w: usize, h: usize, out: &mut [u32]) {
-    out.fill(0);
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx2") {
+        // SAFETY: the CPU has the instruction set the function is compiled for (checked just above).
+        unsafe { census_avx2(img, w, h, out) };
+        return;
+    }
+    census_generic(img, w, h, out)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn census_avx2(img: &[u8], w: usize, h: usize, out: &mut [u32]) {
+    census_generic(img, w, h, out)
+}
+
+#[inline(always)]
+fn census_generic(img: &[u8], w: usize, h: usize, out: &mut [u32]) {
     let r = CENSUS_R as isize;
-    let mut bit = 0u32;
-    for dy in -r..=r {
-        for dx in -r..=r {
-            if dy == 0 && dx == 0 {
-                continue;
-            }
-            for y in 0..h {
-                let yy = (y as isize + dy).clamp(0, h as isize - 1) as usize;
-                let (centre, nb) = (&img[y * w..(y + 1) * w], &img[yy * w..(yy + 1) * w]);
-                let code = &mut out[y * w..(y + 1) * w];
+    // row by row, every neighbour of the row before the next: the row's codes stay in L1
+    for (y, code) in out.chunks_exact_mut(w).enumerate().take(h) {
+        code.fill(0);
+        let centre = &img[y * w..(y + 1) * w];
+        let mut bit = 0u32;
+        for dy in -r..=r {
+            let yy = (y as isize + dy).clamp(0, h as isize - 1) as usize;
+            let nb = &img[yy * w..(yy + 1) * w];
+            for dx in -r..=r {
+                if dy == 0 && dx == 0 {
+                    continue;
+                }
                 // the interior: contiguous slices the compiler vectorises
                 let (lo, hi) = (CENSUS_R, w - CENSUS_R);
                 let shifted = &nb[(lo as isize + dx) as usize..(hi as isize + dx) as usize];
@@ -152,107 +247,115 @@ pub fn census(img: &[u8], w: usize, h: usize, out: &mut [u32]) {
                     let xx = (x as isize + dx).clamp(0, w as isize - 1) as usize;
                     code[x] |= ((nb[xx] < centre[x]) as u32) << bit;
                 }
+                bit += 1;
             }
-            bit += 1;
         }
     }
 }
 
-/// Hamming cost of each left pixel against the right pixel `base + offset` to its left.
-fn costs(cl: &[u32], cr: &[u32], base: &[i32], offset: i32, w: usize, raw: &mut [u8]) {
-    #[cfg(target_arch = "x86_64")]
-    if std::arch::is_x86_feature_detected!("popcnt") {
-        // SAFETY: the CPU has the instruction set the function is compiled for (checked just above).
-        unsafe { costs_popcnt(cl, cr, base, offset, w, raw) };
-        return;
-    }
-    costs_generic(cl, cr, base, offset, w, raw)
-}
-
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "popcnt")]
-unsafe fn costs_popcnt(cl: &[u32], cr: &[u32], base: &[i32], offset: i32, w: usize, raw: &mut [u8]) {
-    costs_generic(cl, cr, base, offset, w, raw)
-}
-
+/// Row y's costs at every offset: computed into its ring slot and added to the column sums (`enter`), or
+/// taken out of them from the slot. (A function, not a closure: it is inlined into the AVX2 build.)
 #[inline(always)]
-fn costs_generic(cl: &[u32], cr: &[u32], base: &[i32], offset: i32, w: usize, raw: &mut [u8]) {
-    for (((row_l, row_r), row_b), row_c) in
-        cl.chunks_exact(w).zip(cr.chunks_exact(w)).zip(base.chunks_exact(w)).zip(raw.chunks_exact_mut(w))
-    {
-        for (x, ((c, &l), &b)) in row_c.iter_mut().zip(row_l).zip(row_b).enumerate() {
-            let xr = x as i32 - b - offset;
-            *c = if xr >= 0 && (xr as usize) < w { (l ^ row_r[xr as usize]).count_ones() as u8 } else { OUTSIDE };
+fn update(cl: &[u32], cr: &[u32], base: &[i32], win: &mut RowWindow, y: usize, enter: bool) {
+    let (w, r) = (win.w, WINDOW / 2);
+    let cw = w + 2 * r;
+    let slot = (y % WINDOW) * OFFSETS * w;
+    let ring = &mut win.ring[slot..slot + OFFSETS * w];
+    if enter {
+        let row = y * w..(y + 1) * w;
+        costs(&cl[row.clone()], &cr[row.clone()], &base[row], ring);
+    }
+    for (o, raw) in ring.chunks_exact(w).enumerate() {
+        let col = &mut win.col[o * cw + r..o * cw + r + w];
+        if enter {
+            for (c, &v) in col.iter_mut().zip(raw) {
+                *c += v as i16;
+            }
+        } else {
+            for (c, &v) in col.iter_mut().zip(raw) {
+                *c -= v as i16;
+            }
         }
     }
 }
 
-/// Sum of `raw` over the WINDOW x WINDOW box around each pixel, clipped at the image's border (every
-/// offset's plane is clipped alike, so the comparison between offsets stays fair).
-fn box_sum(raw: &[u8], w: usize, h: usize, col: &mut [u16], out: &mut [u16]) {
-    let r = WINDOW / 2;
-    col.fill(0);
-    for row in raw.chunks_exact(w).take(r) {
-        for (c, &v) in col.iter_mut().zip(row) {
-            *c += v as u16;
-        }
-    }
-    for y in 0..h {
-        if y + r < h {
-            for (c, &v) in col.iter_mut().zip(&raw[(y + r) * w..(y + r + 1) * w]) {
-                *c += v as u16;
+/// Hamming costs of each left pixel of a row against the right pixels `base + offset` to its left, for every
+/// offset (`raw`: OFFSETS rows). A pixel's right candidates are contiguous, read once for all offsets.
+#[inline(always)]
+fn costs(cl: &[u32], cr: &[u32], base: &[i32], raw: &mut [u8]) {
+    let w = cl.len();
+    for (x, (&l, &b)) in cl.iter().zip(base).enumerate() {
+        // offset o (index k = o + SEARCH_PX) matches right pixel x - b - o: from x - b + SEARCH_PX down
+        let first = x as i32 - b - SEARCH_PX;
+        if first >= 0 && first as usize + OFFSETS <= w {
+            let cand = &cr[first as usize..first as usize + OFFSETS];
+            for k in 0..OFFSETS {
+                raw[k * w + x] = (l ^ cand[OFFSETS - 1 - k]).count_ones() as u8;
             }
-        }
-        if y > r {
-            for (c, &v) in col.iter_mut().zip(&raw[(y - r - 1) * w..(y - r) * w]) {
-                *c -= v as u16;
+        } else {
+            for k in 0..OFFSETS {
+                let xr = first + (OFFSETS - 1 - k) as i32;
+                raw[k * w + x] =
+                    if xr >= 0 && (xr as usize) < w { (l ^ cr[xr as usize]).count_ones() as u8 } else { OUTSIDE };
             }
-        }
-        let o = &mut out[y * w..(y + 1) * w];
-        let mut s: u16 = col[..r].iter().sum();
-        for x in 0..w {
-            if x + r < w {
-                s += col[x + r];
-            }
-            if x > r {
-                s -= col[x - r - 1];
-            }
-            o[x] = s;
         }
     }
 }
 
-/// The best offset per pixel, with a parabola through its neighbours' costs for the sub-pixel part.
-fn winner(agg: &[u16], base: &[i32], guess: &[f32], out: &mut [f32]) {
+/// The best offset per pixel of a row (`agg`: OFFSETS planes of the row's box sums), with a parabola
+/// through its neighbours' costs for the sub-pixel part.
+#[inline(always)]
+fn winner(agg: &[i16], base: &[i32], guess: &[f32], out: &mut [f32]) {
     let n = out.len();
-    for (i, o) in out.iter_mut().enumerate() {
-        if !guess[i].is_finite() {
-            *o = f32::NAN;
-            continue;
-        }
-        let (mut best, mut a) = (u16::MAX, 0usize);
-        for k in 0..OFFSETS {
-            let c = agg[k * n + i];
-            if c < best {
-                (best, a) = (c, k);
+    let planes: [&[i16]; OFFSETS] = std::array::from_fn(|k| &agg[k * n..(k + 1) * n]);
+    // in chunks, one offset plane at a time: the minimum searches run across pixels (vectorised), not
+    // across a pixel's strided planes
+    const CHUNK: usize = 128;
+    let (mut best, mut arg, mut second) = ([0i16; CHUNK], [0i16; CHUNK], [0i16; CHUNK]);
+    for start in (0..n).step_by(CHUNK) {
+        let len = CHUNK.min(n - start);
+        let (best, arg, second) = (&mut best[..len], &mut arg[..len], &mut second[..len]);
+        best.copy_from_slice(&planes[0][start..start + len]);
+        arg.fill(0);
+        for (k, plane) in planes.iter().enumerate().skip(1) {
+            for ((b, a), &c) in best.iter_mut().zip(arg.iter_mut()).zip(&plane[start..start + len]) {
+                let lower = c < *b;
+                *b = if lower { c } else { *b };
+                *a = if lower { k as i16 } else { *a };
             }
         }
-        // a winner not clearly better than every offset beyond its neighbours is no evidence against the
-        // network (flat or repetitive texture): the network's answer stays
-        let second = (0..OFFSETS).filter(|k| k.abs_diff(a) >= 2).map(|k| agg[k * n + i]).min().unwrap_or(u16::MAX);
-        if (second as u32) * 100 <= best as u32 * (100 + UNIQUENESS_PCT) {
-            *o = guess[i];
-            continue;
-        }
-        let mut sub = 0.0;
-        if a > 0 && a + 1 < OFFSETS {
-            let (cm, cp, c0) = (agg[(a - 1) * n + i] as f32, agg[(a + 1) * n + i] as f32, best as f32);
-            let den = cm + cp - 2.0 * c0;
-            if den > 0.0 {
-                sub = (cm - cp) / (2.0 * den);
+        // the best offset beyond the winner's neighbours
+        second.fill(i16::MAX);
+        for (k, plane) in planes.iter().enumerate() {
+            for ((s, &a), &c) in second.iter_mut().zip(arg.iter()).zip(&plane[start..start + len]) {
+                let far = (k as i16 - a).abs() >= 2;
+                *s = (*s).min(if far { c } else { i16::MAX });
             }
         }
-        *o = (base[i] + a as i32 - SEARCH_PX) as f32 + sub;
+        for j in 0..len {
+            let i = start + j;
+            let o = &mut out[i];
+            if !guess[i].is_finite() {
+                *o = f32::NAN;
+                continue;
+            }
+            // a winner not clearly better than every offset beyond its neighbours is no evidence against
+            // the network (flat or repetitive texture): the network's answer stays
+            if (second[j] as u32) * 100 <= best[j] as u32 * (100 + UNIQUENESS_PCT) {
+                *o = guess[i];
+                continue;
+            }
+            let a = arg[j] as usize;
+            let mut sub = 0.0;
+            if a > 0 && a + 1 < OFFSETS {
+                let (cm, cp, c0) = (planes[a - 1][i] as f32, planes[a + 1][i] as f32, best[j] as f32);
+                let den = cm + cp - 2.0 * c0;
+                if den > 0.0 {
+                    sub = (cm - cp) / (2.0 * den);
+                }
+            }
+            *o = (base[i] + a as i32 - SEARCH_PX) as f32 + sub;
+        }
     }
 }
 
@@ -260,33 +363,31 @@ fn winner(agg: &[u16], base: &[i32], guess: &[f32], out: &mut [f32]) {
 mod tests {
     use super::*;
 
-    /// A textured pair whose right view is the left shifted by `d` px: the search finds `d` from a guess up
-    /// to SEARCH_PX off, sub-pixel included.
-    #[test]
-    fn refinement_finds_the_true_shift_from_a_guess_within_its_range() {
-        let (w, h) = (96usize, 40usize);
+    fn textured_pair(w: usize, h: usize, d: f32) -> (Vec<u32>, Vec<u32>) {
         // value noise: smooth enough for sub-pixel, textured enough for census
         let tex = |x: f32, y: usize| {
             let f = |x: f32| ((x * 0.37).sin() * 60.0 + (x * 0.113 + y as f32 * 0.71).cos() * 50.0) + 128.0;
             f(x).clamp(0.0, 255.0) as u8
         };
-        let d = 7.5f32;
         let left: Vec<u8> = (0..w * h).map(|i| tex((i % w) as f32, i / w)).collect();
         let right: Vec<u8> = (0..w * h).map(|i| tex((i % w) as f32 + d, i / w)).collect();
         let (mut cl, mut cr) = (vec![0; w * h], vec![0; w * h]);
         census(&left, w, h, &mut cl);
         census(&right, w, h, &mut cr);
+        (cl, cr)
+    }
+
+    /// A textured pair whose right view is the left shifted by `d` px: the search finds `d` from a guess up
+    /// to SEARCH_PX off, sub-pixel included.
+    #[test]
+    fn refinement_finds_the_true_shift_from_a_guess_within_its_range() {
+        let (w, h, d) = (96usize, 40usize, 7.5f32);
+        let (cl, cr) = textured_pair(w, h, d);
         for guess in [d - 2.4, d, d + 2.6] {
             let g = vec![guess; w * h];
             let base: Vec<i32> = g.iter().map(|v| v.round() as i32).collect();
-            let mut agg = vec![0u16; OFFSETS * w * h];
-            let (mut raw, mut col) = (vec![0u8; w * h], vec![0u16; w]);
-            for (o, plane) in agg.chunks_exact_mut(w * h).enumerate() {
-                costs(&cl, &cr, &base, o as i32 - SEARCH_PX, w, &mut raw);
-                box_sum(&raw, w, h, &mut col, plane);
-            }
             let mut out = vec![0f32; w * h];
-            winner(&agg, &base, &g, &mut out);
+            refine(&cl, &cr, &base, &g, h, &mut RowWindow::new(w), &mut out);
             // away from the left band where the match leaves the right image
             let inner: Vec<f32> = (0..w * h).filter(|i| i % w >= 16 && i % w < w - 8).map(|i| out[i]).collect();
             let within = inner.iter().filter(|v| (**v - d).abs() <= 0.5).count() as f64 / inner.len() as f64;
@@ -294,22 +395,65 @@ mod tests {
         }
     }
 
+    /// The streamed aggregation against the definition: per pixel and offset, the Hamming costs summed over
+    /// the WINDOW x WINDOW box clipped at the border; the winner of those sums, with its uniqueness test and
+    /// parabola, written out by brute force. Small, odd sizes and per-pixel guesses exercise the ring's
+    /// wrap-around and the borders.
     #[test]
-    fn box_sum_is_the_clipped_window_sum() {
-        let (w, h) = (11usize, 9usize);
-        let raw: Vec<u8> = (0..w * h).map(|i| (i * 7 % 13) as u8).collect();
-        let (mut col, mut out) = (vec![0u16; w], vec![0u16; w * h]);
-        box_sum(&raw, w, h, &mut col, &mut out);
-        let r = (WINDOW / 2) as isize;
-        for y in 0..h as isize {
-            for x in 0..w as isize {
-                let mut s = 0u16;
-                for yy in (y - r).max(0)..=(y + r).min(h as isize - 1) {
-                    for xx in (x - r).max(0)..=(x + r).min(w as isize - 1) {
-                        s += raw[yy as usize * w + xx as usize] as u16;
-                    }
+    fn streamed_refinement_equals_the_brute_force_definition() {
+        for (w, h) in [(23usize, 17usize), (9, 8), (40, 5)] {
+            let (cl, cr) = textured_pair(w, h, 3.3);
+            let guess: Vec<f32> =
+                (0..w * h).map(|i| if i % 29 == 5 { f32::NAN } else { 2.0 + (i % 7) as f32 * 0.4 }).collect();
+            let base: Vec<i32> = guess.iter().map(|g| if g.is_finite() { g.round() as i32 } else { 0 }).collect();
+            let mut out = vec![0f32; w * h];
+            refine(&cl, &cr, &base, &guess, h, &mut RowWindow::new(w), &mut out);
+            let r = (WINDOW / 2) as isize;
+            let cost = |x: isize, y: isize, o: i32| -> u32 {
+                let i = y as usize * w + x as usize;
+                let xr = x as i32 - base[i] - o;
+                if xr >= 0 && (xr as usize) < w {
+                    (cl[i] ^ cr[y as usize * w + xr as usize]).count_ones()
+                } else {
+                    OUTSIDE as u32
                 }
-                assert_eq!(out[y as usize * w + x as usize], s, "({x}, {y})");
+            };
+            for y in 0..h as isize {
+                for x in 0..w as isize {
+                    let i = y as usize * w + x as usize;
+                    let agg: Vec<u32> = (0..OFFSETS as i32)
+                        .map(|k| {
+                            let mut s = 0;
+                            for yy in (y - r).max(0)..=(y + r).min(h as isize - 1) {
+                                for xx in (x - r).max(0)..=(x + r).min(w as isize - 1) {
+                                    s += cost(xx, yy, k - SEARCH_PX);
+                                }
+                            }
+                            s
+                        })
+                        .collect();
+                    let a = (0..OFFSETS).min_by_key(|&k| (agg[k], k)).unwrap();
+                    let second = (0..OFFSETS).filter(|k| k.abs_diff(a) >= 2).map(|k| agg[k]).min().unwrap();
+                    let want = if !guess[i].is_finite() {
+                        f32::NAN
+                    } else if second * 100 <= agg[a] * (100 + UNIQUENESS_PCT) {
+                        guess[i]
+                    } else {
+                        let mut sub = 0.0;
+                        if a > 0 && a + 1 < OFFSETS {
+                            let (cm, cp, c0) = (agg[a - 1] as f32, agg[a + 1] as f32, agg[a] as f32);
+                            if cm + cp - 2.0 * c0 > 0.0 {
+                                sub = (cm - cp) / (2.0 * (cm + cp - 2.0 * c0));
+                            }
+                        }
+                        (base[i] + a as i32 - SEARCH_PX) as f32 + sub
+                    };
+                    assert!(
+                        out[i] == want || (out[i].is_nan() && want.is_nan()),
+                        "{w}x{h} ({x}, {y}): {} vs {want}",
+                        out[i]
+                    );
+                }
             }
         }
     }
