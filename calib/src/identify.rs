@@ -51,6 +51,10 @@ impl Param {
     pub fn scale(&self) -> f64 {
         self.sizes().0
     }
+    /// The top of effects.md's typical range: beyond it a fitted size is reported with a warning.
+    pub fn range_top(&self) -> f64 {
+        self.sizes().1
+    }
     /// Largest size still physically plausible (3x the top of the effects.md range): a fit
     /// needing more is explaining something else.
     pub fn plausible_max(&self) -> f64 {

@@ -17,7 +17,35 @@ use std::ops::Range;
 pub enum BlockKind {
     Base,
     Effect(Effect),
-    Ripple { link: usize, cycles: usize },
+    Ripple {
+        link: usize,
+        cycles: usize,
+    },
+    /// code_wheel_eccentricity of one wheel read by heads at a known layout
+    /// ([`HEAD_LAYOUTS`]): two columns, the offset's components `(e cos phi, e sin phi)` (um).
+    Wheel {
+        layout: usize,
+    },
+    /// encoder_scale common to the three links (one shared wheel, one pitch): one column.
+    CommonScale,
+}
+
+/// Where the three read heads may sit on the shared wheel (deg, at readings 0), as the design
+/// documents allow: on the spec's zero markers (conventions.md: 0, 9.944, 180 deg), or 120 deg
+/// apart under the legs (psi = 90, 210, 330 deg). The layout that fits best is the one used.
+pub const HEAD_LAYOUTS: [(&str, [f64; 3]); 2] = [
+    ("heads on the zero markers (0, 9.944, 180 deg)", [0.0, 9.944, 180.0]),
+    ("heads under the legs (90, 210, 330 deg)", [90.0, 210.0, 330.0]),
+];
+
+/// Per-head eccentricity `[x_i, y_i]` (um, the unit model's per-head form) of one wheel
+/// offset `(a, b) = (e cos phi, e sin phi)` read by heads at `layout` (deg):
+/// `x_i = e cos(s_i - phi)`, `y_i = e sin(s_i - phi)`.
+pub fn wheel_heads(layout: &[f64; 3], a: f64, b: f64) -> [[f64; 2]; 3] {
+    std::array::from_fn(|i| {
+        let (si, co) = layout[i].to_radians().sin_cos();
+        [a * co + b * si, a * si - b * co]
+    })
 }
 
 #[derive(Debug, Clone)]
@@ -73,6 +101,38 @@ impl Design {
                 blocks.push(Block { kind: BlockKind::Effect(c), cols: start..cols.len(), params: ps });
             } else {
                 blocks.push(Block { kind: BlockKind::Effect(c), cols: start..start, params: vec![] });
+            }
+        }
+        // One wheel: the per-head columns combined as the layout ties them (linear in a, b).
+        if let Some(blk) = blocks.iter().find(|b| b.kind == BlockKind::Effect(Effect::CodeWheelEccentricity)).cloned() {
+            if blk.cols.len() == 6 {
+                for (layout, (_, at)) in HEAD_LAYOUTS.iter().enumerate() {
+                    let start = cols.len();
+                    for (a, b) in [(1.0, 0.0), (0.0, 1.0)] {
+                        let h = wheel_heads(at, a, b);
+                        let mut c = DVector::zeros(6 * n);
+                        for i in 0..3 {
+                            c += &cols[blk.cols.start + i] * h[i][0] + &cols[blk.cols.start + 3 + i] * h[i][1];
+                        }
+                        cols.push(c);
+                    }
+                    blocks.push(Block {
+                        kind: BlockKind::Wheel { layout },
+                        cols: start..cols.len(),
+                        params: blk.params.clone(),
+                    });
+                }
+            }
+        }
+        if let Some(blk) = blocks.iter().find(|b| b.kind == BlockKind::Effect(Effect::EncoderScale)).cloned() {
+            if blk.cols.len() == 3 {
+                let c = blk.cols.clone().fold(DVector::zeros(6 * n), |acc, k| acc + &cols[k]);
+                cols.push(c);
+                blocks.push(Block {
+                    kind: BlockKind::CommonScale,
+                    cols: cols.len() - 1..cols.len(),
+                    params: blk.params.clone(),
+                });
             }
         }
         for (link, cycles, pair) in ripple_columns(unit, data, sigma)? {

@@ -100,6 +100,9 @@ pub struct Step {
     /// RMS over the dataset of the rotation the effect contributes (deg), as fitted.
     pub signature_rms_rot_deg: f64,
     pub evidence: String,
+    /// Set where the fitted size lies beyond effects.md's plausible range (still named: the
+    /// data need it and nothing else explains it).
+    pub warning: Option<String>,
     pub candidates: Vec<CandidateScore>,
     #[serde(skip)]
     pub heldout_before: Vec<[f64; 6]>,
@@ -130,6 +133,8 @@ pub struct AtBound {
 pub struct Unexplained {
     pub description: String,
     pub rms_rot_deg: f64,
+    /// The ripple behind the description, when it is one (link, cycle count, amplitude).
+    pub ripple: Option<Harmonic>,
 }
 
 #[derive(Debug, Clone)]
@@ -249,6 +254,20 @@ fn apply(unit: &UnitModel, params: &[Param], delta: &[f64]) -> UnitModel {
     u
 }
 
+/// A warning where the fitted effect lies beyond the top of effects.md's typical range: the
+/// data need it and nothing else explains it, so it is named, but a unit this far off is worth
+/// a look (or something outside the library hides behind it). Eccentricity compares each
+/// head's amplitude (one wheel shows every head the same).
+fn beyond_range(unit: &UnitModel, e: Effect) -> Option<String> {
+    let p = unit.params(e);
+    let ps = crate::identify::params_of(&[e]);
+    let ratio = match e {
+        Effect::CodeWheelEccentricity => (0..3).map(|i| p[i].hypot(p[i + 3])).fold(0.0, f64::max) / ps[0].range_top(),
+        _ => p.iter().zip(&ps).map(|(v, q)| v.abs() / q.range_top()).fold(0.0, f64::max),
+    };
+    (ratio > 1.0).then(|| format!("fitted size {ratio:.1}x the top of effects.md's range for {e}"))
+}
+
 /// Checks what the workflow cannot work with and says why.
 fn check_data(data: &Dataset) -> Result<()> {
     if data.len() < 30 {
@@ -340,6 +359,20 @@ pub fn explain(
             break;
         }
         let joint: Vec<String> = choice.named.iter().map(|m| m.effect.name().to_string()).collect();
+        progress(&format!(
+            "round {}: chose {}",
+            round + 1,
+            choice
+                .named
+                .iter()
+                .map(|m| format!(
+                    "{} (alternatives {:?})",
+                    m.effect,
+                    m.alternatives.iter().map(|a| a.0.name()).collect::<Vec<_>>()
+                ))
+                .collect::<Vec<_>>()
+                .join(", ")
+        ));
         for m in &choice.named {
             let e = m.effect;
             progress(&format!("round {}: fitting {e}", round + 1));
@@ -384,6 +417,7 @@ pub fn explain(
                     rms_trans_mm_after: after.1,
                     signature_rms_rot_deg: sig,
                     evidence: report::evidence(e, data, &held_out, &cv_new),
+                    warning: beyond_range(&full.unit, e),
                     candidates: choice.table.clone(),
                     heldout_before: held_out.clone(),
                     heldout_after: cv_new.clone(),
@@ -424,9 +458,11 @@ pub fn explain(
     // Structure left: above the floor, or a ripple that still removes significant held-out
     // chi-square (a small effect outside the library can hide under the floor factor).
     if final_rms.0 > opts.floor_factor * nf_r || final_rms.1 > opts.floor_factor * nf_t || last_ripple.is_some() {
+        let ripple = last_ripple.filter(|h| h.amplitude_deg > 0.5 * ctx.sigma.0);
         unexplained.push(Unexplained {
             description: structure::describe(data, &held_out, last_ripple, ctx.sigma.0),
             rms_rot_deg: final_rms.0,
+            ripple,
         });
     }
     let held = fit_params(&unit, &free, data, &FitOptions { max_iter: 0, ..ctx.opts(None, false, 0) })
@@ -469,9 +505,10 @@ fn ambiguity(
         let cols: Vec<usize> = base.iter().chain(&c.cols).copied().collect();
         let (x, _) = design.fit(&cols);
         let params: Vec<Param> = free.iter().chain(&c.params).copied().collect();
+        let values: Vec<f64> = x[..base.len()].iter().copied().chain(c.values(&x[base.len()..])).collect();
         let mut u = unit.clone();
         u.set_params(e, &vec![0.0; e.param_names().len()]).ok()?;
-        Some(apply(&u, &params, &x))
+        Some(apply(&u, &params, &values))
     };
     let mut effects = vec![m.effect.name().to_string()];
     effects.extend(m.alternatives.iter().map(|a| a.0.name().to_string()));

@@ -131,6 +131,9 @@ pub fn report_markdown(r: &ExplainResult, data_name: &str, plots: &[(String, Str
     }
     for (i, st) in r.steps.iter().enumerate() {
         s += &format!("## Step {}: {}\n\n", i + 1, st.effect);
+        if let Some(w) = &st.warning {
+            s += &format!("**Warning:** {w}.\n\n");
+        }
         if !st.joint_with.is_empty() {
             s += &format!("Named jointly with {} (the set was chosen as a whole).\n\n", st.joint_with.join(", "));
         }

@@ -6,7 +6,7 @@
 //! no library set explains: it displaces library effects only where it explains more than the
 //! best set, and then only members that explain nothing beyond it are dropped. A named effect
 //! that another candidate replaces almost as well is reported as ambiguous, not named.
-use super::design::{BlockKind, Design};
+use super::design::{wheel_heads, BlockKind, Design, HEAD_LAYOUTS};
 use super::structure::Harmonic;
 use super::CandidateScore;
 use crate::identify::Param;
@@ -35,6 +35,30 @@ pub struct Cand {
     pub effect: Effect,
     pub cols: Vec<usize>,
     pub params: Vec<Param>,
+    /// A tied form ([`BlockKind::Wheel`], [`BlockKind::CommonScale`]): fewer columns stand
+    /// for the effect's parameters.
+    pub tied: Option<BlockKind>,
+}
+
+impl Cand {
+    /// The parameters' values for this candidate's fitted column coefficients `x`.
+    pub fn values(&self, x: &[f64]) -> Vec<f64> {
+        match self.tied {
+            Some(BlockKind::Wheel { layout }) => {
+                let h = wheel_heads(&HEAD_LAYOUTS[layout].1, x[0], x[1]);
+                [h[0][0], h[1][0], h[2][0], h[0][1], h[1][1], h[2][1]].to_vec()
+            }
+            Some(BlockKind::CommonScale) => vec![x[0]; 3],
+            _ => x.to_vec(),
+        }
+    }
+    /// Largest fitted size relative to the plausible maximum, for coefficients `x`.
+    fn size_ratio(&self, x: &[f64]) -> f64 {
+        match self.tied {
+            Some(BlockKind::Wheel { .. }) => x[0].hypot(x[1]) / self.params[0].plausible_max(),
+            _ => x.iter().zip(&self.params).map(|(v, p)| v.abs() / p.plausible_max()).fold(0.0, f64::max),
+        }
+    }
 }
 
 pub struct Named {
@@ -96,14 +120,9 @@ impl Scorer<'_> {
         let cols = self.cols(set, ripple);
         let (x, _) = self.d.fit(&cols);
         let c = &self.cands[member];
-        c.cols
-            .iter()
-            .zip(&c.params)
-            .map(|(col, p)| {
-                let at = cols.iter().position(|k| k == col).expect("member column in set");
-                x[at].abs() / p.plausible_max()
-            })
-            .fold(0.0, f64::max)
+        let xs: Vec<f64> =
+            c.cols.iter().map(|col| x[cols.iter().position(|k| k == col).expect("member column in set")]).collect();
+        c.size_ratio(&xs)
     }
     /// code_wheel_eccentricity is fitted per head with free phases (head placement is a design
     /// fact); one eccentric wheel shows every head the same amplitude. Per-head amplitudes that
@@ -145,7 +164,7 @@ impl Scorer<'_> {
         if m < o.min_share * structured {
             return Some(format!("explains only {:.0}% of the structured misfit", 100.0 * m / structured));
         }
-        if self.cands[i].effect == Effect::CodeWheelEccentricity {
+        if self.cands[i].effect == Effect::CodeWheelEccentricity && self.cands[i].tied.is_none() {
             if let Some(why) = self.not_one_wheel(set, ripple, i) {
                 return Some(why);
             }
@@ -196,10 +215,32 @@ pub fn candidates(d: &Design, o: &SelectOptions) -> Vec<(Effect, Option<Cand>)> 
             cols.remove(worst);
             params.remove(worst);
         }
-        let cand = (!cols.is_empty()).then_some(Cand { effect: e, cols, params });
+        let cand = (!cols.is_empty()).then_some(Cand { effect: e, cols, params, tied: None });
         out.push((e, cand));
     }
     out
+}
+
+/// The one-wheel form of `e`, a candidate beside the free one: the eccentricity of one wheel
+/// (two parameters, the heads at the best-fitting layout of [`HEAD_LAYOUTS`]), one scale common
+/// to the links (one pitch). Tied, the two separate: one wheel shows its heads a scale-like
+/// term at different phases, never the same one, where free per-head terms can mimic a common
+/// scale. Which form a set carries is decided by the sets' penalised held-out chi-square.
+fn one_wheel(d: &Design, e: Effect) -> Option<Cand> {
+    let base = d.base();
+    let chi = |c: &[usize]| d.cv_chi2(&base.iter().chain(c).copied().collect::<Vec<_>>());
+    d.blocks
+        .iter()
+        .filter(|b| {
+            matches!(b.kind, BlockKind::Wheel { .. } | BlockKind::CommonScale)
+                && b.params.first().map(|p| p.effect) == Some(e)
+        })
+        .map(|b| {
+            let cols: Vec<usize> = b.cols.clone().collect();
+            (chi(&cols), Cand { effect: e, cols, params: b.params.clone(), tied: Some(b.kind) })
+        })
+        .min_by(|a, b| a.0.total_cmp(&b.0))
+        .map(|c| c.1)
 }
 
 /// The best ripple added to `set` (block index, chi-square with it).
@@ -222,10 +263,19 @@ fn best_valid(s: &mut Scorer, all: &[Vec<usize>], ripple: Option<usize>, o: &Sel
 
 pub fn choose(d: &Design, o: &SelectOptions) -> Choice {
     let listed = candidates(d, o);
-    let cands: Vec<Cand> = listed.iter().filter_map(|c| c.1.clone()).collect();
+    let mut cands: Vec<Cand> = listed.iter().filter_map(|c| c.1.clone()).collect();
+    for e in [Effect::CodeWheelEccentricity, Effect::EncoderScale] {
+        cands.extend(one_wheel(d, e));
+    }
     let mut s = Scorer { d, base: d.base(), cands: &cands, memo: HashMap::new() };
     let chi_base = s.chi(&[], None);
-    let all = subsets(cands.len(), o.max_joint);
+    // A set carries each effect in one form.
+    let all: Vec<Vec<usize>> = subsets(cands.len(), o.max_joint)
+        .into_iter()
+        .filter(|set| {
+            set.iter().enumerate().all(|(k, &i)| set[..k].iter().all(|&j| cands[j].effect != cands[i].effect))
+        })
+        .collect();
     let lib = best_valid(&mut s, &all, None, o);
     let mut chosen = lib.clone();
     let mut ripple_note: Option<(usize, String)> = None;
@@ -257,7 +307,8 @@ pub fn choose(d: &Design, o: &SelectOptions) -> Choice {
         let here = s.pchi(&chosen, None, o.penalty);
         let mut alternatives = vec![];
         for j in 0..cands.len() {
-            if chosen.contains(&j) {
+            // Another form of a member is not a substitute for it.
+            if chosen.iter().any(|&c| cands[c].effect == cands[j].effect) {
                 continue;
             }
             let swapped: Vec<usize> = rest.iter().copied().chain([j]).collect();
@@ -285,9 +336,15 @@ pub fn choose(d: &Design, o: &SelectOptions) -> Choice {
             });
             continue;
         };
-        let i = cands.iter().position(|x| x.effect == c.effect).expect("listed");
+        // The form named, else the free one.
+        let i = chosen
+            .iter()
+            .copied()
+            .find(|&j| cands[j].effect == c.effect)
+            .or_else(|| cands.iter().position(|x| x.effect == c.effect))
+            .expect("listed");
         let drop = chi_base - s.chi(&[i], None);
-        let k = c.cols.len();
+        let k = cands[i].cols.len();
         let n = named.iter().find(|n| n.effect == c.effect);
         let note = match n {
             Some(n) if !n.alternatives.is_empty() => {

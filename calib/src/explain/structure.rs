@@ -51,7 +51,7 @@ pub fn noise_from_second_differences(data: &Dataset, res: &[[f64; 6]]) -> Option
     (a > 0.0 && b > 0.0).then_some((a, b, n))
 }
 
-/// The columns of every ripple `a sin(k theta_i) + b cos(k theta_i)` of a link angle, as the
+/// The columns of every ripple `a sin(k theta_i) + b (cos(k theta_i) - 1)` of a link angle, as the
 /// change of the weighted prediction (6 rows per sample): the model's sensitivity to that
 /// link's angle times the ripple's shape.
 pub fn ripple_columns(
@@ -80,7 +80,12 @@ pub fn ripple_columns(
             let mut cs = DVector::zeros(6 * n);
             let mut cc = DVector::zeros(6 * n);
             for (k, smp) in data.samples.iter().enumerate() {
+                // Zero at reading 0: homing re-zeroes the reading, so a ripple does not move
+                // home. A ripple that did (cos k theta alone) would carry a constant link-angle
+                // shift that the data-only derivative applies to every pose but not to home:
+                // a spurious constant rotation that no ripple in the unit makes.
                 let (si, co) = (cycles as f64 * smp.theta_deg[link].to_radians()).sin_cos();
+                let co = co - 1.0;
                 for m in 0..6 {
                     cs[6 * k + m] = g[6 * k + m] * si;
                     cc[6 * k + m] = g[6 * k + m] * co;

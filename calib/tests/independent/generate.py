@@ -44,7 +44,7 @@ READ_RADIUS_MM = 15.0
 HEAD_WHEEL_ANGLE_DEG = PSI  # wheel angle under head i when link i is at true angle 0
 HOMING_LAST_MOTION = (0.0, 0.0, 1.0)  # start-up roll ends moving in +roll (+z)
 
-FAMILY_SEEDS = {"dev": 271828, "final": 314159}
+FAMILY_SEEDS = {"dev": 271828, "final": 314159, "dev2": 161803, "final2": 577215}
 
 # (set name, hidden effects in effects.md vocabulary / "outside:ripple3")
 SETS = [
@@ -60,6 +60,24 @@ SETS = [
     ("ripple3", ["outside:ripple3"]),
     ("scale_plus_eccentricity", ["encoder_scale", "code_wheel_eccentricity"]),
 ]
+
+# Round 2 (families dev2 / final2): larger outside ripples of any cycle count, backlash in each
+# link's reading (a lag of each link behind its last motion), sizes beyond effects.md's range and
+# three effects together. "outside:ripple" is a reading ripple of one link with a drawn cycle count.
+SETS2 = [
+    ("ripple_large", ["outside:ripple"]),
+    ("link_backlash", ["hinge_backlash"]),
+    ("scale_beyond_range", ["encoder_scale"]),
+    ("scale_plus_eccentricity", ["encoder_scale", "code_wheel_eccentricity"]),
+    ("tilt_eccentricity_sag", ["input_axis_tilt", "code_wheel_eccentricity", "gravity_sag"]),
+    ("backlash_scale_tilt", ["hinge_backlash", "encoder_scale", "input_axis_tilt"]),
+    ("ripple_plus_tilt", ["outside:ripple", "input_axis_tilt"]),
+]
+
+
+def sets_of(family):
+    return SETS2 if family.endswith("2") else SETS
+
 
 GEOM_MAX_ROT_DEG = 1.5  # bound on the deviation of a unit's mechanism from nominal
 GEOM_MAX_POS_MM = 4.0
@@ -444,6 +462,21 @@ def draw_hidden(rng):
     return h
 
 
+def draw_hidden2(rng, name):
+    """Round 2: the round-1 draws, then the larger / other forms (drawn after, so the stream of
+    the round-1 parameters is the same function of the seed)."""
+    h = draw_hidden(rng)
+    # backlash in each reading: each link settles behind its last motion by half its clearance
+    h["hinge_backlash"] = {"model": "link_lag", "clearance_deg": rng.uniform(0.04, 0.06, 3)}
+    # a reading ripple of 2..6 cycles per revolution, 0.1-0.15 deg (up to 3x the round-1 size)
+    h["outside:ripple"] = {"link": int(rng.integers(0, 3)) + 1, "cycles": int(rng.integers(2, 7)),
+                           "amplitude_deg": rng.uniform(0.1, 0.15), "phase_deg": rng.uniform(0.0, 360.0)}
+    if name == "scale_beyond_range":
+        # 2-3x the top of effects.md's 1e-4 - 1e-3
+        h["encoder_scale"] = {"relative": float(_signed_uniform(rng, 2.0e-3, 3.0e-3))}
+    return h
+
+
 class Unit:
     def __init__(self, geom, hidden_params, on):
         self.g = geom
@@ -485,12 +518,33 @@ class Unit:
             E = eccentricity_peak_deg(p["e_um"])
             ph = np.array(HEAD_WHEEL_ANGLE_DEG)[None, :] - p["direction_deg"]
             r = r + E * (np.sin((ph + th) * RAD) - np.sin((ph + z) * RAD))
-        if "outside:ripple3" in on:
-            p = self.h["outside:ripple3"]
-            j = p["link"] - 1
-            A, rho = p["amplitude_deg"], p["phase_deg"] * RAD
-            r[:, j] = r[:, j] + A * (np.sin(3.0 * th[:, j] * RAD + rho) - np.sin(3.0 * z[0, j] * RAD + rho))
+        for key in ("outside:ripple3", "outside:ripple"):
+            if key in on:
+                p = self.h[key]
+                j = p["link"] - 1
+                A, rho, k = p["amplitude_deg"], p["phase_deg"] * RAD, float(p.get("cycles", 3))
+                r[:, j] = r[:, j] + A * (np.sin(k * th[:, j] * RAD + rho) - np.sin(k * z[0, j] * RAD + rho))
         return r
+
+    def link_lag(self, readings_deg, on=None):
+        """Per-link backlash: (N,3) link-angle shifts (deg) and the home shift (3,). Each link
+        settles half its clearance behind the direction its reading last changed in; homing
+        ends with every link moving + (all motors turn together at start-up)."""
+        on = self.on if on is None else set(on)
+        rd = np.asarray(readings_deg, float)
+        n = len(rd)
+        if "hinge_backlash" not in on or self.h["hinge_backlash"].get("model") != "link_lag":
+            return np.zeros((n, 3)), np.zeros(3)
+        half = 0.5 * np.asarray(self.h["hinge_backlash"]["clearance_deg"], float)
+        last = np.ones(3)
+        prev = np.zeros(3)
+        out = np.empty((n, 3))
+        for k in range(n):
+            d = rd[k] - prev
+            last = np.where(d > 0, 1.0, np.where(d < 0, -1.0, last))
+            prev = rd[k]
+            out[k] = -last * half
+        return out, -half
 
     def true_from_reading(self, reading_deg, on=None):
         """Invert reading_from_true numerically (Newton, per element)."""
@@ -522,7 +576,7 @@ class Unit:
         on = self.on if on is None else set(on)
         R = R_geo.copy()
         Rh = R_geo_home.copy()
-        if "hinge_backlash" in on:
+        if "hinge_backlash" in on and self.h["hinge_backlash"].get("model") != "link_lag":
             b = self.h["hinge_backlash"]["lag_deg"] * RAD
             n = len(R_geo)
             dirs = np.empty((n, 3))
@@ -566,6 +620,8 @@ class Unit:
         if zero_offsets:
             th_true = self.true_from_reading(readings_deg, on)
             th_home = self.true_from_reading(np.zeros((1, 3)), on)[0]
+            lag, lag_home = self.link_lag(readings_deg, on)
+            th_true, th_home = th_true + lag, th_home + lag_home
         else:
             th_true = np.asarray(readings_deg, float).copy()
             th_home = np.zeros(3)
@@ -613,7 +669,7 @@ def command_readings():
     return cmd, th_cmd, counts, readings
 
 
-def build_unit(seed, hidden, readings):
+def build_unit(seed, hidden, readings, name=None):
     rng = np.random.default_rng(seed)
     force = "link_angle_error" in hidden
     attempts = 0
@@ -630,7 +686,7 @@ def build_unit(seed, hidden, readings):
             break
         if attempts > 200:
             raise RuntimeError("could not draw a moderate unit")
-    hp = draw_hidden(rng)
+    hp = draw_hidden(rng) if name is None else draw_hidden2(rng, name)
     unit = Unit(geom, hp, [h for h in hidden if h != "link_angle_error"])
     # gravity sag: scale the compliance so that the peak sag over the workspace = target
     hp["gravity_sag"]["compliance_rad_per_mm"] = 1.0
@@ -643,7 +699,7 @@ def build_unit(seed, hidden, readings):
 
 def make_set(family, idx, name, hidden, cmd, th_cmd, counts, readings):
     seed = FAMILY_SEEDS[family] * 100 + idx
-    unit, rng, geodev, attempts = build_unit(seed, hidden, readings)
+    unit, rng, geodev, attempts = build_unit(seed, hidden, readings, name if family.endswith("2") else None)
     sim = unit.simulate(readings)
     # the same unit without its hidden effect(s)
     if "link_angle_error" in hidden:
@@ -774,6 +830,12 @@ def hidden_description(unit, h):
         return {"size": _r(q["relative"]), "size_unit": "relative (common to the three links)",
                 "counts_per_true_rev": _r(COUNTS_PER_REV * (1.0 + q["relative"])),
                 "meaning": "reading_i = (1+s)(theta_i - z_i): counts per true revolution = 92672 (1+s)"}
+    if h == "hinge_backlash" and p[h].get("model") == "link_lag":
+        q = p[h]
+        return {"size": _r(float(np.max(q["clearance_deg"]))), "size_unit": "deg (largest link clearance)",
+                "model": "link_lag", "clearance_deg": _r(q["clearance_deg"]),
+                "meaning": "link i's true angle is shifted by -dir_i c_i / 2, dir_i the sign of the last "
+                           "change of its reading (+1 at home: homing ends moving +)"}
     if h == "hinge_backlash":
         q = p[h]
         return {"size": _r(q["lag_deg"]), "size_unit": "deg (platform lag)",
@@ -798,6 +860,11 @@ def hidden_description(unit, h):
         return {"size": _r(q["amplitude_deg"]), "size_unit": "deg (ripple amplitude)",
                 "link": q["link"], "phase_deg": _r(q["phase_deg"]), "cycles_per_rev": 3,
                 "meaning": "reading_j += A[sin(3 theta_j + rho) - sin(3 z_j + rho)], theta_j true link angle"}
+    if h == "outside:ripple":
+        q = p[h]
+        return {"size": _r(q["amplitude_deg"]), "size_unit": "deg (ripple amplitude)",
+                "link": q["link"], "phase_deg": _r(q["phase_deg"]), "cycles_per_rev": q["cycles"],
+                "meaning": "reading_j += A[sin(k theta_j + rho) - sin(k z_j + rho)], theta_j true link angle"}
     raise KeyError(h)
 
 
@@ -807,7 +874,7 @@ def main(argv=None):
     ap.add_argument("--family", choices=sorted(FAMILY_SEEDS), action="append")
     ap.add_argument("--only", action="append", help="set name(s) to generate")
     args = ap.parse_args(argv)
-    fams = args.family or ["dev", "final"]
+    fams = args.family or ["dev", "final", "dev2", "final2"]
     t0 = time.time()
     cmd, th_cmd, counts, readings = command_readings()
     print(f"grid: {len(cmd)} commanded poses, nominal link angles in "
@@ -825,7 +892,7 @@ def main(argv=None):
         if args.only and os.path.exists(tpath):
             with open(tpath) as f:
                 truth["sets"] = json.load(f).get("sets", {})
-        for idx, (name, hidden) in enumerate(SETS, start=1):
+        for idx, (name, hidden) in enumerate(sets_of(fam), start=1):
             if args.only and name not in args.only:
                 continue
             t1 = time.time()
@@ -834,10 +901,10 @@ def main(argv=None):
                 f.write(csv)
             truth["sets"][name] = _round_tree(tr)
             c = tr["hidden_effect_pose_change"]
-            print(f"[{fam}] {idx:2d}/{len(SETS)} {name:26s} rows={tr['rows']} hidden={','.join(hidden) or '-'} "
+            print(f"[{fam}] {idx:2d}/{len(sets_of(fam))} {name:26s} rows={tr['rows']} hidden={','.join(hidden) or '-'} "
                   f"rms change {c['rms_rot_deg']:.4f} deg / {c['rms_pos_mm']:.4f} mm  ({time.time() - t1:.1f} s)",
                   flush=True)
-        truth["sets"] = {n: truth["sets"][n] for n, _ in SETS if n in truth["sets"]}
+        truth["sets"] = {n: truth["sets"][n] for n, _ in sets_of(fam) if n in truth["sets"]}
         with open(tpath, "w", newline="\n") as f:
             json.dump(truth, f, indent=1, sort_keys=False)
             f.write("\n")
