@@ -137,50 +137,61 @@ fn assert_no_false_name(family: &str, set: &str) {
 }
 
 macro_rules! family {
-    ($m:ident, $f:literal) => {
+    ($m:ident, $f:literal $(, #[$a:meta])?) => {
         mod $m {
             use super::*;
             #[test]
+            $(#[$a])?
             fn null_adds_nothing() {
                 assert_null($f);
             }
             #[test]
+            $(#[$a])?
             fn input_axis_tilt() {
                 assert_named($f, "input_axis_tilt");
             }
             #[test]
+            $(#[$a])?
             fn code_wheel_eccentricity() {
                 assert_named($f, "code_wheel_eccentricity");
             }
             #[test]
+            $(#[$a])?
             fn encoder_scale() {
                 assert_named($f, "encoder_scale");
             }
             #[test]
+            $(#[$a])?
             fn hinge_backlash_as_platform_lag() {
                 assert_named($f, "hinge_backlash");
             }
             #[test]
+            $(#[$a])?
             fn gravity_sag() {
                 assert_named($f, "gravity_sag");
             }
             #[test]
+            $(#[$a])?
             fn link_angle_error_from_a_start_without_it() {
                 assert_named($f, "link_angle_error_hidden");
             }
             #[test]
+            $(#[$a])?
             fn eccentricity_and_sag_together() {
                 assert_named($f, "eccentricity_plus_sag");
             }
             #[test]
+            $(#[$a])?
             fn backlash_and_tilt_together() {
                 assert_named($f, "backlash_plus_tilt");
             }
             #[test]
+            $(#[$a])?
             fn ripple_outside_the_library_is_unexplained() {
                 assert_outside($f);
             }
             #[test]
+            $(#[$a])?
             fn scale_and_eccentricity_together_name_nothing_false() {
                 assert_no_false_name($f, "scale_plus_eccentricity");
             }
@@ -188,7 +199,9 @@ macro_rules! family {
     };
 }
 
-family!(dev, "dev");
+// The development families were tuned on; CI runs the held-out ones (a clean CI's time is bounded): run
+// these by hand with `cargo test --release -p abvs-calib --test explain_independent -- --ignored`.
+family!(dev, "dev", #[ignore = "development family (tuned on): run by hand with --ignored"]);
 family!(held_out_final, "final");
 
 /// Round 2 (families `dev2`, `final2`): larger outside ripples of any cycle count, backlash in
@@ -239,34 +252,41 @@ fn assert_beyond_range(family: &str, set: &str) {
 }
 
 macro_rules! family2 {
-    ($m:ident, $f:literal) => {
+    ($m:ident, $f:literal $(, #[$a:meta])?) => {
         mod $m {
             use super::*;
             #[test]
+            $(#[$a])?
             fn large_ripple_names_nothing_and_is_reported() {
                 assert_round2($f, "ripple_large");
             }
             #[test]
+            $(#[$a])?
             fn backlash_in_each_link_reading() {
                 assert_round2($f, "link_backlash");
             }
             #[test]
+            $(#[$a])?
             fn scale_beyond_the_range_named_with_a_warning() {
                 assert_beyond_range($f, "scale_beyond_range");
             }
             #[test]
+            $(#[$a])?
             fn scale_and_eccentricity_separated() {
                 assert_round2($f, "scale_plus_eccentricity");
             }
             #[test]
+            $(#[$a])?
             fn tilt_eccentricity_and_sag() {
                 assert_round2($f, "tilt_eccentricity_sag");
             }
             #[test]
+            $(#[$a])?
             fn backlash_scale_and_tilt() {
                 assert_round2($f, "backlash_scale_tilt");
             }
             #[test]
+            $(#[$a])?
             fn ripple_on_top_of_a_tilt() {
                 assert_round2($f, "ripple_plus_tilt");
             }
@@ -274,5 +294,5 @@ macro_rules! family2 {
     };
 }
 
-family2!(dev2, "dev2");
+family2!(dev2, "dev2", #[ignore = "development family (tuned on): run by hand with --ignored"]);
 family2!(held_out_final2, "final2");
