@@ -168,6 +168,20 @@ fn push(
     }
 }
 
+/// Nice level of the pipeline's threads off its bottleneck: low enough that the engine's lane wins its
+/// core when both are ready, high enough that they keep up (they need about a third of a core).
+pub const OFF_CRITICAL_NICE: i32 = 5;
+
+/// Lowers the calling thread's priority to [`OFF_CRITICAL_NICE`] (Linux: nice applies per thread). Raising
+/// a nice level needs no privilege; a failure leaves the thread as it was, which only costs frame rate.
+fn step_back_priority() {
+    #[cfg(target_os = "linux")]
+    // SAFETY: a plain system call on the calling thread (who = 0).
+    unsafe {
+        libc::setpriority(libc::PRIO_PROCESS, 0, OFF_CRITICAL_NICE);
+    }
+}
+
 /// crossbeam allocates once, lazily, the first time a thread blocks on any channel (its thread-local wait
 /// context). Left to chance that can happen hundreds of frames into a run (the first time a stage finds its
 /// queue empty), so every lane's thread takes that allocation at start-up instead.
@@ -258,6 +272,15 @@ pub fn run<S: PairSource>(graph: Graph<S>, cfg: &RunConfig) -> Result<RunStats> 
     for s in lanes.iter_mut().flat_map(|l| l.stages.iter_mut()) {
         s.start(&mut ctx)?;
     }
+    // With a lane that bounds the frame rate (the disparity engine's), the source and the other lanes before
+    // the output step back a little (nice +OFF_CRITICAL_NICE): on a 2-core robot computer they fill the
+    // engine's gaps instead of taking its core in the middle of a frame. Measured on the fixture (2 cores,
+    // paced): see runtime/BENCHMARKS.md "Real time".
+    let step_back: Vec<bool> = {
+        let any = lanes.iter().any(|l| l.stages.iter().any(|s| s.bottleneck()));
+        lanes.iter().map(|l| any && !l.stages.iter().any(|s| s.bottleneck())).collect()
+    };
+    let source_steps_back = step_back.iter().any(|b| *b);
     // Each sender moves to its one producer, so a queue disconnects when that producer ends.
     let mut senders: Vec<Option<Sender<Box<Work>>>> = queues.iter().map(|q| Some(q.0.clone())).collect();
     let receivers: Vec<Receiver<Box<Work>>> = queues.iter().map(|q| q.1.clone()).collect();
@@ -274,6 +297,9 @@ pub fn run<S: PairSource>(graph: Graph<S>, cfg: &RunConfig) -> Result<RunStats> 
             let source = &mut source;
             s.spawn(move || -> Latency {
                 prewarm_thread();
+                if source_steps_back {
+                    step_back_priority();
+                }
                 let mut lat = Latency::default();
                 let end_ns = cfg.duration.map(|d| started.saturating_add(d.as_nanos().min(i64::MAX as u128) as i64));
                 loop {
@@ -316,8 +342,12 @@ pub fn run<S: PairSource>(graph: Graph<S>, cfg: &RunConfig) -> Result<RunStats> 
             let (q_tx, q_rx) = (senders[i + 1].take().expect("one producer"), receivers[i + 1].clone());
             let dropped = dropped.clone();
             let name = lane.name;
+            let steps_back = step_back[i];
             let h = s.spawn(move || -> (Latency, Vec<&'static str>) {
                 prewarm_thread();
+                if steps_back {
+                    step_back_priority();
+                }
                 let mut lat = Latency::default();
                 let mut failed = Vec::new();
                 for mut w in rx.iter() {

@@ -42,6 +42,11 @@ pub trait Stage: Send {
     fn needs_output_lane(&self) -> bool {
         false
     }
+    /// Whether the stage bounds the pipeline's frame rate (the disparity engine): its lane keeps the normal
+    /// scheduling priority and the lanes without such a stage step back a little (see the runner).
+    fn bottleneck(&self) -> bool {
+        false
+    }
     /// Adds what the stage counted to the run's statistics.
     fn finish(&mut self, _stats: &mut RunStats) {}
 }

@@ -422,6 +422,10 @@ impl Stage for DisparityStage {
         "disparity"
     }
 
+    fn bottleneck(&self) -> bool {
+        true
+    }
+
     fn start(&mut self, ctx: &mut StageContext) -> Result<()> {
         let out = (ctx.out.width, ctx.out.height);
         let e = &self.engine;
