@@ -316,7 +316,15 @@ impl Stage for RectifyStage {
         let (rw, rh) = ctx.raw;
         let cam_l = camera_for_frames(&self.cams.0, rw, rh)?;
         let cam_r = camera_for_frames(&self.cams.1, rw, rh)?;
-        self.rectifier = Some(StereoRectifier::new(cam_l, cam_r, ctx.out, self.grid_step)?);
+        let mut rectifier = StereoRectifier::new(cam_l, cam_r, ctx.out, self.grid_step)?;
+        // One remap here, on the runner's thread: OpenCV's worker threads (remap's, and SGBM_3WAY's in the
+        // disparity lane) start now with its priority, not later from this lane's, which steps back
+        // (runner.rs, step_back_priority) and would hand its lower priority to every worker.
+        rectifier.left.build(&cam_l, &Matrix3::identity());
+        let raw = vec![0u8; (rw * rh) as usize];
+        let mut out = vec![0u8; (ctx.out.width * ctx.out.height) as usize];
+        rectifier.left.remap(&raw, rw, rh, &mut out)?;
+        self.rectifier = Some(rectifier);
         Ok(())
     }
 
