@@ -546,6 +546,14 @@ impl RuntimeConfig {
         }
     }
 
+    /// The iceoryx2 bridge of this deployment: `[bridges.iceoryx]`'s prefix, sized for the rectified
+    /// resolution. A subscriber in another process opens its services with the same value
+    /// ([`crate::bridges::iceoryx::Subscriber::new`]); any other settings are refused as foreign.
+    pub fn bridge_config(&self) -> crate::bridges::iceoryx::BridgeConfig {
+        crate::bridges::iceoryx::BridgeConfig::for_resolution(self.disparity.width, self.disparity.height)
+            .with_prefix(self.bridges.iceoryx.service_prefix.clone())
+    }
+
     /// The configuration as TOML (what `--print-config` prints).
     pub fn to_toml_string(&self) -> String {
         toml::to_string_pretty(self).expect("a runtime configuration serialises")

@@ -18,6 +18,13 @@ pub enum RuntimeError {
     /// A calibration or model file the pipeline cannot use.
     #[error("{}: {msg}", path.display())]
     Model { path: std::path::PathBuf, msg: String },
+    /// An output the run would write (a file, a directory) that it cannot: checked before any work, so a
+    /// long run does not end by losing its results. `field` is the flag or configuration field.
+    #[error("{field} {}: {msg}", path.display())]
+    Output { field: String, path: std::path::PathBuf, msg: String },
+    /// A device (a camera, the encoder port) that cannot be opened, or eyes that do not home.
+    #[error("{0}")]
+    Device(String),
     /// A stage failed on one frame (the pipeline counts it and goes on).
     #[error("frame {seq}: {stage}: {msg}")]
     Frame { seq: u64, stage: &'static str, msg: String },

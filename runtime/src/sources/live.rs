@@ -48,6 +48,14 @@ impl LiveSource {
         }
     }
 
+    /// Opens the devices `[source.live]` describes ([`crate::sources::devices`]) and waits until both eyes are
+    /// homed.
+    pub fn open(l: &crate::config::LiveConfig) -> crate::Result<LiveSource> {
+        let (capture, encoders) = crate::sources::devices::open_devices(l)?;
+        crate::sources::devices::wait_for_homing(&encoders, l.homing_timeout_s)?;
+        Ok(LiveSource::new(capture, encoders, l.width, l.height))
+    }
+
     /// The cameras' rolling-shutter readout (ns, `CaptureConfig::readout_ns`; frames' `t_start_ns` must be
     /// their first row's, `RowReference::FirstRow`): the runtime corrects each row with the eye's pose then.
     pub fn with_readout_ns(mut self, readout_ns: i64) -> LiveSource {
