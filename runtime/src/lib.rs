@@ -7,6 +7,7 @@
 //! [`stage::Stage`]; [`runner`] runs any graph of them on threads joined by bounded channels, and
 //! [`pipeline`] declares the standard one. [`session`] is the on-disk format of recorded sessions, which
 //! [`record`] writes from live sources.
+#![warn(missing_docs)]
 pub mod bridges;
 pub mod config;
 pub mod error;
