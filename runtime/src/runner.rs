@@ -28,15 +28,19 @@ use crate::stats::{rss_bytes, Latency, RunStats, Window};
 pub struct Lane {
     /// The lane's name in the statistics (its latency histogram).
     pub name: &'static str,
+    /// The stages, in the order they run on each frame.
     pub stages: Vec<Box<dyn Stage>>,
 }
 
 /// A source, lanes of stages (the last is the output lane, where the sinks run) and sinks.
 pub struct Graph<S> {
+    /// Where the frames come from.
     pub source: S,
     /// The rectified output the stages after rectification work at (sizes the pooled buffers).
     pub out: RectifiedCamera,
+    /// The lanes, in data-flow order; the last is the output lane.
     pub lanes: Vec<Lane>,
+    /// The sinks, in the order they run on the output lane.
     pub sinks: Vec<Box<dyn Sink>>,
 }
 

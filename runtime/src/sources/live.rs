@@ -14,6 +14,7 @@ use crate::tasks::align::EncoderTrack;
 /// How long the time-alignment stage waits for encoder samples that should exist by now.
 pub const ENCODER_WAIT: Duration = Duration::from_millis(30);
 
+/// The eye cameras and the drive board as a [`PairSource`].
 pub struct LiveSource {
     capture: StereoCapture,
     encoders: Option<EncoderStream>,
