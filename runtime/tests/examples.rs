@@ -85,3 +85,20 @@ fn subscribe_receives_every_published_frame_on_every_topic_from_another_process(
     assert_eq!(cloud, depth, "{out}");
     assert_eq!(num(&fields(&out, "subscriber seq_gaps"), "malformed"), 0, "{out}");
 }
+
+/// The README's "Use it from your own process" shows `custom_sink`: every line of its code block is a line of
+/// the example, so the README cannot show code that no longer builds.
+#[test]
+fn the_readme_shows_code_of_the_example() {
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
+    let readme = std::fs::read_to_string(root.join("README.md")).expect("README.md");
+    let example = std::fs::read_to_string(root.join("runtime/examples/custom_sink.rs")).expect("the example");
+    let section = readme.split("## Use it from your own process").nth(1).expect("the README's section");
+    let block = section.split("```rust\n").nth(1).and_then(|b| b.split("```").next()).expect("its code block");
+    let lines: Vec<&str> = example.lines().map(str::trim).collect();
+    let shown: Vec<&str> = block.lines().map(str::trim).filter(|l| !l.is_empty()).collect();
+    assert!(shown.len() > 10, "{block}");
+    for l in shown {
+        assert!(lines.contains(&l), "README line `{l}` is not in runtime/examples/custom_sink.rs");
+    }
+}

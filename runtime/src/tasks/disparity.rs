@@ -3,8 +3,8 @@
 //! name, the network-based [`super::disparity_census`] and [`super::disparity_fused`] included.
 //!
 //! ONNX models follow the published HITNet exports' contract (PINTO model zoo), so those drop in: input
-//! "input" [1,2,H,W] (left gray, right gray) or [1,6,H,W] (left RGB, right RGB), scaled /255; output
-//! [1,1,H,W] (or [1,H,W]) left-view disparity in pixels. A model directory holds `model.onnx` and
+//! "input" `[1,2,H,W]` (left gray, right gray) or `[1,6,H,W]` (left RGB, right RGB), scaled /255; output
+//! `[1,1,H,W]` (or `[1,H,W]`) left-view disparity in pixels. A model directory holds `model.onnx` and
 //! `manifest.json` ("abvs-disparity-model/1": layout, resolution, max disparity, training recipe, metrics);
 //! a bare .onnx file is accepted and described from its own input/output shapes.
 //! Invalid disparities are NaN (never 0, which is a valid disparity at infinity).
@@ -34,7 +34,7 @@ pub struct DisparityManifest {
     pub file: String,
     /// The network's input tensor.
     pub input_name: String,
-    /// "gray2" ([1,2,H,W]) or "rgb6" ([1,6,H,W]).
+    /// "gray2" (`[1,2,H,W]`) or "rgb6" (`[1,6,H,W]`).
     pub input_layout: String,
     /// Input scale: pixel levels are multiplied by this.
     pub input_scale: f64,
