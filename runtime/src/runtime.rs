@@ -55,7 +55,7 @@ pub struct Runtime {
 pub struct Report {
     /// Counts, latencies, the output digest, and what each stage and sink added (`extra`).
     pub stats: RunStats,
-    /// Seconds from the first frame taken to the last one published.
+    /// Seconds the run took, from its start to its last frame.
     pub elapsed_s: f64,
     /// The session directory, or the live devices.
     pub source: String,
@@ -369,7 +369,8 @@ fn rerun_sink(p: &Path) -> Result<Box<dyn Sink>> {
 #[cfg(not(feature = "rerun"))]
 fn rerun_sink(p: &Path) -> Result<Box<dyn Sink>> {
     Err(RuntimeError::Invalid(format!(
-        "--rerun {}: this abvs was built without rerun logging; build it with `cargo build --release -p abvs --features rerun`",
+        "--rerun (sinks.rerun) {}: this abvs was built without rerun logging; build it with \
+         `cargo build --release -p abvs --features rerun` (abvs-runtime's cargo feature `rerun`)",
         p.display()
     )))
 }
