@@ -194,7 +194,7 @@ fn cfg(c: &Common) -> FitConfig {
 /// `--out` before any training: an existing model is refused unless `--force`, and the directory
 /// must be creatable (a fit of minutes must not end in a path error).
 fn check_out(c: &Common) -> anyhow::Result<()> {
-    crate::outputs::check_dir_creatable("--out", &c.out)?;
+    abvs_runtime::outputs::check_dir_creatable("--out", &c.out)?;
     if c.out.join(abvs_fk::model::MANIFEST).exists() && !c.force {
         bail!("--out {}: a model is already there; give --force to replace it whole", c.out.display());
     }

@@ -39,7 +39,7 @@ impl DemoArgs {
     /// The grid's size and the output directory before any work.
     pub fn check(&self) -> anyhow::Result<()> {
         crate::args::check_grid("--step-deg", abvs_eye::WORKSPACE_DEG, self.step_deg)?;
-        crate::outputs::check_dir_creatable("--out", &self.out)
+        Ok(abvs_runtime::outputs::check_dir_creatable("--out", &self.out)?)
     }
 }
 

@@ -128,7 +128,7 @@ pub fn resize_to(m: &Mat, w: i32, h: i32) -> anyhow::Result<Vec<u8>> {
 pub fn default_models() -> Vec<PathBuf> {
     ["hitnet-s", "hitnet-m"]
         .iter()
-        .map(|v| crate::run::shipped(&format!("models/hitnet/{v}")))
+        .map(|v| abvs_runtime::shipped::shipped(&format!("models/hitnet/{v}")))
         .filter(|p| p.join("manifest.json").exists())
         .collect()
 }
@@ -149,7 +149,7 @@ pub fn default_model_for(w: u32, h: u32) -> PathBuf {
     match fits.or(shipped.first()) {
         Some((p, _)) => p.clone(),
         // none readable: the error names the expected path when it is loaded
-        None => crate::run::shipped("models/hitnet/hitnet-s"),
+        None => abvs_runtime::shipped::shipped("models/hitnet/hitnet-s"),
     }
 }
 

@@ -12,13 +12,14 @@ mod explain_plots;
 mod gaze;
 mod kin;
 mod logger;
-mod outputs;
 mod paper;
 mod pfm;
 mod plot;
 mod record;
 mod repeat;
 mod run;
+mod run_args;
+mod run_report;
 mod saccade;
 mod self_check_report;
 mod sim;
@@ -57,7 +58,7 @@ enum Cmd {
     /// The main job on the embedded default unit: simulate, measure, compare, map.
     Demo(demo::DemoArgs),
     /// The runtime: replay a session (default: the embedded fixture) through the whole pipeline.
-    Run(run::RunArgs),
+    Run(run_args::RunArgs),
     /// Record a session from the eye cameras (V4L2) and the drive board's encoders (serial), homing first.
     Record(record::RecordArgs),
     /// Subscribe to the runtime's depth or cloud (iceoryx2) and print rate and latency.

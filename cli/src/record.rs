@@ -6,12 +6,10 @@ use std::sync::atomic::AtomicBool;
 use std::sync::Arc;
 use std::time::Duration;
 
+use abvs_runtime::config::LiveConfig;
 use abvs_runtime::record::{record, RecordConfig, RecordStats};
 use abvs_runtime::sinks::session_writer::{CalibFiles, SessionWriter};
-use abvs_runtime::sources::encoder_link::open_port;
-use abvs_runtime::sources::encoder_stream::EncoderStream;
-use abvs_runtime::sources::pairing::PairerConfig;
-use abvs_runtime::sources::v4l_capture::{CaptureConfig, RowReference, StereoCapture};
+use abvs_runtime::sources::devices::open_devices;
 use anyhow::Context;
 use clap::Args;
 
@@ -56,21 +54,21 @@ pub struct DeviceArgs {
     pub homing_timeout: f64,
 }
 
-impl From<&abvs_runtime::config::LiveConfig> for DeviceArgs {
-    fn from(l: &abvs_runtime::config::LiveConfig) -> Self {
-        DeviceArgs {
-            left: l.left.clone(),
-            right: l.right.clone(),
-            encoders: l.encoders.clone(),
-            baud: l.baud,
-            width: l.width,
-            height: l.height,
-            fps: l.fps,
-            fourcc: l.fourcc.clone(),
-            exposure_ms: l.exposure_ms,
-            readout_ms: l.readout_ms,
-            pair_tolerance_ms: l.pair_tolerance_ms,
-            homing_timeout: l.homing_timeout_s,
+impl From<&DeviceArgs> for LiveConfig {
+    fn from(d: &DeviceArgs) -> Self {
+        LiveConfig {
+            left: d.left.clone(),
+            right: d.right.clone(),
+            encoders: d.encoders.clone(),
+            baud: d.baud,
+            width: d.width,
+            height: d.height,
+            fps: d.fps,
+            fourcc: d.fourcc.clone(),
+            exposure_ms: d.exposure_ms,
+            readout_ms: d.readout_ms,
+            pair_tolerance_ms: d.pair_tolerance_ms,
+            homing_timeout_s: d.homing_timeout,
         }
     }
 }
@@ -99,37 +97,12 @@ pub struct RecordArgs {
 impl RecordArgs {
     /// The outputs before the devices are opened and homed.
     pub fn check(&self) -> anyhow::Result<()> {
-        crate::outputs::check_dir_creatable("--out", &self.out)?;
+        abvs_runtime::outputs::check_dir_creatable("--out", &self.out)?;
         match &self.stats_json {
-            Some(p) => crate::outputs::check_file_writable("--stats-json", p),
+            Some(p) => Ok(abvs_runtime::outputs::check_file_writable("--stats-json", p)?),
             None => Ok(()),
         }
     }
-}
-
-/// Opens the encoder port, then both cameras (in that order: a missing port is the cheaper
-/// mistake), and starts the encoder thread.
-pub fn open_devices(d: &DeviceArgs) -> anyhow::Result<(StereoCapture, EncoderStream)> {
-    let cfg = capture_config(d)?;
-    let pairing = PairerConfig { tolerance_ns: (d.pair_tolerance_ms * 1e6).round() as i64, ..Default::default() };
-    let port = open_port(&d.encoders, d.baud).map_err(anyhow::Error::msg)?;
-    let capture = StereoCapture::open(&d.left, &d.right, cfg, pairing)?;
-    Ok((capture, EncoderStream::spawn(port, d.encoders.clone(), 16_384)))
-}
-
-pub fn capture_config(a: &DeviceArgs) -> anyhow::Result<CaptureConfig> {
-    let fourcc: [u8; 4] =
-        a.fourcc.as_bytes().try_into().map_err(|_| anyhow::anyhow!("--fourcc `{}`: four characters", a.fourcc))?;
-    Ok(CaptureConfig {
-        width: a.width,
-        height: a.height,
-        fourcc,
-        fps: a.fps,
-        exposure_ns: a.exposure_ms.map(|ms| (ms * 1e6).round() as i64),
-        readout_ns: (a.readout_ms * 1e6).round() as i64,
-        reference: RowReference::FirstRow,
-        ..CaptureConfig::default()
-    })
 }
 
 /// Prints the counts a user needs to judge a recording.
@@ -173,7 +146,7 @@ pub fn run(a: RecordArgs) -> anyhow::Result<ExitCode> {
     // directory is created only once every device is open.
     SessionWriter::check_target(&a.out)?;
     calib.check()?;
-    let (mut capture, encoders) = open_devices(d)?;
+    let (mut capture, encoders) = open_devices(&LiveConfig::from(d))?;
     let writer =
         SessionWriter::create(&a.out, &calib, f64::from(d.fps), description)?.with_timing(d.readout_ms, d.exposure_ms);
     let stop = Arc::new(AtomicBool::new(false));

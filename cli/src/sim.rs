@@ -166,7 +166,7 @@ impl DatasetArgs {
         if let Some(s) = self.step_deg {
             crate::args::check_grid("--step-deg", self.range, s)?;
         }
-        crate::outputs::check_file_writable("--out", &self.out)
+        Ok(abvs_runtime::outputs::check_file_writable("--out", &self.out)?)
     }
 }
 

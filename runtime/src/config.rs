@@ -54,6 +54,7 @@ pub enum EngineKind {
 }
 
 impl EngineKind {
+    /// The name in a configuration file and on the command line.
     pub fn as_str(self) -> &'static str {
         match self {
             EngineKind::Onnx => "onnx",
@@ -65,6 +66,7 @@ impl EngineKind {
 }
 
 impl FkSource {
+    /// The name in a configuration file and on the command line.
     pub fn as_str(self) -> &'static str {
         match self {
             FkSource::Calibrated => "calibrated",
@@ -74,24 +76,34 @@ impl FkSource {
     }
 }
 
+/// One deployment: what `abvs run --config FILE` runs and [`crate::Runtime::from_config`] assembles.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct RuntimeConfig {
+    /// The file's format tag, [`FORMAT`].
     pub format: String,
+    /// `[source]`: where frames and encoder counts come from.
     pub source: SourceConfig,
+    /// `[calibration]`: which FK the eyes use, and where a live run's calibration is.
     pub calibration: CalibrationConfig,
+    /// `[disparity]`: the engine, its resolution and range, the left-right check.
     pub disparity: DisparityConfig,
+    /// `[motion]`: the rolling-shutter correction, the motion gate, timing overrides.
     #[serde(default)]
     pub motion: MotionSettings,
+    /// `[sinks]`: statistics and outputs inside this process.
     #[serde(default)]
     pub sinks: SinksConfig,
+    /// `[bridges]`: publishing to other processes.
     #[serde(default)]
     pub bridges: BridgesConfig,
 }
 
+/// `[source]`: where frames and encoder counts come from.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct SourceConfig {
+    /// A recorded session, or the live devices.
     pub kind: SourceKind,
     /// Session directory (kind = "session").
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -113,6 +125,7 @@ pub struct SourceConfig {
     /// Replay at the recorded frame rate (ignored live and with lossless).
     #[serde(default = "yes")]
     pub paced: bool,
+    /// `[source.live]`: the devices of a live run.
     #[serde(default)]
     pub live: LiveConfig,
 }
@@ -125,13 +138,19 @@ fn yes() -> bool {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct LiveConfig {
+    /// Left eye camera (V4L2 device).
     pub left: PathBuf,
+    /// Right eye camera.
     pub right: PathBuf,
     /// Serial port of the drive board's encoder stream.
     pub encoders: String,
+    /// Serial baud rate of the encoder stream.
     pub baud: u32,
+    /// Capture width (px).
     pub width: u32,
+    /// Capture height (px).
     pub height: u32,
+    /// Camera frame rate (Hz).
     pub fps: u32,
     /// V4L2 FourCC: pgAA (RAW10 MIPI-packed GRBG, the OV8856 default), BA10, YUYV, NV12, ...
     pub fourcc: String,
@@ -165,24 +184,29 @@ impl Default for LiveConfig {
     }
 }
 
+/// `[calibration]`: the eyes' FK and a live run's calibration directory.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct CalibrationConfig {
+    /// Which FK the eyes use.
     pub fk: FkSource,
     /// Calibration directory (stereo.yaml, eye0, eye1) for live runs; a session brings its own.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub dir: Option<PathBuf>,
 }
 
+/// `[disparity]`: the engine, its resolution and range, the left-right check.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct DisparityConfig {
+    /// The disparity engine.
     pub engine: EngineKind,
     /// Model directory or .onnx; absent: the shipped model for the resolution.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub model: Option<PathBuf>,
-    /// Rectified (network) resolution.
+    /// Rectified (network) width.
     pub width: u32,
+    /// Rectified (network) height.
     pub height: u32,
     /// Horizontal field of view of the rectified images (deg).
     pub rect_hfov_deg: f64,
@@ -217,10 +241,12 @@ impl DisparityConfig {
     }
 }
 
+/// `[sinks]`: statistics and outputs inside this process.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct SinksConfig {
-    /// Score depth against a synthetic session's ground truth every N-th point (0: off).
+    /// Score depth against a synthetic session's ground truth every N-th point (0: off). The `abvs` program's:
+    /// the scoring is offline tooling ([`crate::Runtime`] adds no such sink).
     pub truth_stride: usize,
     /// Statistics as JSON.
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -231,7 +257,7 @@ pub struct SinksConfig {
     /// rerun recording (.rrd; needs the cargo feature `rerun`).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub rerun: Option<PathBuf>,
-    /// No latency table on stdout.
+    /// No latency table on stdout (what the `abvs` program prints; [`crate::Report::table`] for an embedder).
     pub quiet: bool,
     /// Length of a statistics window (s): latency p50/p99, counts and resident memory per window.
     pub stats_window_s: f64,
@@ -278,6 +304,7 @@ impl Default for McapSettings {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct SelfCheckSettings {
+    /// Whether the self-check runs.
     pub enabled: bool,
     /// Check every n-th frame.
     pub every: u64,
@@ -286,6 +313,7 @@ pub struct SelfCheckSettings {
     pub log: Option<PathBuf>,
     /// Warn when the rotation error (median over `warn_frames` checked frames) exceeds this (deg).
     pub threshold_deg: f64,
+    /// Checked frames the rotation error's median is taken over.
     pub warn_frames: u32,
 }
 
@@ -302,10 +330,13 @@ impl Default for SelfCheckSettings {
     }
 }
 
+/// `[bridges]`: publishing to other processes.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default)]
 #[serde(deny_unknown_fields, default)]
 pub struct BridgesConfig {
+    /// `[bridges.iceoryx]`: depth, confidence and cloud over shared memory on this computer.
     pub iceoryx: IceoryxConfig,
+    /// `[bridges.zenoh]`: the ROS 2 messages to other computers.
     pub zenoh: ZenohSettings,
 }
 
@@ -313,6 +344,7 @@ pub struct BridgesConfig {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct ZenohSettings {
+    /// Whether the messages are published over Zenoh.
     pub enabled: bool,
     /// Endpoints to connect to, e.g. `tcp/192.168.1.20:7447` (added to the configuration file's).
     pub connect: Vec<String>,
@@ -329,9 +361,11 @@ impl Default for ZenohSettings {
     }
 }
 
+/// `[bridges.iceoryx]`: depth, confidence and cloud over iceoryx2 shared memory ([`crate::bridges::iceoryx`]).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct IceoryxConfig {
+    /// Whether the runtime publishes there.
     pub enabled: bool,
     /// Services `{prefix}/depth`, `{prefix}/cloud` (with `[disparity] confidence`, `{prefix}/confidence`) and
     /// their events.
@@ -483,6 +517,7 @@ impl RuntimeConfig {
         Ok(c)
     }
 
+    /// Reads and parses a configuration file (see [`RuntimeConfig::from_toml_str`]).
     pub fn load(path: &Path) -> Result<Self> {
         let text = std::fs::read_to_string(path).map_err(|e| RuntimeError::File {
             path: path.to_path_buf(),
@@ -544,6 +579,14 @@ impl RuntimeConfig {
             }
             _ => Ok(()),
         }
+    }
+
+    /// The iceoryx2 bridge of this deployment: `[bridges.iceoryx]`'s prefix, sized for the rectified
+    /// resolution. A subscriber in another process opens its services with the same value
+    /// ([`crate::bridges::iceoryx::Subscriber::new`]); any other settings are refused as foreign.
+    pub fn bridge_config(&self) -> crate::bridges::iceoryx::BridgeConfig {
+        crate::bridges::iceoryx::BridgeConfig::for_resolution(self.disparity.width, self.disparity.height)
+            .with_prefix(self.bridges.iceoryx.service_prefix.clone())
     }
 
     /// The configuration as TOML (what `--print-config` prints).

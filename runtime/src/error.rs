@@ -1,26 +1,87 @@
 //! The runtime's error type: every refusal says which stream and what was wrong.
 #[derive(Debug, thiserror::Error, PartialEq)]
+/// Why the runtime refused something: a stream, a file, a model, a frame.
 pub enum RuntimeError {
     /// A sample older than or equal to the previous one in a stream that must increase.
     #[error("{stream}: timestamp {t:.6} s is not after the previous {prev:.6} s")]
-    NonMonotonic { stream: &'static str, t: f64, prev: f64 },
+    NonMonotonic {
+        /// The stream.
+        stream: &'static str,
+        /// The sample's time (s).
+        t: f64,
+        /// The previous sample's time (s).
+        prev: f64,
+    },
     /// A query outside the span the buffer holds (frame too old, or encoders not caught up).
     #[error("{stream}: time {t:.6} s is outside the buffered span [{from:.6}, {to:.6}] s")]
-    OutOfSpan { stream: &'static str, t: f64, from: f64, to: f64 },
+    OutOfSpan {
+        /// The stream.
+        stream: &'static str,
+        /// The time asked for (s).
+        t: f64,
+        /// The oldest time held (s).
+        from: f64,
+        /// The newest time held (s).
+        to: f64,
+    },
     /// A gap in the encoder stream too long to interpolate across.
     #[error("{stream}: gap of {gap_ms:.2} ms around {t:.6} s exceeds {max_ms:.2} ms")]
-    Gap { stream: &'static str, t: f64, gap_ms: f64, max_ms: f64 },
+    Gap {
+        /// The stream.
+        stream: &'static str,
+        /// The time asked for (s).
+        t: f64,
+        /// The gap around it (ms).
+        gap_ms: f64,
+        /// The longest gap interpolated across (ms).
+        max_ms: f64,
+    },
+    /// A value or a combination the runtime cannot work with (a configuration, a graph, an argument).
     #[error("invalid: {0}")]
     Invalid(String),
     /// A file that cannot be read or does not follow its format; `line` when the fault has one.
     #[error("{}{}: {msg}", path.display(), line.map(|l| format!(":{l}")).unwrap_or_default())]
-    File { path: std::path::PathBuf, line: Option<u64>, msg: String },
+    File {
+        /// The file.
+        path: std::path::PathBuf,
+        /// The line (1-based), when the fault has one.
+        line: Option<u64>,
+        /// What is wrong.
+        msg: String,
+    },
     /// A calibration or model file the pipeline cannot use.
     #[error("{}: {msg}", path.display())]
-    Model { path: std::path::PathBuf, msg: String },
+    Model {
+        /// The file or directory.
+        path: std::path::PathBuf,
+        /// What is wrong.
+        msg: String,
+    },
+    /// An output the run would write (a file, a directory) that it cannot: checked before any work, so a
+    /// long run does not end by losing its results. `field` is the flag or configuration field.
+    #[error("{field} {}: {msg}", path.display())]
+    Output {
+        /// The flag or configuration field that named the output.
+        field: String,
+        /// The output.
+        path: std::path::PathBuf,
+        /// What is wrong.
+        msg: String,
+    },
+    /// A device (a camera, the encoder port) that cannot be opened, or eyes that do not home.
+    #[error("{0}")]
+    Device(String),
     /// A stage failed on one frame (the pipeline counts it and goes on).
     #[error("frame {seq}: {stage}: {msg}")]
-    Frame { seq: u64, stage: &'static str, msg: String },
+    Frame {
+        /// The frame's pipeline sequence number.
+        seq: u64,
+        /// The stage.
+        stage: &'static str,
+        /// What went wrong.
+        msg: String,
+    },
 }
 
+/// The runtime's result type.
 pub type Result<T> = std::result::Result<T, RuntimeError>;

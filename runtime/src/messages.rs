@@ -34,8 +34,11 @@ pub struct Frame {
     pub t_start_ns: i64,
     /// Exposure time, nanoseconds (mid-exposure = t_start_ns + exposure_ns / 2).
     pub exposure_ns: i64,
+    /// Frame width (px).
     pub width: u32,
+    /// Frame height (px).
     pub height: u32,
+    /// 8-bit gray pixels, row-major, `width * height`.
     pub gray: Vec<u8>,
 }
 
@@ -51,7 +54,9 @@ impl Frame {
 pub struct FramePair {
     /// Pair sequence number (increases by one per pair delivered).
     pub seq: u64,
+    /// The left eye's frame.
     pub left: Frame,
+    /// The right eye's frame.
     pub right: Frame,
 }
 
@@ -67,10 +72,13 @@ pub struct SourcePair<'a> {
     pub t_start_ns: i64,
     /// The right frame's start of exposure (live pairs differ by up to the pairing tolerance).
     pub right_t_start_ns: i64,
+    /// Exposure time of the left frame (ns).
     pub exposure_ns: i64,
     /// Rolling-shutter readout: first row's start of exposure to the last row's (0 = global shutter).
     pub readout_ns: i64,
+    /// The left frame's gray pixels (the source's size).
     pub left: &'a [u8],
+    /// The right frame's gray pixels.
     pub right: &'a [u8],
 }
 
@@ -79,7 +87,9 @@ pub struct SourcePair<'a> {
 /// One encoder reading of the three links (deg, homed) at a CLOCK_MONOTONIC time (s).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct EncoderSample {
+    /// CLOCK_MONOTONIC time (s).
     pub t_s: f64,
+    /// The three links' angles (deg).
     pub theta_deg: [f64; 3],
 }
 
@@ -103,6 +113,7 @@ pub const MAX_ROW_BANDS: usize = 64;
 pub struct FrameMotion {
     /// Start of exposure of row 0, left and right (CLOCK_MONOTONIC ns).
     pub t_start_ns: [i64; 2],
+    /// Exposure time (ns).
     pub exposure_ns: i64,
     /// First row's start of exposure to the last row's (ns); 0 = global shutter.
     pub readout_ns: i64,
@@ -170,10 +181,15 @@ impl FrameMotion {
 /// The rectified output: a pinhole camera shared by both eyes.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct RectifiedCamera {
+    /// Width (px).
     pub width: u32,
+    /// Height (px).
     pub height: u32,
+    /// Focal length (px), both axes.
     pub f: f64,
+    /// Principal point, x (px).
     pub cx: f64,
+    /// Principal point, y (px).
     pub cy: f64,
 }
 
@@ -198,14 +214,18 @@ pub struct Rectification {
 
 /// A rectified pair at the output resolution and the rotations that made it.
 pub struct RectifiedPair {
+    /// Rectified left image (gray, row-major).
     pub left: Vec<u8>,
+    /// Rectified right image.
     pub right: Vec<u8>,
     /// 1 where the rectified left pixel sees the raw image.
     pub valid: Vec<u8>,
+    /// The rotations that made the pair (`None` before the rectify stage ran).
     pub rect: Option<Rectification>,
 }
 
 impl RectifiedPair {
+    /// A pair of `width` x `height` buffers.
     pub fn new(width: u32, height: u32) -> Self {
         let n = (width * height) as usize;
         RectifiedPair { left: vec![0; n], right: vec![0; n], valid: vec![0; n], rect: None }
@@ -216,7 +236,9 @@ impl RectifiedPair {
 
 /// The depth map and the valid points of one frame.
 pub struct DepthFrame {
+    /// Width (px).
     pub width: u32,
+    /// Height (px).
     pub height: u32,
     /// Z (m) per rectified left pixel, NaN = invalid.
     pub depth: Vec<f32>,
@@ -226,10 +248,12 @@ pub struct DepthFrame {
     pub intensity: Vec<u8>,
     /// Pixel index of each point (row-major), to look truth up.
     pub pixel: Vec<u32>,
+    /// Number of valid points (and meaningful entries of `points`, `intensity`, `pixel`).
     pub n_points: usize,
 }
 
 impl DepthFrame {
+    /// A frame of `width` x `height` buffers, all depth invalid.
     pub fn new(width: u32, height: u32) -> Self {
         let n = (width * height) as usize;
         DepthFrame {
@@ -249,6 +273,7 @@ impl DepthFrame {
         DepthFrame::new(0, 0)
     }
 
+    /// Fraction of the pixels with a valid depth.
     pub fn valid_fraction(&self) -> f64 {
         self.n_points as f64 / self.depth.len() as f64
     }
@@ -259,6 +284,7 @@ impl DepthFrame {
 /// One frame's messages as it moves through the stage graph. Allocated at start-up and recycled: a stage
 /// writes its message into buffers that already exist, so steady state does not allocate.
 pub struct Work {
+    /// Pipeline sequence number (keeps increasing when a replay loops).
     pub seq: u64,
     /// The frame's `seq` in its session (before looping): the key of its ground truth.
     pub session_seq: u64,
@@ -271,10 +297,13 @@ pub struct Work {
     pub motion: FrameMotion,
     /// The raw pair (gray, the source's size).
     pub raw_left: Vec<u8>,
+    /// The raw right frame.
     pub raw_right: Vec<u8>,
     /// Link angles of both eyes at their frames' mid-exposure (deg, homed): the align stage's output.
     pub theta: [[f64; 3]; 2],
+    /// Both eyes' poses and the extrinsic at the frame's instant: the kinematics stage's output.
     pub pose: Option<StereoPose>,
+    /// The rectified pair: the rectify stage's output.
     pub rectified: RectifiedPair,
     /// Left-view disparity (px), NaN where there is none.
     pub disparity: Vec<f32>,
@@ -354,17 +383,27 @@ impl Work {
 
 /// What an output sink sees of one finished frame.
 pub struct Published<'a> {
+    /// Pipeline sequence number (keeps increasing when a replay loops).
     pub seq: u64,
     /// The frame's `seq` in its session (before looping): the key of its ground truth.
     pub session_seq: u64,
+    /// The left frame's instant (CLOCK_MONOTONIC ns), the frame's timestamp.
     pub t_frame_ns: i64,
+    /// Link angles of both eyes at their frames' mid-exposure (deg, homed).
     pub theta: &'a [[f64; 3]; 2],
+    /// Both eyes' poses and the extrinsic at the frame's instant.
     pub pose: &'a StereoPose,
+    /// The rectifying rotations and the baseline.
     pub rect: &'a Rectification,
+    /// The rectified camera the depth is in.
     pub cam: &'a RectifiedCamera,
+    /// Depth map and cloud (left home camera frame, m).
     pub depth: &'a DepthFrame,
+    /// Rectified left image (gray).
     pub left_rect: &'a [u8],
+    /// Rectified right image.
     pub right_rect: &'a [u8],
+    /// Left-view disparity (px), NaN where there is none.
     pub disparity: &'a [f32],
     /// The disparity's confidence in [0, 1] per pixel (0 = invalid), when the run computes it.
     pub confidence: Option<&'a [f32]>,

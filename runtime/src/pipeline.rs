@@ -9,13 +9,14 @@
 //! and an engine, and [`crate::runner`] runs it (queues, pooled buffers, drop-oldest, statistics). A
 //! deployment adds sinks or side stages to the [`Graph`] without touching either.
 use std::sync::atomic::AtomicBool;
+use std::sync::Arc;
 use std::time::Duration;
 
 use abvs_camera::Camera;
 
 use crate::error::Result;
 pub use crate::messages::{Published, Work};
-pub use crate::runner::{Graph, Lane, RunConfig};
+pub use crate::runner::{Counts, Graph, Lane, Progress, RunConfig};
 pub use crate::sinks::Sink;
 use crate::sources::replay::ReplaySource;
 pub use crate::sources::{EncoderFeed, PairSource};
@@ -38,11 +39,14 @@ pub const STANDARD_GRAPH: &str = "rectify = align, kinematics, rectify; disparit
 /// The latency histograms of the standard graph: the source, then its lanes.
 pub const STAGES: [&str; 4] = ["source", "rectify", "disparity", "output"];
 
-#[derive(Debug, Clone, Copy)]
+/// What the standard graph runs with: the rectified output, the stages' settings and how frames move.
+#[derive(Debug, Clone)]
 pub struct PipelineConfig {
+    /// The rectified output camera (resolution, focal length) every stage after rectification works at.
     pub out: RectifiedCamera,
     /// Node spacing of the rectification map grid (px).
     pub grid_step: u32,
+    /// Depth and cloud from disparity.
     pub depth: DepthConfig,
     /// Rolling-shutter correction, the motion gate, an encoder time offset override.
     pub motion: MotionConfig,
@@ -64,7 +68,9 @@ pub struct PipelineConfig {
     pub window: Duration,
     /// Stop taking frames once this is set (Ctrl-C, SIGTERM): the frames in flight finish and the run
     /// returns its statistics as at the end of a replay.
-    pub stop: Option<&'static AtomicBool>,
+    pub stop: Option<Arc<AtomicBool>>,
+    /// Counters for another thread to read while the run goes ([`Progress`]).
+    pub progress: Option<Arc<Progress>>,
 }
 
 impl Default for PipelineConfig {
@@ -82,6 +88,7 @@ impl Default for PipelineConfig {
             duration: None,
             window: Duration::from_secs(60),
             stop: None,
+            progress: None,
         }
     }
 }
@@ -96,7 +103,8 @@ impl PipelineConfig {
             frames: self.frames,
             duration: self.duration,
             window: self.window,
-            stop: self.stop,
+            stop: self.stop.clone(),
+            progress: self.progress.clone(),
         }
     }
 }

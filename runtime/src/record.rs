@@ -18,6 +18,7 @@ use crate::sources::encoder_stream::{EncoderStats, EncoderStream};
 use crate::sources::v4l_capture::{CaptureError, StereoCapture, StereoStats};
 use crate::sources::FramePair;
 
+/// How a recording runs: when it stops, how long homing and the capture may take, the writer's queue.
 #[derive(Debug, Clone)]
 pub struct RecordConfig {
     /// Stop after this many pairs written.
@@ -52,6 +53,7 @@ impl Default for RecordConfig {
 pub struct RecordStats {
     /// Pairs the capture delivered.
     pub pairs_in: u64,
+    /// Pairs written into the session.
     pub pairs_written: u64,
     /// Pairs delivered before both eyes were homed (not recorded).
     pub pairs_before_homing: u64,
@@ -61,14 +63,19 @@ pub struct RecordStats {
     pub pairs_write_failed: u64,
     /// Writes that failed (pairs and batches of encoder rows; disk full, ...); the last error is kept.
     pub write_errors: u64,
+    /// The last write error.
     pub last_write_error: Option<String>,
+    /// Encoder rows written.
     pub encoder_rows: u64,
+    /// The capture's pairing counts and errors.
     pub capture: StereoStats,
+    /// The encoder stream's counts (link, homing).
     pub encoders: EncoderStats,
     /// The error that ended the encoder stream early, if one did.
     pub encoder_error: Option<String>,
     /// Seconds from the start until both eyes were homed.
     pub homed_after_s: Option<f64>,
+    /// Seconds the recording took.
     pub elapsed_s: f64,
 }
 

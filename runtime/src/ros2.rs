@@ -254,7 +254,9 @@ const FIELDS: [PointField<'static>; 4] = [
 /// allocates only when a frame has more points than any before it.
 #[derive(Debug, Clone, Default)]
 pub struct FrameSnapshot {
+    /// Pipeline sequence number.
     pub seq: u64,
+    /// The frame's instant (CLOCK_MONOTONIC ns): every message's stamp.
     pub t_frame_ns: i64,
     /// Link angles (deg), left eye then right.
     pub theta: [[f64; 3]; 2],
@@ -264,12 +266,17 @@ pub struct FrameSnapshot {
     pub left_to_right: Pose,
     /// Current left camera -> rectified frame.
     pub rect_from_left: Matrix3<f64>,
+    /// Depth map width (px).
     pub width: u32,
+    /// Depth map height (px).
     pub height: u32,
     /// fx = fy, cx, cy of the rectified left camera (px).
     pub f: f64,
+    /// Principal point, x (px).
     pub cx: f64,
+    /// Principal point, y (px).
     pub cy: f64,
+    /// Stereo baseline (m).
     pub baseline_m: f64,
     /// Row-major depth (m), NaN = invalid.
     pub depth: Vec<f32>,
@@ -349,12 +356,16 @@ fn quaternion(r: &Matrix3<f64>) -> Quaternion {
 /// Why a frame's messages could not be encoded.
 #[derive(Debug, thiserror::Error)]
 pub enum EncodeError {
+    /// A message that serde's CDR encoder refused.
     #[error("{type_name}: CDR encoding: {source}")]
     Cdr {
+        /// The message type.
         type_name: &'static str,
+        /// What the encoder said.
         #[source]
         source: cdr::Error,
     },
+    /// A big-endian machine (the messages are written little-endian, as ROS 2 sends them on x86 and ARM).
     #[error("ROS 2 messages are built for little-endian machines only")]
     BigEndian,
 }

@@ -28,15 +28,19 @@ use crate::stats::{rss_bytes, Latency, RunStats, Window};
 pub struct Lane {
     /// The lane's name in the statistics (its latency histogram).
     pub name: &'static str,
+    /// The stages, in the order they run on each frame.
     pub stages: Vec<Box<dyn Stage>>,
 }
 
 /// A source, lanes of stages (the last is the output lane, where the sinks run) and sinks.
 pub struct Graph<S> {
+    /// Where the frames come from.
     pub source: S,
     /// The rectified output the stages after rectification work at (sizes the pooled buffers).
     pub out: RectifiedCamera,
+    /// The lanes, in data-flow order; the last is the output lane.
     pub lanes: Vec<Lane>,
+    /// The sinks, in the order they run on the output lane.
     pub sinks: Vec<Box<dyn Sink>>,
 }
 
@@ -117,8 +121,41 @@ impl<S: PairSource> Graph<S> {
     }
 }
 
+/// A run's counters, readable from any thread while it runs ([`RunConfig::progress`]).
+#[derive(Debug, Default)]
+pub struct Progress {
+    /// Frames taken from the source.
+    pub frames_in: AtomicU64,
+    /// Frames that reached the sinks.
+    pub frames_published: AtomicU64,
+    /// Frames dropped under overload (oldest first) at a queue.
+    pub frames_dropped: AtomicU64,
+}
+
+/// The counts of a [`Progress`] at one moment.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct Counts {
+    /// Frames taken from the source.
+    pub frames_in: u64,
+    /// Frames that reached the sinks.
+    pub frames_published: u64,
+    /// Frames dropped under overload.
+    pub frames_dropped: u64,
+}
+
+impl Progress {
+    /// The counts now.
+    pub fn counts(&self) -> Counts {
+        Counts {
+            frames_in: self.frames_in.load(Ordering::Relaxed),
+            frames_published: self.frames_published.load(Ordering::Relaxed),
+            frames_dropped: self.frames_dropped.load(Ordering::Relaxed),
+        }
+    }
+}
+
 /// How the runner moves frames (the graph says what is done to them).
-#[derive(Debug, Clone, Copy)]
+#[derive(Debug, Clone)]
 pub struct RunConfig {
     /// Capacity of each inter-lane queue.
     pub queue: usize,
@@ -134,7 +171,9 @@ pub struct RunConfig {
     pub window: Duration,
     /// Stop taking frames once this is set (Ctrl-C, SIGTERM): the frames in flight finish and the run
     /// returns its statistics as at the end of a replay.
-    pub stop: Option<&'static AtomicBool>,
+    pub stop: Option<Arc<AtomicBool>>,
+    /// Counters to update as the run goes, for another thread to read (the run keeps its own otherwise).
+    pub progress: Option<Arc<Progress>>,
 }
 
 type Queue = (Sender<Box<Work>>, Receiver<Box<Work>>);
@@ -241,7 +280,7 @@ pub fn run<S: PairSource>(graph: Graph<S>, cfg: &RunConfig) -> Result<RunStats> 
     let Graph { mut source, out: cam, mut lanes, mut sinks } = graph;
     let (rw, rh) = source.size();
     let out = (cam.width, cam.height);
-    let cfg = *cfg;
+    let cfg = cfg.clone();
 
     let q = cfg.queue.max(1);
     let n = lanes.len();
@@ -263,8 +302,7 @@ pub fn run<S: PairSource>(graph: Graph<S>, cfg: &RunConfig) -> Result<RunStats> 
     let queues: Vec<Queue> = (0..n).map(|_| bounded::<Box<Work>>(q)).collect();
     // (the free list's senders never wait: it has room for every buffer)
     prewarm_waiter_lists(&free, &queues);
-    let dropped = Arc::new(AtomicU64::new(0));
-    let frames_in = Arc::new(AtomicU64::new(0));
+    let progress = cfg.progress.clone().unwrap_or_default();
     let mut stats = RunStats::new(&names);
     let started = monotonic_ns();
     let mut encoders = Some(source.start(started + 5_000_000));
@@ -293,7 +331,8 @@ pub fn run<S: PairSource>(graph: Graph<S>, cfg: &RunConfig) -> Result<RunStats> 
         let src = {
             let (free_rx, free_tx) = (free_rx.clone(), free_tx.clone());
             let (q_tx, q_rx) = (senders[0].take().expect("one producer"), receivers[0].clone());
-            let (dropped, frames_in) = (dropped.clone(), frames_in.clone());
+            let progress = progress.clone();
+            let stop = cfg.stop.clone();
             let source = &mut source;
             s.spawn(move || -> Latency {
                 prewarm_thread();
@@ -304,12 +343,12 @@ pub fn run<S: PairSource>(graph: Graph<S>, cfg: &RunConfig) -> Result<RunStats> 
                 let end_ns = cfg.duration.map(|d| started.saturating_add(d.as_nanos().min(i64::MAX as u128) as i64));
                 loop {
                     if end_ns.is_some_and(|end| monotonic_ns() >= end)
-                        || cfg.stop.is_some_and(|s| s.load(Ordering::Relaxed))
+                        || stop.as_ref().is_some_and(|s| s.load(Ordering::Relaxed))
                     {
                         break;
                     }
                     let Some(f) = source.next_frame(cfg.frames) else { break };
-                    frames_in.fetch_add(1, Ordering::Relaxed);
+                    progress.frames_in.fetch_add(1, Ordering::Relaxed);
                     // a frame exists once its last row's exposure ended (rolling shutter: readout after the first)
                     let ready = f.t_start_ns + f.readout_ns + f.exposure_ns;
                     if cfg.paced {
@@ -323,13 +362,13 @@ pub fn run<S: PairSource>(graph: Graph<S>, cfg: &RunConfig) -> Result<RunStats> 
                         Some(w) => w,
                         None => {
                             // every buffer in flight (cannot happen with the pool's size; a counted guard)
-                            dropped.fetch_add(1, Ordering::Relaxed);
+                            progress.frames_dropped.fetch_add(1, Ordering::Relaxed);
                             continue;
                         }
                     };
                     w.fill(&f);
                     lat.record_ns(monotonic_ns() - t0);
-                    push(&q_tx, &q_rx, &free_tx, w, cfg.lossless, &dropped);
+                    push(&q_tx, &q_rx, &free_tx, w, cfg.lossless, &progress.frames_dropped);
                 }
                 drop(q_tx);
                 lat
@@ -340,7 +379,7 @@ pub fn run<S: PairSource>(graph: Graph<S>, cfg: &RunConfig) -> Result<RunStats> 
         for (i, lane) in middle.iter_mut().enumerate() {
             let (rx, free_tx) = (receivers[i].clone(), free_tx.clone());
             let (q_tx, q_rx) = (senders[i + 1].take().expect("one producer"), receivers[i + 1].clone());
-            let dropped = dropped.clone();
+            let progress = progress.clone();
             let name = lane.name;
             let steps_back = step_back[i];
             let h = s.spawn(move || -> (Latency, Vec<&'static str>) {
@@ -355,7 +394,7 @@ pub fn run<S: PairSource>(graph: Graph<S>, cfg: &RunConfig) -> Result<RunStats> 
                     match process(&mut lane.stages, &mut w) {
                         Ok(()) => {
                             lat.record_ns(monotonic_ns() - t0);
-                            push(&q_tx, &q_rx, &free_tx, w, cfg.lossless, &dropped);
+                            push(&q_tx, &q_rx, &free_tx, w, cfg.lossless, &progress.frames_dropped);
                         }
                         Err(reason) => {
                             failed.push(reason);
@@ -377,7 +416,7 @@ pub fn run<S: PairSource>(graph: Graph<S>, cfg: &RunConfig) -> Result<RunStats> 
         loop {
             let now = monotonic_ns();
             if now >= win.end_ns {
-                win.close(now, &mut stats, &frames_in, &dropped);
+                win.close(now, &mut stats, &progress);
                 continue;
             }
             let mut w = match rx.recv_timeout(Duration::from_nanos((win.end_ns - now) as u64)) {
@@ -407,6 +446,7 @@ pub fn run<S: PairSource>(graph: Graph<S>, cfg: &RunConfig) -> Result<RunStats> 
                 let t1 = monotonic_ns();
                 stats.stage_mut(output.name).record_ns(t1 - t0);
                 stats.frames_published += 1;
+                progress.frames_published.store(stats.frames_published, Ordering::Relaxed);
                 stats.points_total += w.depth.n_points as u64;
                 // from the moment the frame exists (its last row's exposure ended): the runtime's own latency;
                 // the depth describes the frame's instant, readout / 2 + exposure / 2 before that
@@ -419,7 +459,7 @@ pub fn run<S: PairSource>(graph: Graph<S>, cfg: &RunConfig) -> Result<RunStats> 
             std::mem::swap(&mut w.depth, &mut depth);
             let _ = free_tx.send(w);
         }
-        win.close(monotonic_ns(), &mut stats, &frames_in, &dropped);
+        win.close(monotonic_ns(), &mut stats, &progress);
         let src_lat = src.join().map_err(|_| RuntimeError::Invalid("source thread panicked".into()))?;
         for (name, h) in handles {
             let (lat, failed) = h.join().map_err(|_| RuntimeError::Invalid(format!("{name} thread panicked")))?;
@@ -432,8 +472,8 @@ pub fn run<S: PairSource>(graph: Graph<S>, cfg: &RunConfig) -> Result<RunStats> 
         Ok(())
     });
     result?;
-    stats.frames_in = frames_in.load(Ordering::Relaxed);
-    stats.frames_dropped = dropped.load(Ordering::Relaxed);
+    stats.frames_in = progress.frames_in.load(Ordering::Relaxed);
+    stats.frames_dropped = progress.frames_dropped.load(Ordering::Relaxed);
     let elapsed = (monotonic_ns() - started) as f64 * 1e-9;
     stats.extra.insert("elapsed_s".into(), serde_json::json!(elapsed));
     source.finish(&mut stats);
@@ -474,8 +514,12 @@ impl WindowCounter {
         stats.windows.reserve(n.min(1 << 16));
     }
 
-    fn close(&mut self, now: i64, stats: &mut RunStats, frames_in: &AtomicU64, dropped: &AtomicU64) {
-        let counts = [frames_in.load(Ordering::Relaxed), stats.frames_published, dropped.load(Ordering::Relaxed)];
+    fn close(&mut self, now: i64, stats: &mut RunStats, progress: &Progress) {
+        let counts = [
+            progress.frames_in.load(Ordering::Relaxed),
+            stats.frames_published,
+            progress.frames_dropped.load(Ordering::Relaxed),
+        ];
         let l = &self.latency;
         stats.windows.push(Window {
             t_s: (now - self.started) as f64 * 1e-9,

@@ -26,7 +26,9 @@ use toml::Spanned;
 use crate::error::{Result, RuntimeError};
 use crate::tasks::align::EncoderSample;
 
+/// The format tag of session.toml.
 pub const SESSION_FORMAT: &str = "abvs-session/1";
+/// The session's metadata file, in its directory.
 pub const SESSION_FILE: &str = "session.toml";
 
 /// Largest frame width or height a session may declare (pixels): the pipeline allocates its buffers from it.
@@ -60,12 +62,16 @@ pub fn check_inside(rel: &str) -> std::result::Result<(), String> {
 /// session.toml
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct SessionMeta {
+    /// The format tag, [`SESSION_FORMAT`].
     pub format: String,
     /// Free text: where the session comes from.
     #[serde(default)]
     pub description: String,
+    /// Frame width (px, both eyes).
     pub width: u32,
+    /// Frame height (px).
     pub height: u32,
+    /// Frame rate the session was recorded at (Hz).
     pub fps: f64,
     /// Duration of one loop when the recording is periodic (synthetic sessions): a looped replay shifts by
     /// exactly this, so motion continues seamlessly. Without it a loop lasts from the first to the last
@@ -102,6 +108,7 @@ pub struct Truth {
     pub units: [String; 2],
     /// The scene generator and its seed: the scene is rebuilt from them (exact geometry, no mesh files).
     pub scene_generator: String,
+    /// The scene generator's seed.
     pub scene_seed: u64,
     /// The true stereo calibration at home (the one in `stereo` may be an estimate).
     pub stereo: String,
@@ -117,24 +124,35 @@ pub struct Truth {
 /// One row of frames.csv.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct FrameRecord {
+    /// The frame pair's sequence number.
     pub seq: u64,
+    /// Start of exposure of the left frame's first row (ns, the session's clock).
     pub t_start_ns: i64,
+    /// Exposure time (ns).
     pub exposure_ns: i64,
+    /// Left frame file, relative to the session directory.
     pub left: String,
+    /// Right frame file.
     pub right: String,
 }
 
 /// One row of encoders.csv.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct EncoderRecord {
+    /// The sample's time (ns, the session's clock).
     pub t_ns: i64,
+    /// Which eye: 0 left, 1 right.
     pub eye: u8,
+    /// Homed count of link 1.
     pub count1: i64,
+    /// Homed count of link 2.
     pub count2: i64,
+    /// Homed count of link 3.
     pub count3: i64,
 }
 
 impl EncoderRecord {
+    /// The sample in seconds and degrees.
     pub fn sample(&self) -> EncoderSample {
         let deg = |c: i64| c as f64 * 360.0 / COUNTS_PER_REV as f64;
         EncoderSample {
@@ -147,9 +165,13 @@ impl EncoderRecord {
 /// A session directory, its metadata and its index files (frames are read on demand).
 #[derive(Debug, Clone)]
 pub struct Session {
+    /// The session directory.
     pub dir: PathBuf,
+    /// session.toml.
     pub meta: SessionMeta,
+    /// frames.csv, in order.
     pub frames: Vec<FrameRecord>,
+    /// encoders.csv, in file order.
     pub encoders: Vec<EncoderRecord>,
 }
 
@@ -162,6 +184,7 @@ fn line_err(path: &Path, line: u64, msg: impl std::fmt::Display) -> RuntimeError
 }
 
 impl Session {
+    /// Reads session.toml and the index files (frames.csv, encoders.csv) of the session in `dir`; frames are read on demand.
     pub fn open(dir: &Path) -> Result<Session> {
         let mp = dir.join(SESSION_FILE);
         let text = std::fs::read_to_string(&mp).map_err(|e| io_err(&mp, e))?;
@@ -194,6 +217,7 @@ impl Session {
         Ok(Session { dir: dir.to_path_buf(), meta, frames, encoders })
     }
 
+    /// A path of the session (relative to its directory).
     pub fn path(&self, rel: &str) -> PathBuf {
         self.dir.join(rel)
     }

@@ -18,6 +18,7 @@ pub struct StageContext<'a> {
     pub encoders: &'a mut Option<Box<dyn EncoderFeed>>,
 }
 
+/// One processing step of the graph (see the module docs for when the runner calls what).
 pub trait Stage: Send {
     /// The stage's name in a graph description.
     fn name(&self) -> &'static str;

@@ -20,10 +20,12 @@ impl Default for Latency {
 }
 
 impl Latency {
+    /// Records one latency (ns; under 1 us counts as 1 us).
     pub fn record_ns(&mut self, ns: i64) {
         let us = (ns.max(1000) / 1000) as u64;
         self.0.saturating_record(us);
     }
+    /// Values recorded.
     pub fn count(&self) -> u64 {
         self.0.len()
     }
@@ -47,6 +49,7 @@ impl Latency {
     pub fn reset(&mut self) {
         self.0.reset();
     }
+    /// Adds another histogram's values.
     pub fn merge(&mut self, other: &Latency) {
         let _ = self.0.add(&other.0);
     }
@@ -93,11 +96,15 @@ pub struct Window {
     pub t_s: f64,
     /// Frames the source delivered, published, dropped under overload in the window.
     pub frames_in: u64,
+    /// Frames published in the window.
     pub frames_published: u64,
+    /// Frames dropped under overload in the window.
     pub frames_dropped: u64,
     /// End-to-end latency of the window's published frames (ms; NaN without frames).
     pub p50_ms: f64,
+    /// p99 of the same (ms).
     pub p99_ms: f64,
+    /// Largest of the same (ms).
     pub max_ms: f64,
     /// Resident set size at the end of the window (bytes; 0 where unknown).
     pub rss_bytes: u64,
@@ -141,7 +148,9 @@ pub struct DepthError {
     pub abs_rel_sum: f64,
     /// Sum of squared 3D point errors (m^2).
     pub sq_sum: f64,
+    /// Points scored.
     pub points: u64,
+    /// Pixels looked at (valid or not).
     pub pixels: u64,
 }
 
@@ -161,8 +170,11 @@ impl DepthError {
 
 /// Everything `abvs run` reports.
 pub struct RunStats {
+    /// When the statistics were made (the run's start).
     pub started: Instant,
+    /// Frames taken from the source.
     pub frames_in: u64,
+    /// Frames that reached the sinks.
     pub frames_published: u64,
     /// Dropped under overload (oldest first) at each queue.
     pub frames_dropped: u64,
@@ -173,21 +185,27 @@ pub struct RunStats {
     /// Frames a sink failed to take (a full disk under --dump, ...), by sink: that sink's failure,
     /// not the frame's; the frame still counts as published to the others.
     pub sink_failures: BTreeMap<String, u64>,
+    /// Latency of each lane (the source's first), by name.
     pub stages: Vec<(&'static str, Latency)>,
     /// From the moment a frame exists (its last row's exposure ended, as a camera delivers it) to its
     /// publication.
     pub end_to_end: Latency,
+    /// Depth error against ground truth (synthetic sessions scored by a truth sink).
     pub depth_error: Option<DepthError>,
+    /// Valid points over every published frame.
     pub points_total: u64,
     /// FNV-1a over every published depth map: equal across runs of the same input in lossless mode.
     pub output_digest: u64,
     /// Length of a statistics window (s) and the run's windows, in order (the last one may be shorter).
     pub window_s: f64,
+    /// The windows, in order.
     pub windows: Vec<Window>,
+    /// What stages, sinks and the embedding program added, by name (in the JSON at the top level).
     pub extra: BTreeMap<String, Value>,
 }
 
 impl RunStats {
+    /// Empty statistics for a graph of these lanes (the source's first).
     pub fn new(stage_names: &[&'static str]) -> Self {
         RunStats {
             started: Instant::now(),
@@ -208,14 +226,17 @@ impl RunStats {
         }
     }
 
+    /// A lane's latency histogram (panics on an unknown name: the names are the graph's).
     pub fn stage_mut(&mut self, name: &str) -> &mut Latency {
         &mut self.stages.iter_mut().find(|(n, _)| *n == name).expect("known stage").1
     }
 
+    /// Counts a frame refused for `reason`.
     pub fn fail(&mut self, reason: &str) {
         *self.frames_failed.entry(reason.to_string()).or_default() += 1;
     }
 
+    /// Adds a depth map to [`RunStats::output_digest`].
     pub fn digest(&mut self, data: &[f32]) {
         let mut h = self.output_digest;
         for v in data {
@@ -227,6 +248,7 @@ impl RunStats {
         self.output_digest = h;
     }
 
+    /// Everything as JSON, rates over `elapsed_s` (what the stats JSON file holds).
     pub fn json(&self, elapsed_s: f64) -> Value {
         let mut stages = serde_json::Map::new();
         for (n, l) in &self.stages {

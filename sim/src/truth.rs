@@ -20,8 +20,9 @@ use nalgebra::{Point3, UnitQuaternion, Vector2, Vector3};
 
 use abvs_runtime::error::{Result, RuntimeError};
 use abvs_runtime::pipeline::{Published, Sink};
-use abvs_runtime::session::Session;
+use abvs_runtime::session::{Session, SessionMeta};
 use abvs_runtime::sinks::stats::{DepthError, RunStats};
+use abvs_runtime::sources::replay::ReplaySource;
 use abvs_runtime::tasks::motion::RowRotations;
 use abvs_runtime::tasks::rectify::source_pixel;
 
@@ -111,7 +112,17 @@ pub struct TruthSink {
 impl TruthSink {
     /// The session's truth, or `None` for a recorded (non-synthetic) session.
     pub fn for_session(session: &Session, stride: usize) -> Result<Option<TruthSink>> {
-        let Some(truth) = &session.meta.truth else { return Ok(None) };
+        Self::for_meta(&session.dir, &session.meta, stride)
+    }
+
+    /// The truth of the session a replay plays (e.g. a [`abvs_runtime::Runtime`]'s), or `None` for a recorded
+    /// one.
+    pub fn for_replay(replay: &ReplaySource, stride: usize) -> Result<Option<TruthSink>> {
+        Self::for_meta(replay.dir(), replay.meta(), stride)
+    }
+
+    fn for_meta(dir: &std::path::Path, meta: &SessionMeta, stride: usize) -> Result<Option<TruthSink>> {
+        let Some(truth) = &meta.truth else { return Ok(None) };
         let model = |p: &std::path::Path, e: &dyn std::fmt::Display| RuntimeError::Model {
             path: p.to_path_buf(),
             msg: e.to_string(),
@@ -120,20 +131,20 @@ impl TruthSink {
             return Err(RuntimeError::Invalid(format!("unknown scene generator `{}`", truth.scene_generator)));
         }
         let scene = crate::synth::scene(truth.scene_seed)?;
-        let sp = session.path(&truth.stereo);
+        let sp = dir.join(&truth.stereo);
         let stereo = StereoCalibration::read_yaml(&sp).map_err(|e| model(&sp, &e))?;
-        let up = session.path(&truth.units[0]);
+        let up = dir.join(&truth.units[0]);
         let unit = UnitModel::load(&up).map_err(|e| model(&up, &e))?;
         let fk = unit.compile().map_err(|e| model(&up, &e))?;
-        let pp = session.path(&truth.poses);
+        let pp = dir.join(&truth.poses);
         let frame_rows = read_angles(&pp, false)?;
         let node_rows = match &truth.row_poses {
-            Some(r) => read_angles(&session.path(r), true)?,
+            Some(r) => read_angles(&dir.join(r), true)?,
             None => Vec::new(),
         };
         let mut stream = fk.stream();
         let mut poses = Vec::with_capacity(frame_rows.len());
-        let g = session.meta.gravity;
+        let g = meta.gravity;
         let mut nodes = node_rows.iter().peekable();
         for (seq, _, v) in &frame_rows {
             let th = [v[0], v[1], v[2]];
@@ -151,7 +162,7 @@ impl TruthSink {
         if let Some((seq, _, _)) = nodes.next() {
             return Err(RuntimeError::Invalid(format!("truth row poses: seq {seq} has no frame in {}", pp.display())));
         }
-        let camera = abvs_runtime::pipeline::camera_for_frames(&stereo.left, session.meta.width, session.meta.height)?;
+        let camera = abvs_runtime::pipeline::camera_for_frames(&stereo.left, meta.width, meta.height)?;
         Ok(Some(TruthSink {
             scene,
             camera,

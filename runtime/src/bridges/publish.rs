@@ -9,10 +9,12 @@ use crate::messages::Published;
 use crate::sinks::Sink;
 use crate::stats::RunStats;
 
+/// Publishes every finished frame on the iceoryx2 services (see the module docs).
 pub struct PublishSink {
     depth: Publisher<f32>,
     confidence: Option<Publisher<f32>>,
     cloud: Publisher<CloudPoint>,
+    /// The services' configuration (a subscriber opens them with the same).
     pub config: BridgeConfig,
 }
 

@@ -21,6 +21,7 @@ use crate::sinks::ros2_out::{OutputError, Ros2OutSink, Ros2Writer};
 /// Frames the publisher may fall behind by before the oldest is dropped: the newest matter on a network.
 pub const DEFAULT_QUEUE: usize = 4;
 
+/// The ROS 2 messages published over Zenoh, one publisher per key.
 pub struct ZenohWriter {
     publishers: Vec<Publisher<'static>>,
     session: Session,

@@ -6,7 +6,9 @@ use crate::error::{Result, RuntimeError};
 use crate::messages::Published;
 use crate::sinks::Sink;
 
+/// Writes `frame_{seq}.png` per frame: rectified left, rectified right and depth side by side.
 pub struct DumpSink {
+    /// The directory (created when missing).
     pub dir: PathBuf,
     /// Only every n-th frame.
     pub every: u64,

@@ -13,6 +13,7 @@ use crate::sinks::ros2_out::{OutputError, Ros2OutSink, Ros2Writer};
 /// Frames the recorder may fall behind by before the oldest is dropped (about 0.6 s at 25 fps).
 pub const DEFAULT_QUEUE: usize = 16;
 
+/// The ROS 2 messages written to an MCAP file (profile ros2), one channel per topic.
 pub struct McapWriter {
     writer: Option<mcap::Writer<BufWriter<File>>>,
     channels: [u16; 5],

@@ -18,7 +18,10 @@ use crate::stats::RunStats;
 /// Where finished frames go: statistics, dumps, the self-check, iceoryx2 publishing (a bridge is a sink
 /// whose output leaves the process). Runs on the output lane, after every stage.
 pub trait Sink: Send {
+    /// The sink's name in the statistics (its failures are counted under it).
     fn name(&self) -> &'static str;
+    /// Takes one published frame, on the output lane: the critical path, so it must not block and should not
+    /// allocate. An error is that sink's failure, counted; the frame still goes to the others.
     fn consume(&mut self, out: &Published) -> Result<()>;
     /// Adds what the sink measured to the run's statistics.
     fn finish(&mut self, _stats: &mut RunStats) {}

@@ -17,28 +17,40 @@ use crate::sinks::stats::RunStats;
 /// Why a ROS 2 output could not encode or write a frame.
 #[derive(Debug, thiserror::Error)]
 pub enum OutputError {
+    /// A message that did not encode.
     #[error(transparent)]
     Encode(#[from] EncodeError),
+    /// Zenoh refused a publication.
     #[error("zenoh {key}: {source}")]
     Zenoh {
+        /// The key expression.
         key: &'static str,
+        /// What Zenoh said.
         #[source]
         source: ::zenoh::Error,
     },
+    /// The MCAP writer failed.
     #[error("{path}: {source}")]
     Mcap {
+        /// The MCAP file.
         path: String,
+        /// What the writer said.
         #[source]
         source: mcap::McapError,
     },
+    /// Writing a file failed.
     #[error("{path}: {source}")]
     Io {
+        /// The file.
         path: String,
+        /// What the system said.
         #[source]
         source: std::io::Error,
     },
+    /// A topic the outputs do not have.
     #[error("{0}: not one of the ROS 2 outputs' topics")]
     UnknownTopic(&'static str),
+    /// The output was closed (its thread ended).
     #[error("the output is closed")]
     Closed,
 }
@@ -74,7 +86,9 @@ pub struct Ros2OutStats {
     pub messages: u64,
     /// Encoding + writing time per frame on the sink's thread (ms): median and largest.
     pub write_ms_p50: f64,
+    /// Largest encoding + writing time per frame (ms).
     pub write_ms_max: f64,
+    /// The first error, when a frame failed.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub last_error: Option<String>,
     /// What the writer reported at the end (e.g. the MCAP file's message counts).

@@ -117,7 +117,9 @@ pub struct SessionWriter {
     frames_csv: IndexFile,
     encoders_csv: IndexFile,
     last_frame_t: Option<i64>,
+    /// Frame pairs written.
     pub frames_written: u64,
+    /// Encoder rows written.
     pub encoder_rows: u64,
 }
 
@@ -184,6 +186,7 @@ impl SessionWriter {
         Ok(())
     }
 
+    /// The session directory being written.
     pub fn dir(&self) -> &Path {
         &self.dir
     }
@@ -241,6 +244,7 @@ impl SessionWriter {
         Ok(())
     }
 
+    /// Appends encoder rows to encoders.csv.
     pub fn write_encoders(&mut self, rows: &[EncoderRecord]) -> Result<()> {
         self.encoders_csv.append(rows)?;
         self.encoder_rows += rows.len() as u64;

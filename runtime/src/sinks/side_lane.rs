@@ -127,7 +127,9 @@ pub struct SideLaneStats {
     pub drained_at_finish: u64,
     /// The inner sink's time per frame on its thread (ms): mean and largest.
     pub consume_ms_mean: f64,
+    /// Largest of the same (ms).
     pub consume_ms_max: f64,
+    /// The first error of the inner sink.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub first_error: Option<String>,
 }

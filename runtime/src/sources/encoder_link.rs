@@ -35,21 +35,31 @@
 use crc::{Crc, CRC_16_IBM_3740};
 use std::collections::VecDeque;
 
+/// First two bytes of every encoder frame.
 pub const SYNC: [u8; 2] = [0xA5, 0x5A];
+/// Protocol version of the encoder frames.
 pub const VERSION: u8 = 1;
+/// Bytes in one encoder frame (sync, version, seq, time, eye, counts, index, CRC-16).
 pub const FRAME_LEN: usize = 29;
 const CRC16: Crc<u16> = Crc::<u16>::new(&CRC_16_IBM_3740);
 
+/// One encoder frame from the drive board.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct BoardFrame {
+    /// Frame sequence number (wraps at 2^16; gaps are lost frames).
     pub seq: u16,
+    /// The board's clock when the counts were latched (us since its start).
     pub board_time_us: u64,
+    /// Which eye: 0 left, 1 right.
     pub eye: u8,
+    /// Raw counts of links 1..3 (the board's origin; homing maps them to angles).
     pub counts: [i32; 3],
+    /// Bits of the index markers seen (homing).
     pub index: u8,
 }
 
 impl BoardFrame {
+    /// The frame's bytes on the wire, CRC included.
     pub fn encode(&self) -> [u8; FRAME_LEN] {
         let mut b = [0u8; FRAME_LEN];
         b[0..2].copy_from_slice(&SYNC);
@@ -78,8 +88,11 @@ impl BoardFrame {
     }
 }
 
+/// First two bytes of every command frame.
 pub const COMMAND_SYNC: [u8; 2] = [0xA5, 0x5C];
+/// Protocol version of the command frames.
 pub const COMMAND_VERSION: u8 = 1;
+/// Bytes in one command frame (sync, version, seq, eye, kind, targets, duration, CRC-16).
 pub const COMMAND_LEN: usize = 25;
 /// Command kind: move to target counts over a duration (minimum jerk).
 pub const COMMAND_MOVE: u8 = 1;
@@ -87,15 +100,20 @@ pub const COMMAND_MOVE: u8 = 1;
 /// A command to the drive board (see the module doc).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct CommandFrame {
+    /// Command sequence number.
     pub seq: u16,
+    /// Which eye: 0 left, 1 right.
     pub eye: u8,
+    /// What to do: [`COMMAND_MOVE`].
     pub kind: u8,
     /// Raw counts (the encoder frames' origin) of links 1..3 at the end of the move.
     pub target_counts: [i32; 3],
+    /// Duration of the move (us).
     pub duration_us: u32,
 }
 
 impl CommandFrame {
+    /// The command's bytes on the wire, CRC included.
     pub fn encode(&self) -> [u8; COMMAND_LEN] {
         let mut b = [0u8; COMMAND_LEN];
         b[0..2].copy_from_slice(&COMMAND_SYNC);
@@ -116,10 +134,13 @@ impl CommandFrame {
 /// What a board's command decoder saw.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, serde::Serialize)]
 pub struct CommandStats {
+    /// Commands decoded.
     pub commands: u64,
+    /// Frames whose CRC did not match (dropped).
     pub crc_errors: u64,
     /// Commands of another protocol version or an unknown kind (ignored).
     pub unsupported: u64,
+    /// Bytes skipped while looking for a sync word.
     pub skipped_bytes: u64,
 }
 
@@ -127,14 +148,17 @@ pub struct CommandStats {
 #[derive(Debug, Default)]
 pub struct CommandDecoder {
     buf: VecDeque<u8>,
+    /// What was seen so far.
     pub stats: CommandStats,
 }
 
 impl CommandDecoder {
+    /// A decoder with nothing buffered.
     pub fn new() -> Self {
         Self::default()
     }
 
+    /// Appends bytes and returns every command complete in them (partial ones wait for more bytes).
     pub fn feed(&mut self, bytes: &[u8]) -> Vec<CommandFrame> {
         self.buf.extend(bytes);
         let mut out = vec![];
@@ -175,18 +199,24 @@ impl CommandDecoder {
 /// What the decoder saw, for the runtime's statistics.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, serde::Serialize)]
 pub struct LinkStats {
+    /// Frames decoded.
     pub frames: u64,
+    /// Frames whose CRC did not match (dropped).
     pub crc_errors: u64,
+    /// Frames of another protocol version (dropped).
     pub bad_version: u64,
     /// Bytes skipped while looking for a sync word.
     pub skipped_bytes: u64,
     /// Frames missing according to the sequence numbers.
     pub lost_frames: u64,
+    /// Board restarts seen (its clock went back).
     pub resets: u64,
 }
 
+/// What the decoder makes of a frame.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum LinkEvent {
+    /// A frame of the running session.
     Frame(BoardFrame),
     /// The board restarted: this frame starts a new session (re-home, re-map the clock).
     Reset(BoardFrame),
@@ -197,14 +227,17 @@ pub enum LinkEvent {
 pub struct Decoder {
     buf: VecDeque<u8>,
     last: Option<(u16, u64)>,
+    /// What was seen so far.
     pub stats: LinkStats,
 }
 
 impl Decoder {
+    /// A decoder with nothing buffered.
     pub fn new() -> Self {
         Self::default()
     }
 
+    /// Appends bytes and returns every frame complete in them (partial ones wait for more bytes).
     pub fn feed(&mut self, bytes: &[u8]) -> Vec<LinkEvent> {
         self.buf.extend(bytes);
         let mut out = vec![];
@@ -265,10 +298,12 @@ pub struct ClockMap {
 }
 
 impl ClockMap {
+    /// A map fitting over the last `capacity` frames (at least 16).
     pub fn new(capacity: usize) -> Self {
         ClockMap { obs: VecDeque::with_capacity(capacity), capacity: capacity.max(16), fit: None }
     }
 
+    /// Forgets every observation (after a board reset).
     pub fn reset(&mut self) {
         self.obs.clear();
         self.fit = None;

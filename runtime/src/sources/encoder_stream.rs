@@ -28,6 +28,7 @@ pub const CLOCK_WINDOW: usize = 4000;
 /// What the tracker saw; per-eye arrays are [left, right].
 #[derive(Debug, Clone, Default, PartialEq, Serialize)]
 pub struct EncoderStats {
+    /// The link's frame counts (CRC errors, lost frames, resets).
     pub link: LinkStats,
     /// Home counts of each eye once homed.
     pub home_counts: [Option<[i64; 3]>; 2],
@@ -35,6 +36,7 @@ pub struct EncoderStats {
     pub homing_samples: [u64; 2],
     /// Homing attempts refused (each restarts homing; the last reason is kept).
     pub homing_failures: [u64; 2],
+    /// Why the last homing attempt of each eye was refused.
     pub last_homing_error: [Option<String>; 2],
     /// Samples emitted.
     pub samples: [u64; 2],
@@ -69,6 +71,7 @@ impl Default for EncoderTracker {
 }
 
 impl EncoderTracker {
+    /// A tracker before its first byte: no clock mapping, no eye homed.
     pub fn new() -> Self {
         EncoderTracker {
             decoder: Decoder::new(),
@@ -78,10 +81,12 @@ impl EncoderTracker {
         }
     }
 
+    /// What it saw so far.
     pub fn stats(&self) -> EncoderStats {
         EncoderStats { link: self.decoder.stats, ..self.stats.clone() }
     }
 
+    /// Whether each eye is homed.
     pub fn homed(&self) -> [bool; 2] {
         [self.eyes[0].home.is_some(), self.eyes[1].home.is_some()]
     }
@@ -214,6 +219,7 @@ impl EncoderStream {
         &self.rx
     }
 
+    /// What the tracker saw so far.
     pub fn stats(&self) -> EncoderStats {
         self.shared.lock().expect("encoder stats lock").0.clone()
     }

@@ -14,6 +14,7 @@ use crate::tasks::align::EncoderTrack;
 /// How long the time-alignment stage waits for encoder samples that should exist by now.
 pub const ENCODER_WAIT: Duration = Duration::from_millis(30);
 
+/// The eye cameras and the drive board as a [`PairSource`].
 pub struct LiveSource {
     capture: StereoCapture,
     encoders: Option<EncoderStream>,
@@ -46,6 +47,14 @@ impl LiveSource {
             ended: None,
             wrong_size: 0,
         }
+    }
+
+    /// Opens the devices `[source.live]` describes ([`crate::sources::devices`]) and waits until both eyes are
+    /// homed.
+    pub fn open(l: &crate::config::LiveConfig) -> crate::Result<LiveSource> {
+        let (capture, encoders) = crate::sources::devices::open_devices(l)?;
+        crate::sources::devices::wait_for_homing(&encoders, l.homing_timeout_s)?;
+        Ok(LiveSource::new(capture, encoders, l.width, l.height))
     }
 
     /// The cameras' rolling-shutter readout (ns, `CaptureConfig::readout_ns`; frames' `t_start_ns` must be

@@ -1,4 +1,5 @@
 //! Sources: where data enters the runtime (cameras, the encoder board, recorded sessions).
+pub mod devices;
 pub mod encoder_link;
 pub mod encoder_stream;
 pub mod live;

@@ -18,7 +18,9 @@ use super::{Frame, FramePair};
 /// Which camera a frame came from.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Side {
+    /// The left eye's camera.
     Left,
+    /// The right eye's camera.
     Right,
 }
 
@@ -89,10 +91,12 @@ impl Pairer {
         Pairer { cfg, queues: [q(), q()], last: [None, None], next_pair_seq: 0, stats: PairStats::default() }
     }
 
+    /// The pairing's configuration.
     pub fn config(&self) -> PairerConfig {
         self.cfg
     }
 
+    /// What the pairer counted so far.
     pub fn stats(&self) -> PairStats {
         self.stats
     }

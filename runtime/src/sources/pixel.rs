@@ -25,15 +25,24 @@ pub enum PixelFormat {
     /// Semi-planar 4:2:0 (V4L2 `NV12`): a Y plane, then interleaved UV (ignored).
     Nv12,
     /// 10-bit raw Bayer.
-    Bayer10 { order: CfaOrder, packing: Bayer10Packing },
+    Bayer10 {
+        /// The colour filter's order.
+        order: CfaOrder,
+        /// How the samples are laid out.
+        packing: Bayer10Packing,
+    },
 }
 
 /// Colour filter order of the top-left 2x2 block, named as V4L2 does (row 0 then row 1).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum CfaOrder {
+    /// Blue green / green red.
     Bggr,
+    /// Green blue / red green.
     Gbrg,
+    /// Green red / blue green (the OV8856).
     Grbg,
+    /// Red green / green blue.
     Rggb,
 }
 
@@ -51,17 +60,71 @@ pub enum Bayer10Packing {
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 pub enum PixelError {
     #[error("unsupported pixel format '{fourcc}' (supported: YUYV, NV12, BG10/GB10/BA10/RG10, pBAA/pGAA/pgAA/pRAA)")]
-    UnsupportedFourcc { fourcc: String },
+    /// A FourCC the converter does not know.
+    UnsupportedFourcc {
+        /// The FourCC, as text.
+        fourcc: String,
+    },
     #[error("{format} {width}x{height}: bytesperline {stride} is below the minimum {min}")]
-    StrideTooSmall { format: String, width: u32, height: u32, stride: usize, min: usize },
+    /// Rows shorter than the pixels they must hold.
+    StrideTooSmall {
+        /// The pixel format.
+        format: String,
+        /// Frame width (px).
+        width: u32,
+        /// Frame height (px).
+        height: u32,
+        /// Bytes per row given.
+        stride: usize,
+        /// Bytes per row needed.
+        min: usize,
+    },
     #[error("{format} {width}x{height}: {reason}")]
-    BadSize { format: String, width: u32, height: u32, reason: &'static str },
+    /// A size the format cannot have (e.g. odd for Bayer).
+    BadSize {
+        /// The pixel format.
+        format: String,
+        /// Frame width (px).
+        width: u32,
+        /// Frame height (px).
+        height: u32,
+        /// Why.
+        reason: &'static str,
+    },
     #[error("{format} {width}x{height} (bytesperline {stride}): buffer too short: expected at least {expected} bytes, got {got}")]
-    SrcTooShort { format: String, width: u32, height: u32, stride: usize, expected: usize, got: usize },
+    /// A buffer shorter than its format and size need.
+    SrcTooShort {
+        /// The pixel format.
+        format: String,
+        /// Frame width (px).
+        width: u32,
+        /// Frame height (px).
+        height: u32,
+        /// Bytes per row.
+        stride: usize,
+        /// Bytes needed.
+        expected: usize,
+        /// Bytes given.
+        got: usize,
+    },
     #[error("gray output buffer too short: expected {expected} bytes ({width}x{height}), got {got}")]
-    DstTooShort { width: u32, height: u32, expected: usize, got: usize },
+    /// A gray output buffer shorter than the frame.
+    DstTooShort {
+        /// Frame width (px).
+        width: u32,
+        /// Frame height (px).
+        height: u32,
+        /// Bytes needed.
+        expected: usize,
+        /// Bytes given.
+        got: usize,
+    },
     #[error("black level {black} must be at most 256 (10-bit units)")]
-    BadBlackLevel { black: u16 },
+    /// A black level above what 10-bit samples allow.
+    BadBlackLevel {
+        /// The black level given (10-bit units).
+        black: u16,
+    },
 }
 
 impl From<PixelError> for crate::RuntimeError {
@@ -262,18 +325,22 @@ impl GrayConverter {
         Ok(GrayConverter { format, width, height, stride: bytesperline, bias, scale, rows, vsum, row_gains })
     }
 
+    /// The pixel format converted.
     pub fn format(&self) -> PixelFormat {
         self.format
     }
 
+    /// Frame width (px).
     pub fn width(&self) -> u32 {
         self.width
     }
 
+    /// Frame height (px).
     pub fn height(&self) -> u32 {
         self.height
     }
 
+    /// Bytes per row of the input, padding included.
     pub fn bytesperline(&self) -> usize {
         self.stride
     }

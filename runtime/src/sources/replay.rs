@@ -72,6 +72,7 @@ pub enum FrameFault {
 }
 
 impl FrameFault {
+    /// Every fault, in the order of the statistics.
     pub const ALL: [FrameFault; 3] = [FrameFault::Missing, FrameFault::Unreadable, FrameFault::WrongSize];
 
     /// The reason as counted in `frames_failed`.
@@ -97,6 +98,7 @@ struct Decoder {
 /// Files that could not be used, each once: (path, reason). Shared with the decoder, which finds them.
 type BadFrames = Arc<Mutex<Vec<(PathBuf, String)>>>;
 
+/// A recorded session replayed as a [`PairSource`]: frames decoded ahead on a thread of their own, times shifted to the run's clock, the session looped when more frames are asked for.
 pub struct ReplaySource {
     dir: PathBuf,
     meta: SessionMeta,
@@ -312,6 +314,7 @@ impl ReplaySource {
         self.rows.len()
     }
 
+    /// Raw frame size (both eyes).
     pub fn size(&self) -> (u32, u32) {
         (self.meta.width, self.meta.height)
     }

@@ -35,12 +35,17 @@ use super::{Frame, FramePair};
 pub const BUF_FLAG_ERROR: u32 = 0x0000_0040;
 /// `V4L2_BUF_FLAG_TIMESTAMP_MASK` and its values.
 pub const BUF_FLAG_TIMESTAMP_MASK: u32 = 0x0000_e000;
+/// The driver does not say which clock stamped the buffer.
 pub const BUF_FLAG_TIMESTAMP_UNKNOWN: u32 = 0x0000_0000;
+/// Stamped on CLOCK_MONOTONIC (what the runtime needs).
 pub const BUF_FLAG_TIMESTAMP_MONOTONIC: u32 = 0x0000_2000;
+/// The timestamp was copied from an output buffer (not a capture time).
 pub const BUF_FLAG_TIMESTAMP_COPY: u32 = 0x0000_4000;
 /// `V4L2_BUF_FLAG_TSTAMP_SRC_MASK` and its values.
 pub const BUF_FLAG_TSTAMP_SRC_MASK: u32 = 0x0007_0000;
+/// Stamped at the end of the frame (its last pixel received).
 pub const BUF_FLAG_TSTAMP_SRC_EOF: u32 = 0x0000_0000;
+/// Stamped at the start of exposure.
 pub const BUF_FLAG_TSTAMP_SRC_SOE: u32 = 0x0001_0000;
 /// `V4L2_CID_EXPOSURE_ABSOLUTE` (units of 100 us), read when no exposure is configured.
 pub const CID_EXPOSURE_ABSOLUTE: u32 = 0x009a_0902;
@@ -67,10 +72,13 @@ pub enum RowReference {
 /// What to ask of one camera.
 #[derive(Clone, Debug, PartialEq)]
 pub struct CaptureConfig {
+    /// Frame width (px).
     pub width: u32,
+    /// Frame height (px).
     pub height: u32,
     /// Requested V4L2 FourCC; the driver may substitute another supported one.
     pub fourcc: [u8; 4],
+    /// Frame rate (Hz).
     pub fps: u32,
     /// MMAP buffers queued in the driver (more buffers absorb scheduling hiccups, add no latency).
     pub buffers: u32,
@@ -82,6 +90,7 @@ pub struct CaptureConfig {
     /// Time from the first row's to the last row's readout, ns (rolling shutter); needed to move
     /// end-of-frame timestamps back to the start of exposure.
     pub readout_ns: i64,
+    /// Which row's exposure start the frames' `t_start_ns` gives.
     pub reference: RowReference,
     /// How long one dequeue waits before the capture thread re-checks for shutdown.
     pub poll_timeout: Duration,
@@ -109,10 +118,15 @@ impl Default for CaptureConfig {
 /// What the driver agreed to (`VIDIOC_S_FMT`'s answer).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct NegotiatedFormat {
+    /// Frame width (px).
     pub width: u32,
+    /// Frame height (px).
     pub height: u32,
+    /// The pixel format (V4L2 FourCC).
     pub fourcc: [u8; 4],
+    /// Bytes per row, padding included.
     pub bytesperline: u32,
+    /// Bytes per frame buffer.
     pub sizeimage: u32,
 }
 
@@ -120,29 +134,110 @@ pub struct NegotiatedFormat {
 #[derive(Debug, thiserror::Error)]
 pub enum CaptureError {
     #[error("{path}: no such video device (list the cameras with `v4l2-ctl --list-devices`)")]
-    DeviceMissing { path: PathBuf },
+    /// No device at the path.
+    DeviceMissing {
+        /// The device node.
+        path: PathBuf,
+    },
     #[error("{path}: cannot open: {source}")]
-    Open { path: PathBuf, source: io::Error },
+    /// The device exists but does not open (permissions, busy).
+    Open {
+        /// The device node.
+        path: PathBuf,
+        /// What the system said.
+        source: io::Error,
+    },
     #[error("{path}: not a V4L2 video capture device ({reason}; list the cameras with `v4l2-ctl --list-devices`)")]
-    NotVideoCapture { path: PathBuf, reason: String },
+    /// The node is not a V4L2 video capture device.
+    NotVideoCapture {
+        /// The device node.
+        path: PathBuf,
+        /// What it is, or why it does not answer as one.
+        reason: String,
+    },
     #[error("{path}: {source}")]
-    Format { path: PathBuf, source: PixelError },
+    /// A pixel format the runtime cannot convert.
+    Format {
+        /// The device node.
+        path: PathBuf,
+        /// Why.
+        source: PixelError,
+    },
     #[error("{path}: asked for {requested}, the driver set {got}")]
-    FormatChanged { path: PathBuf, requested: String, got: String },
+    /// The driver set another size or pixel format than asked for.
+    FormatChanged {
+        /// The device node.
+        path: PathBuf,
+        /// What was asked for.
+        requested: String,
+        /// What the driver set.
+        got: String,
+    },
     #[error("{path}: asked for {requested} fps, the driver set a frame interval of {num}/{den} s")]
-    FrameRate { path: PathBuf, requested: u32, num: u32, den: u32 },
+    /// The driver set another frame rate than asked for.
+    FrameRate {
+        /// The device node.
+        path: PathBuf,
+        /// The frame rate asked for (Hz).
+        requested: u32,
+        /// Numerator of the frame interval set (s).
+        num: u32,
+        /// Denominator of the frame interval set.
+        den: u32,
+    },
     #[error("{path}: buffer timestamps are {clock}, not CLOCK_MONOTONIC (flags {flags:#010x}); they cannot be aligned with the encoders")]
-    NotMonotonic { path: PathBuf, clock: &'static str, flags: u32 },
+    /// Buffer timestamps on another clock than CLOCK_MONOTONIC: they cannot be aligned with the encoders.
+    NotMonotonic {
+        /// The device node.
+        path: PathBuf,
+        /// The clock the flags name.
+        clock: &'static str,
+        /// The buffer's flags.
+        flags: u32,
+    },
     #[error("{path}: no exposure time: set CaptureConfig::exposure_ns (EXPOSURE_ABSOLUTE unreadable: {reason})")]
-    NoExposure { path: PathBuf, reason: String },
+    /// No exposure time configured, and the camera's unreadable.
+    NoExposure {
+        /// The device node.
+        path: PathBuf,
+        /// Why the camera's could not be read.
+        reason: String,
+    },
     #[error("{path}: frame {seq} is corrupted (V4L2_BUF_FLAG_ERROR)")]
-    Corrupt { path: PathBuf, seq: u32 },
+    /// The driver flagged a frame as corrupted.
+    Corrupt {
+        /// The device node.
+        path: PathBuf,
+        /// The frame's sequence number from the driver.
+        seq: u32,
+    },
     #[error("{path}: frame {seq}: {source}")]
-    Convert { path: PathBuf, seq: u32, source: PixelError },
+    /// A frame that does not convert to gray (a short buffer).
+    Convert {
+        /// The device node.
+        path: PathBuf,
+        /// The frame's sequence number from the driver.
+        seq: u32,
+        /// Why.
+        source: PixelError,
+    },
     #[error("{path}: {op}: {source}")]
-    Io { path: PathBuf, op: &'static str, source: io::Error },
+    /// A V4L2 call failed.
+    Io {
+        /// The device node.
+        path: PathBuf,
+        /// The call.
+        op: &'static str,
+        /// What the system said.
+        source: io::Error,
+    },
     #[error("{path}: no frame within the poll timeout")]
-    Timeout { path: PathBuf },
+    /// No frame within the poll timeout.
+    Timeout {
+        /// The device node.
+        path: PathBuf,
+    },
+    /// Both capture threads have stopped.
     #[error("both capture threads have stopped")]
     Stopped,
 }
@@ -369,6 +464,7 @@ impl V4lCamera {
         })
     }
 
+    /// The device node.
     pub fn path(&self) -> &Path {
         &self.path
     }
@@ -514,6 +610,7 @@ impl StereoCapture {
         let _ = self.recycle[1].try_send(pair.right.gray);
     }
 
+    /// Pairing counts and each camera's errors so far.
     pub fn stats(&self) -> StereoStats {
         StereoStats { pairing: self.pairer.stats(), errors: self.errors }
     }

@@ -22,7 +22,9 @@ pub use crate::messages::EncoderSample;
 /// Counts of what the track refused, for the runtime's statistics.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 pub struct TrackStats {
+    /// Samples taken into the track.
     pub accepted: u64,
+    /// Samples refused: not after the previous one.
     pub non_monotonic: u64,
 }
 
@@ -35,6 +37,7 @@ pub struct EncoderTrack {
     pub max_gap_s: f64,
     /// encoder_time_offset of the eye (s): encoder stamp = camera time + latency.
     pub latency_s: f64,
+    /// What the track took and refused.
     pub stats: TrackStats,
 }
 
@@ -155,6 +158,7 @@ impl AlignStage {
         self
     }
 
+    /// Both eyes' encoder tracks (left, right).
     pub fn tracks(&self) -> &[EncoderTrack; 2] {
         &self.tracks
     }

@@ -51,6 +51,7 @@ impl CheckConfig {
         self.confidence || self.invalidate
     }
 
+    /// Refuses a `max_diff` outside (0, [`MAX_DIFF_LIMIT`]].
     pub fn check(&self) -> Result<()> {
         if !(self.max_diff > 0.0 && self.max_diff <= MAX_DIFF_LIMIT) {
             return Err(RuntimeError::Invalid(format!(
@@ -73,6 +74,7 @@ pub fn mirror_rows<T: Copy>(src: &[T], width: usize, dst: &mut [T]) {
 
 /// Why a pixel has no checked disparity: the codes of `abvs disparity --invalid-reason`.
 pub mod reason {
+    /// The pixel has a checked disparity.
     pub const VALID: u8 = 0;
     /// The engine gave no disparity.
     pub const NO_ESTIMATE: u8 = 1;
@@ -143,6 +145,7 @@ pub fn lr_check_with_reasons(
 
 /// The check's buffers at the pipeline's output resolution, allocated once.
 pub struct LrCheck {
+    /// What the check produces.
     pub cfg: CheckConfig,
     width: usize,
     left_m: Vec<u8>,
@@ -154,6 +157,7 @@ pub struct LrCheck {
 }
 
 impl LrCheck {
+    /// A check with `cfg` (refused when out of range); [`LrCheck::start`] sizes its buffers.
     pub fn new(cfg: CheckConfig) -> Result<LrCheck> {
         cfg.check()?;
         Ok(LrCheck {

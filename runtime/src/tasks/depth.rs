@@ -12,9 +12,12 @@ pub use crate::messages::DepthFrame;
 use crate::messages::{Rectification, RectifiedCamera, Work};
 use crate::stage::{Stage, StageContext};
 
+/// The depth range kept: points nearer or farther are invalid (NaN, not in the cloud).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct DepthConfig {
+    /// Nearest depth kept (m).
     pub min_m: f32,
+    /// Farthest depth kept (m).
     pub max_m: f32,
 }
 
@@ -80,6 +83,7 @@ impl DepthFrame {
 /// The depth stage: depth map and cloud ([`Work::depth`]) from the disparity, on the output lane (which
 /// lends the frame its depth buffer).
 pub struct DepthStage {
+    /// The depth range.
     pub cfg: DepthConfig,
     cam: Option<RectifiedCamera>,
     /// Frames published invalid by the motion gate.
@@ -87,6 +91,7 @@ pub struct DepthStage {
 }
 
 impl DepthStage {
+    /// A depth stage keeping `cfg`'s range.
     pub fn new(cfg: DepthConfig) -> Self {
         DepthStage { cfg, cam: None, gated: 0 }
     }

@@ -3,8 +3,8 @@
 //! name, the network-based [`super::disparity_census`] and [`super::disparity_fused`] included.
 //!
 //! ONNX models follow the published HITNet exports' contract (PINTO model zoo), so those drop in: input
-//! "input" [1,2,H,W] (left gray, right gray) or [1,6,H,W] (left RGB, right RGB), scaled /255; output
-//! [1,1,H,W] (or [1,H,W]) left-view disparity in pixels. A model directory holds `model.onnx` and
+//! "input" `[1,2,H,W]` (left gray, right gray) or `[1,6,H,W]` (left RGB, right RGB), scaled /255; output
+//! `[1,1,H,W]` (or `[1,H,W]`) left-view disparity in pixels. A model directory holds `model.onnx` and
 //! `manifest.json` ("abvs-disparity-model/1": layout, resolution, max disparity, training recipe, metrics);
 //! a bare .onnx file is accepted and described from its own input/output shapes.
 //! Invalid disparities are NaN (never 0, which is a valid disparity at infinity).
@@ -20,24 +20,36 @@ use crate::stage::{Stage, StageContext};
 
 use super::confidence::{CheckConfig, LrCheck};
 
+/// The format tag of a disparity model's manifest.json.
 pub const DISPARITY_FORMAT: &str = "abvs-disparity-model/1";
 
 /// manifest.json of a disparity model directory.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct DisparityManifest {
+    /// The format tag, [`DISPARITY_FORMAT`].
     pub format: String,
+    /// The model's name (e.g. `hitnet-s`).
     pub variant: String,
+    /// The ONNX file, relative to the model directory.
     pub file: String,
+    /// The network's input tensor.
     pub input_name: String,
-    /// "gray2" ([1,2,H,W]) or "rgb6" ([1,6,H,W]).
+    /// "gray2" (`[1,2,H,W]`) or "rgb6" (`[1,6,H,W]`).
     pub input_layout: String,
+    /// Input scale: pixel levels are multiplied by this.
     pub input_scale: f64,
+    /// Input width the network was exported at (px).
     pub width: u32,
+    /// Input height (px).
     pub height: u32,
+    /// Largest disparity the network outputs (px).
     pub max_disparity: f64,
+    /// The network's output tensor.
     pub output_name: String,
+    /// What the model scored at training (free form).
     #[serde(default)]
     pub metrics: serde_json::Value,
+    /// How the model was trained (free form).
     #[serde(default)]
     pub training: serde_json::Value,
     /// Hex SHA-256 of the model file, checked on load (a damaged model would silently change the depth).
@@ -47,9 +59,11 @@ pub struct DisparityManifest {
 
 /// A stereo matcher on rectified 8-bit gray images of a fixed size.
 pub trait DisparityEngine: Send {
+    /// The engine's name in statistics and logs.
     fn name(&self) -> &str;
     /// The resolution the engine runs at.
     fn size(&self) -> (u32, u32);
+    /// Largest disparity the engine searches (px).
     fn max_disparity(&self) -> f64;
     /// Left-view disparity (px) into `out` (width*height); NaN where there is none.
     fn compute(&mut self, left: &[u8], right: &[u8], out: &mut [f32]) -> Result<()>;
@@ -71,7 +85,9 @@ fn check_sizes(name: &str, (w, h): (u32, u32), left: &[u8], right: &[u8], out: &
 /// ONNX stereo network through ONNX Runtime; input and output tensors are allocated once and bound.
 pub struct OnnxEngine {
     name: String,
+    /// The model's manifest.
     pub manifest: DisparityManifest,
+    /// The ONNX file.
     pub path: PathBuf,
     session: ort::session::Session,
     input: ort::value::Tensor<f32>,
@@ -401,11 +417,13 @@ pub fn engine(
 /// a left-right check ([`super::confidence`]) also its confidence ([`Work::confidence`]) and, if asked, the
 /// inconsistent pixels invalidated.
 pub struct DisparityStage {
+    /// The engine.
     pub engine: Box<dyn DisparityEngine>,
     check: Option<LrCheck>,
 }
 
 impl DisparityStage {
+    /// The stage with an engine and no left-right check.
     pub fn new(engine: Box<dyn DisparityEngine>) -> Self {
         DisparityStage { engine, check: None }
     }

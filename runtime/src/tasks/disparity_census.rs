@@ -29,6 +29,7 @@ const CENSUS_R: usize = 2;
 const OUTSIDE: u8 = ((2 * CENSUS_R + 1) * (2 * CENSUS_R + 1) - 1) as u8;
 const OFFSETS: usize = (2 * SEARCH_PX + 1) as usize;
 
+/// The network's disparity refined by a census search around it (see the module docs).
 pub struct CensusRefineEngine {
     name: String,
     net: OnnxEngine,

@@ -29,6 +29,7 @@ pub enum Source {
 /// SGBM's range from the network's answer: 1.2x its 99.5th percentile plus 8 px, in steps of 16.
 const RANGE_QUANTILE: f64 = 0.995;
 
+/// SGBM where its own checks accept a match, the network elsewhere (see the module docs).
 pub struct FusedEngine {
     name: String,
     net: OnnxEngine,

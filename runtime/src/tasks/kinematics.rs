@@ -19,8 +19,20 @@ use crate::tasks::motion::{angle_deg, MotionConfig, SPEED_DT_S};
 
 /// One eye's FK evaluator with its stream state (motion history for backlash, warm start).
 pub enum EyeFk {
-    Calibrated { model: Box<FkModel>, state: FkState },
-    Unit { fk: Box<UnitFk>, state: UnitStream },
+    /// A calibrated FK model (abvs-fk-model directory).
+    Calibrated {
+        /// The model.
+        model: Box<FkModel>,
+        /// Its stream state.
+        state: FkState,
+    },
+    /// A unit model (a synthetic eye's truth, or the nominal mechanism).
+    Unit {
+        /// The compiled unit model.
+        fk: Box<UnitFk>,
+        /// Its stream state.
+        state: UnitStream,
+    },
 }
 
 impl EyeFk {
@@ -44,6 +56,7 @@ impl EyeFk {
         EyeFk::from_unit(&UnitModel::nominal()).expect("the nominal unit model compiles")
     }
 
+    /// The FK of a unit model.
     pub fn from_unit(unit: &UnitModel) -> Result<EyeFk> {
         let fk = unit.compile().map_err(|e| RuntimeError::Invalid(e.to_string()))?;
         let state = fk.stream();
@@ -77,8 +90,22 @@ impl EyeFk {
 /// around it (the rows of a rolling-shutter frame, the speed's central difference) without advancing the
 /// stream, so the frame's own pose and the next frame's are what they would be without them.
 pub enum FrozenFk<'a> {
-    Calibrated { model: &'a FkModel, frozen: Frozen },
-    Unit { fk: &'a UnitFk, cond: Conditions, warm: Matrix3<f64> },
+    /// A calibrated FK model, frozen.
+    Calibrated {
+        /// The model.
+        model: &'a FkModel,
+        /// Its frozen motion history.
+        frozen: Frozen,
+    },
+    /// A unit model, frozen.
+    Unit {
+        /// The compiled unit model.
+        fk: &'a UnitFk,
+        /// Its conditions at the last reading.
+        cond: Conditions,
+        /// The warm start of the solve.
+        warm: Matrix3<f64>,
+    },
 }
 
 impl FrozenFk<'_> {
@@ -124,14 +151,18 @@ pub fn moving_extrinsic(rel_left: &Pose, rel_right: &Pose, home_left_to_right: &
 
 /// The two eyes' FK and the stereo calibration at home.
 pub struct StereoKinematics {
+    /// The left eye's FK.
     pub left: EyeFk,
+    /// The right eye's FK.
     pub right: EyeFk,
     /// T_lH^rH in metres.
     pub home_left_to_right: Pose,
+    /// The gravity direction both eyes' FK are evaluated with (unit vector; +y unless the session says).
     pub gravity: [f64; 3],
 }
 
 impl StereoKinematics {
+    /// Both eyes' FK and T_lH^rH (rotation, translation in metres); gravity along +y.
     pub fn new(left: EyeFk, right: EyeFk, rotation: Matrix3<f64>, translation_m: Vector3<f64>) -> Self {
         StereoKinematics {
             left,
@@ -156,17 +187,21 @@ impl StereoKinematics {
 /// The kinematics stage: both eyes' poses and the moving extrinsic ([`Work::pose`]) from the aligned link
 /// angles; the eyes' speeds, the per-row rotations and the motion gate ([`Work::motion`]).
 pub struct KinematicsStage {
+    /// Both eyes' FK and the home extrinsic.
     pub kin: StereoKinematics,
+    /// The per-row correction, the motion gate, a time offset override.
     pub motion: MotionConfig,
     /// Rectified focal length (px): blur in the pixels the disparity engine sees.
     f_out: f64,
 }
 
 impl KinematicsStage {
+    /// The stage with the default motion settings.
     pub fn new(kin: StereoKinematics) -> Self {
         KinematicsStage { kin, motion: MotionConfig::default(), f_out: 0.0 }
     }
 
+    /// The same stage with other motion settings.
     pub fn with_motion(mut self, motion: MotionConfig) -> Self {
         self.motion = motion;
         self

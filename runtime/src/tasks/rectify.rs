@@ -68,7 +68,9 @@ pub fn source_pixel(
 
 /// Per-eye remap tables, allocated once and rebuilt in place every frame.
 pub struct RectifyMaps {
+    /// The rectified camera the maps produce.
     pub out: RectifiedCamera,
+    /// Node spacing of the map grid (px).
     pub grid_step: u32,
     map_x: Mat,
     map_y: Mat,
@@ -81,6 +83,7 @@ pub struct RectifyMaps {
 }
 
 impl RectifyMaps {
+    /// Maps for `out`, exact at grid nodes `grid_step` px apart.
     pub fn new(out: RectifiedCamera, grid_step: u32) -> Result<Self> {
         let cv = |e: opencv::Error| RuntimeError::Invalid(format!("rectify: {}", e.message));
         let (w, h) = (out.width as i32, out.height as i32);
@@ -204,6 +207,7 @@ impl RectifyMaps {
         self.map_x.data_typed::<f32>().map(|m| m[i] >= 0.0).unwrap_or(false)
     }
 
+    /// The source x of every rectified pixel (row-major; negative where it sees no raw pixel).
     pub fn map_x(&self) -> &[f32] {
         self.map_x.data_typed::<f32>().expect("map")
     }
@@ -245,13 +249,18 @@ fn catmull_rom(t: f32) -> [f32; 4] {
 
 /// Both eyes' maps and the current rectification.
 pub struct StereoRectifier {
+    /// The left eye's maps.
     pub left: RectifyMaps,
+    /// The right eye's maps.
     pub right: RectifyMaps,
+    /// The left eye's lens.
     pub cam_left: Camera,
+    /// The right eye's lens.
     pub cam_right: Camera,
 }
 
 impl StereoRectifier {
+    /// Maps for both eyes' lenses into `out`.
     pub fn new(cam_left: Camera, cam_right: Camera, out: RectifiedCamera, grid_step: u32) -> Result<Self> {
         Ok(StereoRectifier {
             left: RectifyMaps::new(out, grid_step)?,
@@ -302,6 +311,7 @@ pub struct RectifyStage {
 }
 
 impl RectifyStage {
+    /// The stage for both eyes' lenses (left, right); its maps are made at start, at the graph's output.
     pub fn new(cams: (Camera, Camera), grid_step: u32) -> Self {
         RectifyStage { cams, grid_step, rectifier: None }
     }

@@ -161,9 +161,13 @@ impl FrameHeader {
 #[repr(C)]
 #[type_name("abvs::CloudPoint/1")]
 pub struct CloudPoint {
+    /// X (m, right).
     pub x: f32,
+    /// Y (m, down).
     pub y: f32,
+    /// Z (m, forward).
     pub z: f32,
+    /// Colour: 0xAABBGGRR (gray here: the rectified left image's level, alpha 255).
     pub rgba: u32,
 }
 
@@ -203,11 +207,17 @@ pub struct BridgeConfig {
     pub max_width: u32,
     /// Largest height.
     pub max_height: u32,
+    /// Subscribers a service admits.
     pub max_subscribers: usize,
+    /// Samples a subscriber's queue holds before the oldest is dropped (safe overflow).
     pub subscriber_buffer: usize,
+    /// Samples a subscriber may hold borrowed at once.
     pub subscriber_max_borrowed: usize,
+    /// Samples a late joiner gets at once.
     pub history: usize,
+    /// Publishers a service admits (one runtime).
     pub max_publishers: usize,
+    /// Processes that may open a service at once.
     pub max_nodes: usize,
 }
 
@@ -289,40 +299,88 @@ impl BridgeConfig {
 /// What went wrong, naming the service.
 #[derive(Debug, thiserror::Error)]
 pub enum BridgeError {
+    /// A [`BridgeConfig`] no service can have (a zero size or count).
     #[error("iceoryx2 bridge configuration: {0}")]
     Config(String),
     /// An iceoryx2 call failed: `what` was being done on `service`.
     #[error("{service}: {what} failed: {detail}")]
-    Iceoryx { service: String, what: &'static str, detail: String },
+    Iceoryx {
+        /// The service.
+        service: String,
+        /// What was being done.
+        what: &'static str,
+        /// What iceoryx2 said.
+        detail: String,
+    },
     /// The caller asked for a sample larger than the configured maximum.
     #[error("{service}: {n} elements exceed the configured maximum of {max} (BridgeConfig max_width x max_height)")]
-    TooLarge { service: String, n: usize, max: usize },
+    TooLarge {
+        /// The service.
+        service: String,
+        /// Elements asked for.
+        n: usize,
+        /// Elements configured at most.
+        max: usize,
+    },
     /// A depth payload whose size does not match the header's width x height.
     #[error("{service}: header says {width}x{height} but {max} elements fit")]
-    BadSize { service: String, width: u32, height: u32, max: usize },
+    BadSize {
+        /// The service.
+        service: String,
+        /// The header's width.
+        width: u32,
+        /// The header's height.
+        height: u32,
+        /// Elements that fit.
+        max: usize,
+    },
     /// The fill tried to write more elements than the sample holds (nothing was sent).
     #[error("{service}: the fill wrote past the sample's {capacity} elements; nothing was sent")]
-    Overflow { service: String, capacity: usize },
+    Overflow {
+        /// The service.
+        service: String,
+        /// Elements the sample holds.
+        capacity: usize,
+    },
     /// The service exists with static settings other than this side's [`BridgeConfig`]: another process
     /// created it differently.
     #[error(
         "{service}: the service exists with other settings than this process's BridgeConfig ({diffs}): \
          another process created it; stop that process or use another service prefix"
     )]
-    Foreign { service: String, diffs: String },
+    Foreign {
+        /// The service.
+        service: String,
+        /// The settings that differ.
+        diffs: String,
+    },
     /// The publisher's shared memory would not fit in /dev/shm (too small, or filled by others).
     #[error(
         "{service}: needs {needed_mb:.1} MB of shared memory in {dir}, {free_mb:.1} MB free: make room there \
          (its pages are taken when first written, so a publisher that does not fit would be killed by SIGBUS \
          at a later publish) or lower the network resolution"
     )]
-    SharedMemory { service: String, dir: String, needed_mb: f64, free_mb: f64 },
+    SharedMemory {
+        /// The service.
+        service: String,
+        /// The shared-memory directory (/dev/shm).
+        dir: String,
+        /// Megabytes the publisher needs.
+        needed_mb: f64,
+        /// Megabytes free there.
+        free_mb: f64,
+    },
     /// Another publisher holds the service's one publisher slot.
     #[error(
         "{service}: another publisher holds the service's only publisher slot ({holders}); \
          stop that process (is another abvs publishing already?) or use another service prefix"
     )]
-    PublisherTaken { service: String, holders: String },
+    PublisherTaken {
+        /// The service.
+        service: String,
+        /// The processes that hold it, as far as iceoryx2 tells.
+        holders: String,
+    },
 }
 
 mod publisher;

@@ -211,6 +211,7 @@ impl<T: Copy> SampleWriter<'_, T> {
         self.len
     }
 
+    /// Whether nothing was written yet.
     pub fn is_empty(&self) -> bool {
         self.len == 0
     }

@@ -80,14 +80,19 @@ pub fn fit_rotation(matches: &[Match], cam: &RectifiedCamera, rot: &Matrix3<f64>
 /// What one checked frame measured.
 #[derive(Debug, Clone, PartialEq)]
 pub struct FrameCheck {
+    /// The frame's pipeline sequence number.
     pub seq: u64,
+    /// The frame's instant (CLOCK_MONOTONIC ns).
     pub t_frame_ns: i64,
     /// Both eyes' link angles (deg).
     pub theta: [[f64; 3]; 2],
+    /// Features matched between the rectified images.
     pub matches: usize,
     /// |vertical disparity| quantiles (px); NaN without matches.
     pub vertical_p50: f64,
+    /// 95th percentile of the same (px).
     pub vertical_p95: f64,
+    /// The relative rotation fitted to the matches, when there were enough.
     pub fit: Option<RotationFit>,
 }
 

@@ -4,9 +4,13 @@ use super::*;
 /// One sub-pixel match between the rectified images (px).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Match {
+    /// Left image, x.
     pub xl: f32,
+    /// Left image, y.
     pub yl: f32,
+    /// Right image, x.
     pub xr: f32,
+    /// Right image, y.
     pub yr: f32,
     /// Normalised cross-correlation of the refined patches.
     pub ncc: f32,

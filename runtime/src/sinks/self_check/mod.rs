@@ -49,8 +49,8 @@
 //! corners matter: ORB keypoints (clustered on object corners and depth edges) read single fixations up to
 //! 0.2 deg off about y.
 //!
-//! By concern: [`matching`] (corners, band search, Lucas-Kanade), [`fit`] (the rotation fit and the check of
-//! one frame), [`summary`] (the run's statistics, the log), [`worker`] (the sink and its thread).
+//! By concern: `matching` (corners, band search, Lucas-Kanade), `fit` (the rotation fit and the check of
+//! one frame), `summary` (the run's statistics, the log), `worker` (the sink and its thread).
 use std::io::Write;
 use std::path::PathBuf;
 use std::thread::JoinHandle;

@@ -8,11 +8,13 @@ pub(super) const BINS: usize = 4000;
 
 /// The run's self-check: everything the worker accumulated.
 pub struct Summary {
+    /// Frames checked.
     pub frames: u64,
     /// Checked frames whose matches did not support a rotation fit.
     pub frames_unfitted: u64,
     /// Frames the worker was too busy for.
     pub skipped: u64,
+    /// Warnings given (the rotation error over its threshold).
     pub warnings: u64,
     /// Matches of the last [`KEEP`] checked frames.
     matches: std::collections::VecDeque<u32>,

@@ -3,14 +3,21 @@ use super::*;
 
 /// One rectified pair handed to the worker (pooled: allocated at start-up).
 pub struct Job {
+    /// The frame's pipeline sequence number.
     pub seq: u64,
+    /// The frame's instant (CLOCK_MONOTONIC ns).
     pub t_frame_ns: i64,
+    /// Both eyes' link angles (deg).
     pub theta: [[f64; 3]; 2],
     /// rect_from_left R_rel,l^T.
     pub rot: Matrix3<f64>,
+    /// The rectified camera of the pair.
     pub cam: RectifiedCamera,
+    /// Largest disparity searched (px).
     pub max_disp: f32,
+    /// Rectified left image.
     pub left: Vec<u8>,
+    /// Rectified right image.
     pub right: Vec<u8>,
 }
 

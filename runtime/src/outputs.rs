@@ -1,7 +1,12 @@
 //! Output paths checked before any work: a run of minutes (a soak, a fit) must not end by losing
-//! its results to a missing or read-only directory. Each check names the flag.
-use anyhow::bail;
+//! its results to a missing or read-only directory. Each check names the flag or configuration field.
 use std::path::Path;
+
+use crate::error::{Result, RuntimeError};
+
+fn refuse<T>(field: &str, p: &Path, msg: String) -> Result<T> {
+    Err(RuntimeError::Output { field: field.to_string(), path: p.to_path_buf(), msg })
+}
 
 fn writable_dir(p: &Path) -> bool {
     use std::os::unix::ffi::OsStrExt;
@@ -19,29 +24,29 @@ fn parent_of(p: &Path) -> &Path {
 }
 
 /// A file the command will write: its directory exists and is writable, and the path is not a directory.
-pub fn check_file_writable(flag: &str, p: &Path) -> anyhow::Result<()> {
+pub fn check_file_writable(flag: &str, p: &Path) -> Result<()> {
     if p.is_dir() {
-        bail!("{flag} {}: is a directory, expected a file name", p.display());
+        return refuse(flag, p, "is a directory, expected a file name".into());
     }
     let d = parent_of(p);
     if !d.is_dir() {
-        bail!("{flag} {}: directory {} does not exist", p.display(), d.display());
+        return refuse(flag, p, format!("directory {} does not exist", d.display()));
     }
     if !writable_dir(d) {
-        bail!("{flag} {}: directory {} is not writable", p.display(), d.display());
+        return refuse(flag, p, format!("directory {} is not writable", d.display()));
     }
     Ok(())
 }
 
 /// A directory the command will create (or write into): not a file, and its nearest existing
 /// ancestor is a writable directory.
-pub fn check_dir_creatable(flag: &str, p: &Path) -> anyhow::Result<()> {
+pub fn check_dir_creatable(flag: &str, p: &Path) -> Result<()> {
     if p.exists() {
         if !p.is_dir() {
-            bail!("{flag} {}: exists and is not a directory", p.display());
+            return refuse(flag, p, "exists and is not a directory".into());
         }
         if !writable_dir(p) {
-            bail!("{flag} {}: directory is not writable", p.display());
+            return refuse(flag, p, "directory is not writable".into());
         }
         return Ok(());
     }
@@ -50,7 +55,7 @@ pub fn check_dir_creatable(flag: &str, p: &Path) -> anyhow::Result<()> {
         a = parent_of(a);
     }
     if !a.is_dir() || !writable_dir(a) {
-        bail!("{flag} {}: cannot be created ({} is not a writable directory)", p.display(), a.display());
+        return refuse(flag, p, format!("cannot be created ({} is not a writable directory)", a.display()));
     }
     Ok(())
 }

@@ -1,0 +1,396 @@
+//! One call from a configuration to a running runtime.
+//!
+//! [`Runtime::from_config`] does everything a deployment's configuration ([`RuntimeConfig`]) says: opens the
+//! source (a recorded session, or the eye cameras and the drive board, homed), loads the stereo calibration and
+//! the FK models, builds the disparity engine, and opens the sinks and bridges. [`Runtime::add_sink`] adds the
+//! caller's own sinks; [`Runtime::run`], [`Runtime::run_until`] or [`Runtime::spawn`] then run the standard graph
+//! ([`crate::pipeline`]) and return its [`Report`]. The `abvs run` program is this call plus its flags.
+use std::path::Path;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+use std::thread::JoinHandle;
+use std::time::Duration;
+
+use abvs_camera::{Camera, StereoCalibration};
+
+use crate::bridges::publish::PublishSink;
+use crate::config::{EngineKind, FkSource, RuntimeConfig, SourceKind};
+use crate::error::{Result, RuntimeError};
+use crate::pipeline::PipelineConfig;
+use crate::runner::{Counts, Progress};
+use crate::session::Session;
+use crate::sinks::session_writer::CalibFiles;
+use crate::sinks::Sink;
+use crate::sources::live::LiveSource;
+use crate::sources::replay::ReplaySource;
+use crate::stats::RunStats;
+use crate::tasks::disparity::{self, DisparityEngine};
+use crate::tasks::kinematics::{EyeFk, StereoKinematics};
+use crate::tasks::rectify::RectifiedCamera;
+
+/// Where the frames come from.
+// One per runtime: the size of the replay variant does not matter.
+#[allow(clippy::large_enum_variant)]
+enum Input {
+    Replay(ReplaySource),
+    Live(LiveSource),
+}
+
+/// A deployment, assembled and ready to run: source, calibration, engine, sinks and bridges.
+pub struct Runtime {
+    config: RuntimeConfig,
+    input: Input,
+    kin: StereoKinematics,
+    cams: (Camera, Camera),
+    engine: Box<dyn DisparityEngine>,
+    out: RectifiedCamera,
+    sinks: Vec<Box<dyn Sink>>,
+    /// The rolling-shutter readout the frames carry (ms).
+    readout_ms: f64,
+    source_name: String,
+    description: String,
+}
+
+/// What a finished run reports.
+pub struct Report {
+    /// Counts, latencies, the output digest, and what each stage and sink added (`extra`).
+    pub stats: RunStats,
+    /// Seconds the run took, from its start to its last frame.
+    pub elapsed_s: f64,
+    /// The session directory, or the live devices.
+    pub source: String,
+    /// The session's description, or the live devices.
+    pub description: String,
+    /// The disparity engine's name.
+    pub engine: String,
+}
+
+impl Report {
+    /// The statistics as JSON (what `sinks.stats_json` writes).
+    pub fn json(&self) -> serde_json::Value {
+        self.stats.json(self.elapsed_s)
+    }
+
+    /// The latency table (what `abvs run` prints).
+    pub fn table(&self) -> String {
+        self.stats.table(self.elapsed_s)
+    }
+}
+
+impl Runtime {
+    /// Assembles the deployment `config` describes. Everything that can be checked is checked here, before any
+    /// frame: the configuration's values, its output paths, the calibration and model files, the engine, the
+    /// bridges' shared memory; a live source's devices are opened last and the eyes homed.
+    pub fn from_config(config: &RuntimeConfig) -> Result<Runtime> {
+        let c = config;
+        c.check().map_err(|e| RuntimeError::Invalid(format!("configuration: {e}")))?;
+        check_outputs(c)?;
+        let session = match c.source.kind {
+            SourceKind::Session => {
+                let dir = c.source.session.as_deref().expect("checked: kind = session has a session");
+                Some(Session::open(dir)?)
+            }
+            SourceKind::Live => None,
+        };
+        let (stereo, kin) = calibration(c, session.as_ref())?;
+        let out = RectifiedCamera::with_hfov(c.disparity.width, c.disparity.height, c.disparity.rect_hfov_deg);
+        let engine = engine(c, &out, &stereo)?;
+        let sinks = sinks(c, &out)?;
+        let (input, readout_ms, source_name, description) = match session {
+            Some(session) => {
+                let (name, description) = (session.dir.display().to_string(), session.meta.description.clone());
+                let mut source = ReplaySource::open(session)?;
+                if let Some(r) = c.motion.readout_ms {
+                    source.set_readout_ns((r * 1e6).round() as i64);
+                }
+                let readout_ms = source.readout_ns() as f64 * 1e-6;
+                (Input::Replay(source), readout_ms, name, description)
+            }
+            None => {
+                let l = &c.source.live;
+                let readout_ms = c.motion.readout_ms.unwrap_or(l.readout_ms);
+                let source = LiveSource::open(l)?.with_readout_ns((readout_ms * 1e6).round() as i64);
+                let what = format!("live: {} / {}, encoders {}", l.left.display(), l.right.display(), l.encoders);
+                (Input::Live(source), readout_ms, what.clone(), what)
+            }
+        };
+        Ok(Runtime {
+            config: c.clone(),
+            input,
+            kin,
+            cams: (stereo.left, stereo.right),
+            engine,
+            out,
+            sinks,
+            readout_ms,
+            source_name,
+            description,
+        })
+    }
+
+    /// Adds a sink of the caller's: it receives every published frame ([`crate::messages::Published`]: depth,
+    /// cloud, poses, the rectified pair) on the output lane, after the sinks and bridges of the configuration.
+    /// Its [`Sink::consume`] runs on the pipeline's critical path: it must not block, and should not allocate.
+    pub fn add_sink(&mut self, sink: Box<dyn Sink>) {
+        self.sinks.push(sink);
+    }
+
+    /// The configuration this runtime was assembled from.
+    pub fn config(&self) -> &RuntimeConfig {
+        &self.config
+    }
+
+    /// The recorded session being replayed (`None` live): e.g. for a sink that scores against its ground truth.
+    pub fn replay(&self) -> Option<&ReplaySource> {
+        match &self.input {
+            Input::Replay(r) => Some(r),
+            Input::Live(_) => None,
+        }
+    }
+
+    /// The disparity engine's name.
+    pub fn engine_name(&self) -> &str {
+        self.engine.name()
+    }
+
+    /// The rectified output camera every frame's depth is in.
+    pub fn output_camera(&self) -> RectifiedCamera {
+        self.out
+    }
+
+    /// Runs to the end of the source (a session's frames, `source.frames`, `source.seconds`).
+    pub fn run(self) -> Result<Report> {
+        self.run_with(None, None)
+    }
+
+    /// Runs until the source ends or `stop` is set (e.g. by a signal handler): then it takes no more frames,
+    /// finishes those in flight and reports as at the end.
+    pub fn run_until(self, stop: Arc<AtomicBool>) -> Result<Report> {
+        self.run_with(Some(stop), None)
+    }
+
+    /// Runs on a thread of its own; the handle stops it, reads its counts while it runs, and joins it.
+    pub fn spawn(self) -> Result<RuntimeHandle> {
+        let stop = Arc::new(AtomicBool::new(false));
+        let progress = Arc::new(Progress::default());
+        let (s, p) = (stop.clone(), progress.clone());
+        let thread = std::thread::Builder::new()
+            .name("abvs-runtime".into())
+            .spawn(move || self.run_with(Some(s), Some(p)))
+            .map_err(|e| RuntimeError::Invalid(format!("starting the runtime's thread: {e}")))?;
+        Ok(RuntimeHandle { stop, progress, thread: Some(thread) })
+    }
+
+    fn run_with(self, stop: Option<Arc<AtomicBool>>, progress: Option<Arc<Progress>>) -> Result<Report> {
+        let Runtime { config: c, input, kin, cams, engine, out, sinks, readout_ms, source_name, description } = self;
+        let engine_name = engine.name().to_string();
+        let replay = matches!(input, Input::Replay(_));
+        let cfg = PipelineConfig {
+            out,
+            motion: c.motion.motion_config(),
+            lossless: c.source.lossless,
+            // live frames come when the cameras deliver them: never paced
+            paced: replay && c.source.paced && !c.source.lossless,
+            // a replay loops without end as many frames as a u64 counts (with `seconds`, until then)
+            frames: if replay && c.source.looping { c.source.frames.or(Some(u64::MAX)) } else { c.source.frames },
+            duration: c.source.seconds.map(Duration::from_secs_f64),
+            window: Duration::from_secs_f64(c.sinks.stats_window_s),
+            check: c.disparity.check_config(),
+            stop,
+            progress,
+            ..Default::default()
+        };
+        let mut stats = match input {
+            Input::Replay(s) => crate::pipeline::run(s, kin, cams, engine, sinks, cfg)?,
+            Input::Live(s) => crate::pipeline::run(s, kin, cams, engine, sinks, cfg)?,
+        };
+        let (w, h) = (c.disparity.width, c.disparity.height);
+        let extra = &mut stats.extra;
+        extra.insert("session".into(), serde_json::json!(source_name));
+        extra.insert("engine".into(), serde_json::json!(&engine_name));
+        extra.insert("fk".into(), serde_json::json!(c.calibration.fk));
+        extra.insert("resolution".into(), serde_json::json!([w, h]));
+        extra.insert(
+            "motion".into(),
+            serde_json::json!({
+                "readout_ms": readout_ms,
+                "rolling_shutter": c.motion.rolling_shutter && readout_ms > 0.0,
+                "row_bands": c.motion.row_bands,
+                "gate_blur_px": c.motion.gate_blur_px,
+                "time_offset_ms": c.motion.time_offset_ms,
+            }),
+        );
+        let elapsed_s = stats.extra.get("elapsed_s").and_then(|v| v.as_f64()).unwrap_or(0.0);
+        let report = Report { stats, elapsed_s, source: source_name, description, engine: engine_name };
+        if let Some(p) = &c.sinks.stats_json {
+            let text = serde_json::to_string_pretty(&report.json()).expect("statistics serialise") + "\n";
+            std::fs::write(p, text).map_err(|e| RuntimeError::File {
+                path: p.clone(),
+                line: None,
+                msg: format!("writing: {e}"),
+            })?;
+        }
+        Ok(report)
+    }
+}
+
+/// A runtime running on its own thread ([`Runtime::spawn`]). Dropping the handle stops the run and waits for
+/// it.
+pub struct RuntimeHandle {
+    stop: Arc<AtomicBool>,
+    progress: Arc<Progress>,
+    thread: Option<JoinHandle<Result<Report>>>,
+}
+
+impl RuntimeHandle {
+    /// Asks the run to stop: it takes no more frames and finishes those in flight.
+    pub fn stop(&self) {
+        self.stop.store(true, Ordering::Relaxed);
+    }
+
+    /// Frames taken, published and dropped so far.
+    pub fn stats(&self) -> Counts {
+        self.progress.counts()
+    }
+
+    /// Whether the run has ended (its source ended, or it was stopped, or it failed).
+    pub fn is_finished(&self) -> bool {
+        self.thread.as_ref().is_none_or(|t| t.is_finished())
+    }
+
+    /// Waits for the end of the run and returns its report.
+    pub fn join(mut self) -> Result<Report> {
+        let t = self.thread.take().expect("joined once");
+        t.join().map_err(|_| RuntimeError::Invalid("the runtime's thread panicked".into()))?
+    }
+}
+
+impl Drop for RuntimeHandle {
+    fn drop(&mut self) {
+        if let Some(t) = self.thread.take() {
+            self.stop();
+            let _ = t.join();
+        }
+    }
+}
+
+/// The stereo calibration and both eyes' kinematics (FK as `calibration.fk` says): the session's own, or the
+/// calibration directory's for a live run.
+fn calibration(c: &RuntimeConfig, session: Option<&Session>) -> Result<(StereoCalibration, StereoKinematics)> {
+    let (stereo_path, fk_paths, gravity) = match session {
+        Some(s) => (s.path(&s.meta.stereo), [s.path(&s.meta.fk[0]), s.path(&s.meta.fk[1])], s.meta.gravity),
+        None => {
+            let files = CalibFiles::from_dir(c.calibration.dir.as_deref().expect("checked: live runs have one"));
+            // every file loads before a device is opened
+            files.check()?;
+            (files.stereo, files.fk, [0.0, 1.0, 0.0])
+        }
+    };
+    let stereo = StereoCalibration::read_yaml(&stereo_path)
+        .map_err(|e| RuntimeError::Model { path: stereo_path.clone(), msg: e.to_string() })?;
+    let (left, right) = match (c.calibration.fk, session) {
+        (FkSource::Calibrated, _) => (EyeFk::load(&fk_paths[0])?, EyeFk::load(&fk_paths[1])?),
+        (FkSource::Nominal, _) => (EyeFk::nominal(), EyeFk::nominal()),
+        (FkSource::Truth, Some(s)) => {
+            let t = s.meta.truth.as_ref().ok_or_else(|| {
+                RuntimeError::Invalid("calibration.fk = truth needs a synthetic session (with truth/)".into())
+            })?;
+            (EyeFk::load(&s.path(&t.units[0]))?, EyeFk::load(&s.path(&t.units[1]))?)
+        }
+        (FkSource::Truth, None) => {
+            return Err(RuntimeError::Invalid("calibration.fk = truth needs a synthetic session, not live".into()))
+        }
+    };
+    let mut kin = StereoKinematics::new(left, right, stereo.rotation, stereo.translation_mm / 1000.0);
+    kin.gravity = gravity;
+    Ok((stereo, kin))
+}
+
+/// The disparity engine `disparity` names, its range set for the eyes' working range: f B / z_min.
+fn engine(c: &RuntimeConfig, out: &RectifiedCamera, stereo: &StereoCalibration) -> Result<Box<dyn DisparityEngine>> {
+    let d = &c.disparity;
+    let max_disp = out.f * stereo.baseline_mm() / 1000.0 / d.min_depth_m;
+    let model = match (&d.model, d.engine) {
+        (Some(m), _) => Some(m.clone()),
+        (None, EngineKind::Onnx | EngineKind::Fused | EngineKind::CensusRefine) => {
+            Some(crate::shipped::model_for(d.width))
+        }
+        (None, EngineKind::Sgbm) => None,
+    };
+    disparity::engine(d.engine.as_str(), model.as_deref(), (d.width, d.height), max_disp, d.threads)
+}
+
+/// The sinks and bridges the configuration names, in the order they run on the output lane.
+fn sinks(c: &RuntimeConfig, out: &RectifiedCamera) -> Result<Vec<Box<dyn Sink>>> {
+    let mut sinks: Vec<Box<dyn Sink>> = Vec::new();
+    if c.bridges.iceoryx.enabled {
+        let cfg = c.bridge_config();
+        sinks.push(Box::new(if c.disparity.confidence {
+            PublishSink::with_confidence(cfg)?
+        } else {
+            PublishSink::new(cfg)?
+        }));
+    }
+    // ROS 2 outputs: lossless runs wait for them, live ones drop their oldest queued frame
+    if let Some(p) = &c.sinks.mcap.file {
+        sinks.push(Box::new(crate::sinks::mcap_log::sink(p, c.sinks.mcap.queue, c.source.lossless)?));
+    }
+    let z = &c.bridges.zenoh;
+    if z.enabled {
+        sinks.push(Box::new(crate::bridges::zenoh::sink(z.config.as_deref(), &z.connect, z.queue, c.source.lossless)?));
+    }
+    if let Some(p) = &c.sinks.rerun {
+        sinks.push(rerun_sink(p)?);
+    }
+    if let Some(d) = &c.sinks.dump {
+        sinks.push(Box::new(crate::sinks::dump::DumpSink { dir: d.clone(), every: 1 }));
+    }
+    let sc = &c.sinks.self_check;
+    if sc.enabled {
+        let cfg = crate::sinks::self_check::SelfCheckConfig {
+            every: sc.every,
+            log: sc.log.clone(),
+            threshold_deg: sc.threshold_deg,
+            warn_frames: sc.warn_frames,
+            // offline and reproducible: every checked frame waits for the worker
+            blocking: c.source.lossless,
+            ..Default::default()
+        };
+        sinks.push(Box::new(crate::sinks::self_check::SelfCheckSink::new(cfg, out)?));
+    }
+    Ok(sinks)
+}
+
+#[cfg(feature = "rerun")]
+fn rerun_sink(p: &Path) -> Result<Box<dyn Sink>> {
+    Ok(Box::new(crate::sinks::rerun_log::RerunSink::create(p)?))
+}
+
+#[cfg(not(feature = "rerun"))]
+fn rerun_sink(p: &Path) -> Result<Box<dyn Sink>> {
+    Err(RuntimeError::Invalid(format!(
+        "--rerun (sinks.rerun) {}: this abvs was built without rerun logging; build it with \
+         `cargo build --release -p abvs --features rerun` (abvs-runtime's cargo feature `rerun`)",
+        p.display()
+    )))
+}
+
+/// The configuration's output files, before any work (a soak must not lose its statistics at the end).
+fn check_outputs(c: &RuntimeConfig) -> Result<()> {
+    use crate::outputs::{check_dir_creatable, check_file_writable};
+    let s = &c.sinks;
+    for (field, p) in [
+        ("sinks.stats_json", &s.stats_json),
+        ("sinks.self_check.log", &s.self_check.log),
+        ("sinks.mcap.file", &s.mcap.file),
+        ("sinks.rerun", &s.rerun),
+    ] {
+        if let Some(p) = p {
+            check_file_writable(field, p)?;
+        }
+    }
+    match &s.dump {
+        Some(d) => check_dir_creatable("sinks.dump", d),
+        None => Ok(()),
+    }
+}
