@@ -12,6 +12,8 @@
 //! (models/hitnet/README.md). Every buffer is allocated at construction: nothing per frame.
 use super::disparity::{DisparityEngine, OnnxEngine};
 use super::disparity_fused::{resize_gray, upsample_disparity};
+use std::ops::Range;
+
 use crate::error::{Result, RuntimeError};
 
 /// Offsets searched around the network's disparity: -SEARCH_PX..=SEARCH_PX (px at the engine's resolution).
@@ -44,8 +46,107 @@ pub struct CensusRefineEngine {
     census_r: Vec<u32>,
     /// The network's disparity rounded to whole pixels, the centre of each pixel's search.
     base: Vec<i32>,
-    /// The rows of the aggregation window, streamed down the image.
+    /// The rows of the aggregation window, streamed down the image (the upper half's).
     rows: RowWindow,
+    /// The second thread: the right image's census while the network runs, the lower half's refinement.
+    helper: Helper,
+}
+
+/// What the helper thread is asked to do. Raw parts of the engine's buffers: the engine waits for the
+/// answer before it touches them again or returns, so they outlive the job and nobody else writes them.
+#[derive(Clone, Copy)]
+enum Job {
+    /// The census of `img` (w x h) into `out`.
+    Census { img: *const u8, out: *mut u32, w: usize, h: usize },
+    /// Rows `y0..h` of the refinement into `out` (those rows).
+    Refine {
+        cl: *const u32,
+        cr: *const u32,
+        base: *const i32,
+        guess: *const f32,
+        out: *mut f32,
+        w: usize,
+        h: usize,
+        y0: usize,
+    },
+}
+
+// SAFETY: the pointers are only dereferenced on the helper thread while the sending thread waits (see Job).
+unsafe impl Send for Job {}
+
+/// A persistent second thread (spawned once: spawning per frame would allocate) and its two channels,
+/// which allocate nothing per message once warmed up at construction.
+struct Helper {
+    jobs: Option<crossbeam_channel::Sender<Job>>,
+    done: crossbeam_channel::Receiver<()>,
+    thread: Option<std::thread::JoinHandle<()>>,
+}
+
+impl Helper {
+    fn new(w: usize) -> Result<Helper> {
+        let (jobs, jobs_rx) = crossbeam_channel::bounded::<Job>(1);
+        let (done_tx, done) = crossbeam_channel::bounded::<()>(1);
+        let thread = std::thread::Builder::new()
+            .name("abvs-census".into())
+            .spawn(move || {
+                let mut win = RowWindow::new(w);
+                for job in jobs_rx.iter() {
+                    // SAFETY: see Job: the buffers are the engine's, untouched until it receives `done`.
+                    unsafe {
+                        match job {
+                            Job::Census { img, out, w, h } => census(
+                                std::slice::from_raw_parts(img, w * h),
+                                w,
+                                h,
+                                std::slice::from_raw_parts_mut(out, w * h),
+                            ),
+                            Job::Refine { cl, cr, base, guess, out, w, h, y0 } => {
+                                let n = w * h;
+                                refine(
+                                    std::slice::from_raw_parts(cl, n),
+                                    std::slice::from_raw_parts(cr, n),
+                                    std::slice::from_raw_parts(base, n),
+                                    std::slice::from_raw_parts(guess, n),
+                                    h,
+                                    y0..h,
+                                    &mut win,
+                                    std::slice::from_raw_parts_mut(out, (h - y0) * w),
+                                )
+                            }
+                        }
+                    }
+                    if done_tx.send(()).is_err() {
+                        break;
+                    }
+                }
+            })
+            .map_err(|e| RuntimeError::Invalid(format!("census-refine: helper thread: {e}")))?;
+        let helper = Helper { jobs: Some(jobs), done, thread: Some(thread) };
+        // a round trip now, so the channels' waiter lists exist before the first frame
+        let (img, mut out) = ([0u8; 64], [0u32; 64]);
+        helper.run(Job::Census { img: img.as_ptr(), out: out.as_mut_ptr(), w: 8, h: 8 })?;
+        helper.wait()?;
+        Ok(helper)
+    }
+
+    /// Hands `job` to the thread; [`Helper::wait`] must follow before its buffers are used again.
+    fn run(&self, job: Job) -> Result<()> {
+        let gone = || RuntimeError::Invalid("census-refine: the helper thread ended".into());
+        self.jobs.as_ref().ok_or_else(gone)?.send(job).map_err(|_| gone())
+    }
+
+    fn wait(&self) -> Result<()> {
+        self.done.recv().map_err(|_| RuntimeError::Invalid("census-refine: the helper thread ended".into()))
+    }
+}
+
+impl Drop for Helper {
+    fn drop(&mut self) {
+        self.jobs = None; // ends the thread's loop
+        if let Some(t) = self.thread.take() {
+            let _ = t.join();
+        }
+    }
 }
 
 /// Buffers of the row-streaming aggregation: the per-offset costs of the last WINDOW rows (a ring), their
@@ -94,6 +195,7 @@ impl CensusRefineEngine {
             census_r: vec![0; n],
             base: vec![0; n],
             rows: RowWindow::new(width as usize),
+            helper: Helper::new(width as usize)?,
         })
     }
 
@@ -124,23 +226,48 @@ impl DisparityEngine for CensusRefineEngine {
                 out.len()
             )));
         }
+        // the right census on the helper thread while the network runs (it does not need the network)
+        self.helper.run(Job::Census { img: right.as_ptr(), out: self.census_r.as_mut_ptr(), w, h })?;
+        let net = self.network(left, right);
+        census(left, w, h, &mut self.census_l);
+        self.helper.wait()?;
+        net?;
+        for (b, g) in self.base.iter_mut().zip(&self.guess) {
+            // round half away from zero without a libm call (NaN: a search around 0, never used)
+            *b = if g.is_finite() { (g.abs() + 0.5) as i32 * if *g < 0.0 { -1 } else { 1 } } else { 0 };
+        }
+        // the lower half on the helper, the upper here
+        let mid = h / 2;
+        let (top, bottom) = out.split_at_mut(mid * w);
+        self.helper.run(Job::Refine {
+            cl: self.census_l.as_ptr(),
+            cr: self.census_r.as_ptr(),
+            base: self.base.as_ptr(),
+            guess: self.guess.as_ptr(),
+            out: bottom.as_mut_ptr(),
+            w,
+            h,
+            y0: mid,
+        })?;
+        refine(&self.census_l, &self.census_r, &self.base, &self.guess, h, 0..mid, &mut self.rows, top);
+        self.helper.wait()
+    }
+}
+
+impl CensusRefineEngine {
+    /// The network's disparity at the engine's resolution into `guess`.
+    fn network(&mut self, left: &[u8], right: &[u8]) -> Result<()> {
+        let (w, h) = (self.size.0 as usize, self.size.1 as usize);
         let msize = self.net.size();
         if msize == self.size {
-            self.net.compute(left, right, &mut self.guess)?;
+            self.net.compute(left, right, &mut self.guess)
         } else {
             resize_gray(left, self.size, &mut self.net_left, msize)?;
             resize_gray(right, self.size, &mut self.net_right, msize)?;
             self.net.compute(&self.net_left, &self.net_right, &mut self.net_disp)?;
             upsample_disparity(&self.net_disp, (msize.0 as usize, msize.1 as usize), &mut self.guess, (w, h));
+            Ok(())
         }
-        census(left, w, h, &mut self.census_l);
-        census(right, w, h, &mut self.census_r);
-        for (b, g) in self.base.iter_mut().zip(&self.guess) {
-            // round half away from zero without a libm call (NaN: a search around 0, never used)
-            *b = if g.is_finite() { (g.abs() + 0.5) as i32 * if *g < 0.0 { -1 } else { 1 } } else { 0 };
-        }
-        refine(&self.census_l, &self.census_r, &self.base, &self.guess, h, &mut self.rows, out);
-        Ok(())
     }
 }
 
@@ -148,43 +275,67 @@ impl DisparityEngine for CensusRefineEngine {
 /// column sums WINDOW / 2 rows ahead and leave them WINDOW / 2 + 1 rows behind; each output row's box sums
 /// are WINDOW shifted adds of the column sums, and its winner is taken at once. The box is clipped at the
 /// image's border, for every offset alike, so the comparison between offsets stays fair.
-fn refine(cl: &[u32], cr: &[u32], base: &[i32], guess: &[f32], h: usize, win: &mut RowWindow, out: &mut [f32]) {
+/// Rows `ys` of the refinement (of an image of `h` rows) into `out`, those rows' disparities.
+#[allow(clippy::too_many_arguments)]
+fn refine(
+    cl: &[u32],
+    cr: &[u32],
+    base: &[i32],
+    guess: &[f32],
+    h: usize,
+    ys: Range<usize>,
+    win: &mut RowWindow,
+    out: &mut [f32],
+) {
     #[cfg(target_arch = "x86_64")]
     if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("popcnt") {
         // SAFETY: the CPU has the instruction sets the function is compiled for (checked just above).
-        unsafe { refine_avx2(cl, cr, base, guess, h, win, out) };
+        unsafe { refine_avx2(cl, cr, base, guess, h, ys, win, out) };
         return;
     }
-    refine_generic(cl, cr, base, guess, h, win, out)
+    refine_generic(cl, cr, base, guess, h, ys, win, out)
 }
 
 /// [`refine`] compiled for AVX2 (16 costs per instruction instead of SSE2's 8; the baseline x86-64 target
 /// has only SSE2).
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,popcnt")]
+#[allow(clippy::too_many_arguments)]
 unsafe fn refine_avx2(
     cl: &[u32],
     cr: &[u32],
     base: &[i32],
     guess: &[f32],
     h: usize,
+    ys: Range<usize>,
     win: &mut RowWindow,
     out: &mut [f32],
 ) {
-    refine_generic(cl, cr, base, guess, h, win, out)
+    refine_generic(cl, cr, base, guess, h, ys, win, out)
 }
 
 #[inline(always)]
-fn refine_generic(cl: &[u32], cr: &[u32], base: &[i32], guess: &[f32], h: usize, win: &mut RowWindow, out: &mut [f32]) {
+#[allow(clippy::too_many_arguments)]
+fn refine_generic(
+    cl: &[u32],
+    cr: &[u32],
+    base: &[i32],
+    guess: &[f32],
+    h: usize,
+    ys: Range<usize>,
+    win: &mut RowWindow,
+    out: &mut [f32],
+) {
     let (w, r) = (win.w, WINDOW / 2);
     let cw = w + 2 * r;
     win.col.fill(0);
-    for y in 0..r.min(h) {
+    // the window of the first row: rows first - r ..= first + r - 1 (clipped) in, the loop adds first + r
+    for y in ys.start.saturating_sub(r)..(ys.start + r).min(h) {
         update(cl, cr, base, win, y, true);
     }
-    for y in 0..h {
+    for y in ys.clone() {
         // the row leaving the window shares its ring slot with the row entering it: out first
-        if y > r {
+        if y > r && y - r > ys.start.saturating_sub(r) {
             update(cl, cr, base, win, y - r - 1, false);
         }
         if y + r < h {
@@ -201,7 +352,8 @@ fn refine_generic(cl: &[u32], cr: &[u32], base: &[i32], guess: &[f32], h: usize,
             }
         }
         let row = y * w..(y + 1) * w;
-        winner(&win.sum, &base[row.clone()], &guess[row.clone()], &mut out[row]);
+        let o = (y - ys.start) * w;
+        winner(&win.sum, &base[row.clone()], &guess[row], &mut out[o..o + w]);
     }
 }
 
@@ -388,7 +540,7 @@ mod tests {
             let g = vec![guess; w * h];
             let base: Vec<i32> = g.iter().map(|v| v.round() as i32).collect();
             let mut out = vec![0f32; w * h];
-            refine(&cl, &cr, &base, &g, h, &mut RowWindow::new(w), &mut out);
+            refine(&cl, &cr, &base, &g, h, 0..h, &mut RowWindow::new(w), &mut out);
             // away from the left band where the match leaves the right image
             let inner: Vec<f32> = (0..w * h).filter(|i| i % w >= 16 && i % w < w - 8).map(|i| out[i]).collect();
             let within = inner.iter().filter(|v| (**v - d).abs() <= 0.5).count() as f64 / inner.len() as f64;
@@ -408,7 +560,16 @@ mod tests {
                 (0..w * h).map(|i| if i % 29 == 5 { f32::NAN } else { 2.0 + (i % 7) as f32 * 0.4 }).collect();
             let base: Vec<i32> = guess.iter().map(|g| if g.is_finite() { g.round() as i32 } else { 0 }).collect();
             let mut out = vec![0f32; w * h];
-            refine(&cl, &cr, &base, &guess, h, &mut RowWindow::new(w), &mut out);
+            refine(&cl, &cr, &base, &guess, h, 0..h, &mut RowWindow::new(w), &mut out);
+            // the same rows refined in two parts (as the engine's two threads do)
+            let mid = h / 2 + 1;
+            let mut parts = vec![0f32; w * h];
+            let (top, bottom) = parts.split_at_mut(mid * w);
+            refine(&cl, &cr, &base, &guess, h, 0..mid, &mut RowWindow::new(w), top);
+            refine(&cl, &cr, &base, &guess, h, mid..h, &mut RowWindow::new(w), bottom);
+            for (a, b) in out.iter().zip(&parts) {
+                assert!(a == b || (a.is_nan() && b.is_nan()), "{w}x{h}: split refinement differs");
+            }
             let r = (WINDOW / 2) as isize;
             let cost = |x: isize, y: isize, o: i32| -> u32 {
                 let i = y as usize * w + x as usize;
