@@ -4,7 +4,7 @@
 # scoring on its side lane) and the same with `--engine sgbm` (OpenCV SGBM_3WAY, the same 2 threads) back to
 # back, order alternating, at the runtime's default resolution (or the run flags given after the counts).
 # Prints, per run, the medians over rounds of the achieved fps, the end-to-end latency p50 and p99 (frame
-# mid-exposure -> cloud published), the frames dropped (all rounds), the frames the truth scored, the
+# exists, its last row exposed -> cloud published), the frames dropped (all rounds), the frames the truth scored, the
 # disparity stage's p50, and the median of the paired ratio disparity(default) / disparity(SGBM_3WAY) of the
 # same round.
 #   cargo build --release -p abvs && scripts/bench_depth.sh [ROUNDS=5] [FRAMES=125] [run flags]
