@@ -21,6 +21,7 @@ use crate::messages::Published;
 use crate::sinks::Sink;
 use crate::stats::RunStats;
 
+/// Logs every published frame (rectified pair, depth, cloud, camera frustums) to a rerun `.rrd` file.
 pub struct RerunSink {
     rec: RecordingStream,
     path: std::path::PathBuf,
