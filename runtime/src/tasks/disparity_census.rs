@@ -275,6 +275,7 @@ impl CensusRefineEngine {
 /// column sums WINDOW / 2 rows ahead and leave them WINDOW / 2 + 1 rows behind; each output row's box sums
 /// are WINDOW shifted adds of the column sums, and its winner is taken at once. The box is clipped at the
 /// image's border, for every offset alike, so the comparison between offsets stays fair.
+///
 /// Rows `ys` of the refinement (of an image of `h` rows) into `out`, those rows' disparities.
 #[allow(clippy::too_many_arguments)]
 fn refine(
