@@ -22,6 +22,7 @@ mod run_args;
 mod run_report;
 mod saccade;
 mod self_check_report;
+mod self_check_timing;
 mod sim;
 mod table;
 

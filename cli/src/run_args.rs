@@ -119,8 +119,12 @@ pub struct RunArgs {
     pub quiet: bool,
     /// Check the stereo calibration from the rectified images off the critical path: vertical disparity of
     /// matched features and the relative rotation error (stats JSON `self_check`, a warning when it persists).
-    #[arg(long)]
+    /// On by default (a drift monitor that is off monitors nothing); kept for configurations that turn it off.
+    #[arg(long, conflicts_with = "no_self_check")]
     pub self_check: bool,
+    /// Turn the self-check off (it runs on idle CPU time only; off saves that and its thread).
+    #[arg(long, conflicts_with_all = ["self_check_every", "self_check_log"])]
+    pub no_self_check: bool,
     /// Rolling-shutter correction: rectify each row with the eye's pose when it exposed (on by default
     /// wherever the frames have a readout; off: one pose per frame, for comparison).
     #[arg(long, value_enum, value_name = "on|off")]
@@ -238,7 +242,7 @@ pub fn effective_config(a: &RunArgs, m: &ArgMatches) -> anyhow::Result<RuntimeCo
         c.motion.gate_blur_px = px;
     }
     if given("time_offset_ms") {
-        c.motion.time_offset_ms = a.time_offset_ms;
+        c.motion.time_offset_ms = a.time_offset_ms.map(abvs_runtime::tasks::motion::TimeOffsetMs::Both);
     }
     if given("pair_tolerance_ms") {
         l.pair_tolerance_ms = d.pair_tolerance_ms;
@@ -309,6 +313,9 @@ pub fn effective_config(a: &RunArgs, m: &ArgMatches) -> anyhow::Result<RuntimeCo
     let sc = &mut c.sinks.self_check;
     if a.self_check || a.self_check_every.is_some() || a.self_check_log.is_some() {
         sc.enabled = true;
+    }
+    if a.no_self_check {
+        sc.enabled = false;
     }
     if let Some(n) = a.self_check_every {
         sc.every = n;

@@ -36,6 +36,18 @@ pub struct SelfCheckArgs {
     /// Heatmap cell size (deg of gaze, 0.1 to 30).
     #[arg(long, default_value_t = 2.0, value_parser = crate::args::finite_in(0.1, 30.0))]
     pub cell_deg: f64,
+    /// Write the estimated timing into this deployment configuration (`[motion] time_offset_ms`,
+    /// `readout_ms`; the file's comments are kept) so that the next `abvs run --config` uses it.
+    #[arg(long, value_name = "FILE")]
+    pub write_config: Option<PathBuf>,
+    /// Write the estimated timing into this session's session.toml (`time_offset_ms`, `readout_ms`) so that
+    /// the next replay of it uses it.
+    #[arg(long, value_name = "DIR")]
+    pub write_session: Option<PathBuf>,
+    /// A log of an earlier run (e.g. before the timing was corrected): drawn beside this one in
+    /// error_by_speed.png.
+    #[arg(long, value_name = "LOG")]
+    pub before: Option<PathBuf>,
 }
 
 /// One logged frame: its gaze per eye (yaw, pitch, torsion; deg) and the measured error (deg).
@@ -273,6 +285,9 @@ pub fn run(a: SelfCheckArgs) -> anyhow::Result<ExitCode> {
         },
         "verdict": verdict,
     });
+    let timing = crate::self_check_timing::analyse(&a, &rows_speed_plot_label(&a))?;
+    let mut summary = summary;
+    summary["timing"] = timing.json;
     std::fs::write(a.out.join("summary.json"), serde_json::to_string_pretty(&summary)? + "\n")?;
     let f = |x: f64| if x.is_finite() { format!("{:.0} %", 100.0 * x) } else { "-".into() };
     let g = |v: &[f64; 3]| format!("yaw {:.1}, pitch {:.1}, torsion {:.1}", v[0], v[1], v[2]);
@@ -309,8 +324,24 @@ pub fn run(a: SelfCheckArgs) -> anyhow::Result<ExitCode> {
         gaze_corr[0],
         gaze_corr[1]
     );
-    std::fs::write(a.out.join("report.md"), report)?;
+    std::fs::write(a.out.join("report.md"), report + &timing.markdown)?;
     println!("{} frames, {} fixations: {verdict}", rows.len(), nfix);
-    println!("wrote {}/report.md, summary.json, error_by_frame.png, error_over_gaze.png", a.out.display());
+    for line in &timing.console {
+        println!("{line}");
+    }
+    println!(
+        "wrote {}/report.md, summary.json, error_by_frame.png, error_over_gaze.png{}",
+        a.out.display(),
+        if timing.plotted { ", error_by_speed.png" } else { "" }
+    );
     Ok(ExitCode::SUCCESS)
+}
+
+/// The legend of this log's curve in error_by_speed.png.
+fn rows_speed_plot_label(a: &SelfCheckArgs) -> String {
+    if a.before.is_some() {
+        "this run".into()
+    } else {
+        "self-check".into()
+    }
 }

@@ -321,7 +321,7 @@ impl Default for SelfCheckSettings {
     fn default() -> Self {
         let d = crate::sinks::self_check::SelfCheckConfig::default();
         SelfCheckSettings {
-            enabled: false,
+            enabled: true,
             every: d.every,
             log: None,
             threshold_deg: d.threshold_deg,
@@ -394,9 +394,10 @@ pub struct MotionSettings {
     /// (`[source.live] readout_ms`): e.g. measured by `abvs calib self-check`.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub readout_ms: Option<f64>,
-    /// encoder_time_offset of both eyes (ms: encoder stamps this much late), overriding the FK models'.
+    /// encoder_time_offset (ms: encoder stamps this much late), one value or `[left, right]`, overriding the
+    /// session's (session.toml `time_offset_ms`) and the FK models'.
     #[serde(skip_serializing_if = "Option::is_none")]
-    pub time_offset_ms: Option<f64>,
+    pub time_offset_ms: Option<crate::tasks::motion::TimeOffsetMs>,
 }
 
 impl Default for MotionSettings {
@@ -419,7 +420,7 @@ impl MotionSettings {
             rolling_shutter: self.rolling_shutter,
             bands: self.row_bands,
             gate_blur_px: self.gate_blur_px,
-            time_offset_s: self.time_offset_ms.map(|t| t * 1e-3),
+            time_offset_s: self.time_offset_ms.map(|t| t.per_eye().map(|t| t * 1e-3)),
         }
     }
 
@@ -440,10 +441,8 @@ impl MotionSettings {
                 return Err(format!("motion.readout_ms: {r} must be in [0, 1000]"));
             }
         }
-        if let Some(t) = self.time_offset_ms {
-            if !(t.abs() <= 1000.0) {
-                return Err(format!("motion.time_offset_ms: {t} must be in [-1000, 1000]"));
-            }
+        if let Some(t) = &self.time_offset_ms {
+            t.check("motion.time_offset_ms")?;
         }
         Ok(())
     }

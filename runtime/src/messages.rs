@@ -7,7 +7,7 @@
 //! ```
 //! A frame travels through the stages in one pooled [`Work`] holding every message of that frame.
 use glam::Vec3;
-use nalgebra::Matrix3;
+use nalgebra::{Matrix3, Vector3};
 
 use abvs_eye::Pose;
 
@@ -34,6 +34,8 @@ pub struct Frame {
     pub t_start_ns: i64,
     /// Exposure time, nanoseconds (mid-exposure = t_start_ns + exposure_ns / 2).
     pub exposure_ns: i64,
+    /// Where the stamp fixes the readout ([`SourcePair::readout_anchor`]; 0: at the first row).
+    pub readout_anchor: f64,
     /// Frame width (px).
     pub width: u32,
     /// Frame height (px).
@@ -76,6 +78,11 @@ pub struct SourcePair<'a> {
     pub exposure_ns: i64,
     /// Rolling-shutter readout: first row's start of exposure to the last row's (0 = global shutter).
     pub readout_ns: i64,
+    /// The row (fraction of the image, 0 = top) whose start of exposure the stamps give independently of
+    /// the readout: 0 when frames are stamped at their first row (sessions, start-of-exposure drivers), 1
+    /// when at the end of the frame (the start is then the stamp minus exposure and readout). A readout
+    /// error moves row `r`'s assumed time by `readout error x (r - anchor)`.
+    pub readout_anchor: f64,
     /// The left frame's gray pixels (the source's size).
     pub left: &'a [u8],
     /// The right frame's gray pixels.
@@ -119,6 +126,8 @@ pub struct FrameMotion {
     pub readout_ns: i64,
     /// Link angles (deg) of each eye at its frame instant -/+ `tasks::motion::SPEED_DT_S`.
     pub theta_pm: [[[f64; 3]; 2]; 2],
+    /// Link angles (deg) of each eye at its frame instant -/+ `tasks::motion::WIDE_DT_S`.
+    pub theta_wide: [[[f64; 3]; 2]; 2],
     /// Per-row correction: link angles at the row-band nodes (node b at row b (H - 1) / bands, that row's
     /// mid-exposure), per eye; empty when the frame is corrected as a whole (global shutter, or off).
     pub band_theta: [Vec<[f64; 3]>; 2],
@@ -127,6 +136,14 @@ pub struct FrameMotion {
     pub band_rot: [Vec<Matrix3<f64>>; 2],
     /// Angular speed of each camera at its frame instant (deg/s).
     pub speed_deg_s: [f64; 2],
+    /// Angular velocity of each camera at its frame instant, in that camera's own (current) frame (rad/s):
+    /// `R(t + dt) = R(t) exp([omega dt]x)` for its pose `R` (current camera -> home camera).
+    pub omega_rad_s: [Vector3<f64>; 2],
+    /// Each camera's mean angular velocity over the `WIDE_DT_S` before and after its frame instant, in its
+    /// frame at that instant (rad/s): the two differ when the eye accelerated while the rows exposed.
+    pub omega_wide_rad_s: [[Vector3<f64>; 2]; 2],
+    /// [`SourcePair::readout_anchor`] of the frame.
+    pub readout_anchor: f64,
     /// Motion blur of the faster eye over the exposure, in rectified output pixels at the image centre.
     pub blur_px: f64,
     /// Blur above the run's threshold: depth is published invalid (NaN) with an empty cloud.
@@ -152,6 +169,10 @@ impl FrameMotion {
             band_theta: [angles(), angles()],
             band_rot: [rots(), rots()],
             speed_deg_s: [0.0; 2],
+            omega_rad_s: [Vector3::zeros(); 2],
+            theta_wide: [[[0.0; 3]; 2]; 2],
+            omega_wide_rad_s: [[Vector3::zeros(); 2]; 2],
+            readout_anchor: 0.0,
             blur_px: 0.0,
             gated: false,
         }
@@ -162,6 +183,8 @@ impl FrameMotion {
         (self.t_start_ns, self.exposure_ns, self.readout_ns) = (other.t_start_ns, other.exposure_ns, other.readout_ns);
         (self.theta_pm, self.speed_deg_s, self.blur_px, self.gated) =
             (other.theta_pm, other.speed_deg_s, other.blur_px, other.gated);
+        (self.omega_rad_s, self.readout_anchor) = (other.omega_rad_s, other.readout_anchor);
+        (self.theta_wide, self.omega_wide_rad_s) = (other.theta_wide, other.omega_wide_rad_s);
         for eye in 0..2 {
             self.band_theta[eye].clear();
             self.band_theta[eye].extend_from_slice(&other.band_theta[eye]);
@@ -350,6 +373,9 @@ impl Work {
         m.t_start_ns = [f.t_start_ns, f.right_t_start_ns];
         m.exposure_ns = f.exposure_ns;
         m.readout_ns = f.readout_ns;
+        m.readout_anchor = f.readout_anchor;
+        m.omega_rad_s = [Vector3::zeros(); 2];
+        m.omega_wide_rad_s = [[Vector3::zeros(); 2]; 2];
         m.band_theta.iter_mut().for_each(Vec::clear);
         m.band_rot.iter_mut().for_each(Vec::clear);
         m.speed_deg_s = [0.0; 2];

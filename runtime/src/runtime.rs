@@ -20,13 +20,14 @@ use crate::pipeline::PipelineConfig;
 use crate::runner::{Counts, Progress};
 use crate::session::Session;
 use crate::sinks::session_writer::CalibFiles;
+use crate::sinks::self_check::TimingContext;
 use crate::sinks::Sink;
 use crate::sources::live::LiveSource;
 use crate::sources::replay::ReplaySource;
 use crate::stats::RunStats;
 use crate::tasks::disparity::{self, DisparityEngine};
 use crate::tasks::kinematics::{EyeFk, StereoKinematics};
-use crate::tasks::rectify::RectifiedCamera;
+use crate::tasks::rectify::{camera_for_frames, RectifiedCamera};
 
 /// Where the frames come from.
 // One per runtime: the size of the replay variant does not matter.
@@ -47,6 +48,8 @@ pub struct Runtime {
     sinks: Vec<Box<dyn Sink>>,
     /// The rolling-shutter readout the frames carry (ms).
     readout_ms: f64,
+    /// The motion settings the stages run with (the time offset resolved: configuration, session, FK models).
+    motion: crate::tasks::motion::MotionConfig,
     source_name: String,
     description: String,
 }
@@ -95,7 +98,24 @@ impl Runtime {
         let (stereo, kin) = calibration(c, session.as_ref())?;
         let out = RectifiedCamera::with_hfov(c.disparity.width, c.disparity.height, c.disparity.rect_hfov_deg);
         let engine = engine(c, &out, &stereo)?;
-        let sinks = sinks(c, &out)?;
+        // encoder_time_offset: the configuration's, else the session's measured one, else the FK models'
+        let mut motion = c.motion.motion_config();
+        if motion.time_offset_s.is_none() {
+            let measured = session.as_ref().and_then(|s| s.meta.time_offset_ms);
+            motion.time_offset_s = measured.map(|t| t.per_eye().map(|t| t * 1e-3));
+        }
+        let offsets_s = motion.time_offset_s.unwrap_or_else(|| kin.encoder_latency_s());
+        let (fw, fh) = match &session {
+            Some(s) => (s.meta.width, s.meta.height),
+            None => (c.source.live.width, c.source.live.height),
+        };
+        // the self-check's timing evidence needs the raw cameras at the frames' size (a size the calibration
+        // does not fit is refused by the rectify stage, by name)
+        let timing = match (camera_for_frames(&stereo.left, fw, fh), camera_for_frames(&stereo.right, fw, fh)) {
+            (Ok(l), Ok(r)) => Some(TimingContext { cams: [l, r], time_offset_ms: offsets_s.map(|t| t * 1e3) }),
+            _ => None,
+        };
+        let sinks = sinks(c, &out, timing)?;
         let (input, readout_ms, source_name, description) = match session {
             Some(session) => {
                 let (name, description) = (session.dir.display().to_string(), session.meta.description.clone());
@@ -123,6 +143,7 @@ impl Runtime {
             out,
             sinks,
             readout_ms,
+            motion,
             source_name,
             description,
         })
@@ -182,12 +203,13 @@ impl Runtime {
     }
 
     fn run_with(self, stop: Option<Arc<AtomicBool>>, progress: Option<Arc<Progress>>) -> Result<Report> {
-        let Runtime { config: c, input, kin, cams, engine, out, sinks, readout_ms, source_name, description } = self;
+        let Runtime { config: c, input, kin, cams, engine, out, sinks, readout_ms, motion, source_name, description } =
+            self;
         let engine_name = engine.name().to_string();
         let replay = matches!(input, Input::Replay(_));
         let cfg = PipelineConfig {
             out,
-            motion: c.motion.motion_config(),
+            motion,
             lossless: c.source.lossless,
             // live frames come when the cameras deliver them: never paced
             paced: replay && c.source.paced && !c.source.lossless,
@@ -217,7 +239,7 @@ impl Runtime {
                 "rolling_shutter": c.motion.rolling_shutter && readout_ms > 0.0,
                 "row_bands": c.motion.row_bands,
                 "gate_blur_px": c.motion.gate_blur_px,
-                "time_offset_ms": c.motion.time_offset_ms,
+                "time_offset_ms": motion.time_offset_s.map(|t| t.map(|t| t * 1e3)),
             }),
         );
         let elapsed_s = stats.extra.get("elapsed_s").and_then(|v| v.as_f64()).unwrap_or(0.0);
@@ -321,7 +343,7 @@ fn engine(c: &RuntimeConfig, out: &RectifiedCamera, stereo: &StereoCalibration) 
 }
 
 /// The sinks and bridges the configuration names, in the order they run on the output lane.
-fn sinks(c: &RuntimeConfig, out: &RectifiedCamera) -> Result<Vec<Box<dyn Sink>>> {
+fn sinks(c: &RuntimeConfig, out: &RectifiedCamera, timing: Option<TimingContext>) -> Result<Vec<Box<dyn Sink>>> {
     let mut sinks: Vec<Box<dyn Sink>> = Vec::new();
     if c.bridges.iceoryx.enabled {
         let cfg = c.bridge_config();
@@ -356,7 +378,7 @@ fn sinks(c: &RuntimeConfig, out: &RectifiedCamera) -> Result<Vec<Box<dyn Sink>>>
             blocking: c.source.lossless,
             ..Default::default()
         };
-        sinks.push(Box::new(crate::sinks::self_check::SelfCheckSink::new(cfg, out)?));
+        sinks.push(Box::new(crate::sinks::self_check::SelfCheckSink::with_timing(cfg, out, timing)?));
     }
     Ok(sinks)
 }

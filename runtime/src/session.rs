@@ -85,6 +85,10 @@ pub struct SessionMeta {
     /// The nominal exposure (ms), for people; frames.csv holds each frame's own.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub exposure_ms: Option<f64>,
+    /// The encoders' encoder_time_offset (ms; one value or `[left, right]`) where it was measured (`abvs calib
+    /// self-check --session`): a replay applies it instead of the FK models'.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub time_offset_ms: Option<crate::tasks::motion::TimeOffsetMs>,
     /// Stereo calibration at home (relative path).
     pub stereo: String,
     /// Per-eye FK model directories or unit-model TOML files (relative paths), left then right.
@@ -281,6 +285,7 @@ struct MetaSpans {
     loop_period_ns: Option<Spanned<toml::Value>>,
     readout_ms: Option<Spanned<toml::Value>>,
     exposure_ms: Option<Spanned<toml::Value>>,
+    time_offset_ms: Option<Spanned<toml::Value>>,
     stereo: Option<Spanned<toml::Value>>,
     fk: Option<Spanned<toml::Value>>,
     gravity: Option<Spanned<toml::Value>>,
@@ -355,6 +360,11 @@ fn parse_meta(mp: &Path, text: &str) -> Result<(SessionMeta, MetaSpans)> {
     if let Some(e) = meta.exposure_ms {
         if !(0.0..=MAX_EXPOSURE_NS as f64 * 1e-6).contains(&e) {
             return bad(sp(&spans.exposure_ms), "exposure_ms", format!("{e} is out of range (0 ..= 1000 ms)"));
+        }
+    }
+    if let Some(t) = &meta.time_offset_ms {
+        if let Err(e) = t.check("time_offset_ms") {
+            return bad(sp(&spans.time_offset_ms), "time_offset_ms", e);
         }
     }
     let g = meta.gravity;

@@ -282,7 +282,7 @@ fn conversion_does_not_allocate() {
 // ---------------------------------------------------------------- pairing.rs
 
 fn frame(seq: u64, t_start_ns: i64) -> Frame {
-    Frame { seq, t_start_ns, exposure_ns: 5_000_000, width: 0, height: 0, gray: Vec::new() }
+    Frame { seq, t_start_ns, exposure_ns: 5_000_000, readout_anchor: 0.0, width: 0, height: 0, gray: Vec::new() }
 }
 
 const PERIOD: i64 = 40_000_000;
@@ -582,6 +582,7 @@ impl FrameSource for FakeCamera {
                 seq: i as u64 + self.seq_offset,
                 t_start_ns: 5_000_000_000 + i as i64 * PERIOD + self.jitter_ns,
                 exposure_ns: 1_000_000,
+                readout_anchor: 0.0,
                 width: 4,
                 height: 4,
                 gray,

@@ -86,6 +86,7 @@ fn session(dir: &Path, rows: usize) {
         loop_period_ns: None,
         readout_ms: 0.0,
         exposure_ms: None,
+        time_offset_ms: None,
         stereo: "calib/stereo.yaml".into(),
         fk: ["calib/eye0".into(), "calib/eye1".into()],
         gravity: [0.0, 1.0, 0.0],

@@ -493,6 +493,7 @@ pub fn generate(spec: &SessionSpec, dir: &Path, progress: &mut dyn FnMut(&str, u
         ),
         readout_ms: spec.readout_ms,
         exposure_ms: Some(spec.exposure_ms),
+        time_offset_ms: None,
         width: spec.width,
         height: spec.height,
         fps: spec.fps,

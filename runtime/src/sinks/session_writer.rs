@@ -153,6 +153,7 @@ impl SessionWriter {
             loop_period_ns: None,
             readout_ms: 0.0,
             exposure_ms: None,
+            time_offset_ms: None,
             stereo: "calib/stereo.yaml".into(),
             fk,
             gravity: [0.0, 1.0, 0.0],

@@ -114,6 +114,7 @@ impl PairSource for LiveSource {
             right_t_start_ns: p.right.t_start_ns,
             exposure_ns: p.left.exposure_ns,
             readout_ns: self.readout_ns,
+            readout_anchor: p.left.readout_anchor,
             left: &p.left.gray,
             right: &p.right.gray,
         })

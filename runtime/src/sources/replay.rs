@@ -431,6 +431,7 @@ impl ReplaySource {
                         right_t_start_ns: s.t_start_ns + shift,
                         exposure_ns: s.exposure_ns,
                         readout_ns: self.readout_ns,
+                        readout_anchor: 0.0,
                         left: &p.left,
                         right: &p.right,
                     });

@@ -293,6 +293,18 @@ pub fn start_of_exposure_ns(
     }
 }
 
+/// The row (fraction of the image) whose start of exposure the stamps fix independently of the readout
+/// ([`crate::messages::SourcePair::readout_anchor`]): the first row for start-of-exposure stamps, the last
+/// for end-of-frame ones (the readout is subtracted to reach the first row).
+pub fn readout_anchor(source: TimestampSource, reference: RowReference) -> f64 {
+    match (source, reference) {
+        (TimestampSource::StartOfExposure, RowReference::FirstRow) => 0.0,
+        (TimestampSource::StartOfExposure, RowReference::CentreRow) => -0.5,
+        (TimestampSource::EndOfFrame, RowReference::FirstRow) => 1.0,
+        (TimestampSource::EndOfFrame, RowReference::CentreRow) => 0.5,
+    }
+}
+
 /// Checks the driver's answer to the format request and returns the layout to convert from.
 /// A different size is refused (calibration is per resolution); another supported FourCC is used.
 pub fn validate_format(requested: &CaptureConfig, got: &NegotiatedFormat) -> Result<PixelFormat, String> {
@@ -517,6 +529,7 @@ impl FrameSource for V4lCamera {
             seq,
             t_start_ns: start_of_exposure_ns(stamp, source, self.exposure_ns, self.cfg.readout_ns, self.cfg.reference),
             exposure_ns: self.exposure_ns,
+            readout_anchor: readout_anchor(source, self.cfg.reference),
             width: self.converter.width(),
             height: self.converter.height(),
             gray,

@@ -13,7 +13,7 @@ use crate::messages::Work;
 use crate::sources::EncoderFeed;
 use crate::stage::{Stage, StageContext};
 use crate::stats::RunStats;
-use crate::tasks::motion::{node_time_ns, MotionConfig, SPEED_DT_S};
+use crate::tasks::motion::{node_time_ns, MotionConfig, SPEED_DT_S, WIDE_DT_S};
 use abvs_eye::UnitModel;
 use std::collections::VecDeque;
 
@@ -152,7 +152,7 @@ impl AlignStage {
     /// Per-row correction and the encoder offset override of `motion`.
     pub fn with_motion(mut self, motion: MotionConfig) -> Self {
         if let Some(t) = motion.time_offset_s {
-            self.tracks.iter_mut().for_each(|tr| tr.latency_s = t);
+            self.tracks.iter_mut().zip(t).for_each(|(tr, t)| tr.latency_s = t);
         }
         self.motion = motion;
         self
@@ -191,6 +191,7 @@ impl Stage for AlignStage {
             let t = t_ns as f64 * 1e-9;
             w.theta[eye] = track.at_camera_time(t)?;
             m.theta_pm[eye] = [track.at_camera_time(t - SPEED_DT_S)?, track.at_camera_time(t + SPEED_DT_S)?];
+            m.theta_wide[eye] = [track.at_camera_time(t - WIDE_DT_S)?, track.at_camera_time(t + WIDE_DT_S)?];
             let nodes = &mut m.band_theta[eye];
             nodes.clear();
             if bands > 0 {

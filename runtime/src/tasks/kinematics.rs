@@ -15,7 +15,7 @@ use crate::error::{Result, RuntimeError};
 pub use crate::messages::StereoPose;
 use crate::messages::{FrameMotion, RectifiedCamera, Work};
 use crate::stage::{Stage, StageContext};
-use crate::tasks::motion::{angle_deg, MotionConfig, SPEED_DT_S};
+use crate::tasks::motion::{angle_deg, MotionConfig, SPEED_DT_S, WIDE_DT_S};
 
 /// One eye's FK evaluator with its stream state (motion history for backlash, warm start).
 pub enum EyeFk {
@@ -172,6 +172,12 @@ impl StereoKinematics {
         }
     }
 
+    /// Each eye's encoder latency (s) from its unit model (0 for an FK without one).
+    pub fn encoder_latency_s(&self) -> [f64; 2] {
+        let latency = |unit: Option<&UnitModel>| unit.map(|u| u.encoder_time_for_camera(0.0).abs()).unwrap_or(0.0);
+        [latency(self.left.unit()), latency(self.right.unit())]
+    }
+
     /// Poses for one frame from both eyes' link angles at its mid-exposure time.
     pub fn solve(&mut self, theta_left: &[f64; 3], theta_right: &[f64; 3]) -> Result<StereoPose> {
         let rel_left = self.left.pose(theta_left, self.gravity)?;
@@ -182,6 +188,17 @@ impl StereoKinematics {
             left_to_right: moving_extrinsic(&rel_left, &rel_right, &self.home_left_to_right),
         })
     }
+}
+
+/// The rotation vector of a rotation matrix, robust near the identity (where the angle from the trace alone
+/// loses its precision, or turns NaN on a matrix a rounding off orthogonal).
+pub fn log_so3(m: &Matrix3<f64>) -> Vector3<f64> {
+    let v = 0.5 * Vector3::new(m[(2, 1)] - m[(1, 2)], m[(0, 2)] - m[(2, 0)], m[(1, 0)] - m[(0, 1)]);
+    let (s, c) = (v.norm(), ((m.trace() - 1.0) / 2.0).clamp(-1.0, 1.0));
+    if s < 1e-15 {
+        return v;
+    }
+    v * (s.atan2(c) / s)
 }
 
 /// The kinematics stage: both eyes' poses and the moving extrinsic ([`Work::pose`]) from the aligned link
@@ -215,6 +232,13 @@ impl KinematicsStage {
             let [before, after] = m.theta_pm[eye];
             let (a, b) = (frozen.pose(&before)?, frozen.pose(&after)?);
             m.speed_deg_s[eye] = angle_deg(&a.r, &b.r) / (2.0 * SPEED_DT_S);
+            let omega = |a: &Matrix3<f64>, b: &Matrix3<f64>, dt: f64| log_so3(&(a.transpose() * b)) / dt;
+            m.omega_rad_s[eye] = omega(&a.r, &b.r, 2.0 * SPEED_DT_S);
+            let [early, late] = m.theta_wide[eye];
+            let (early, late) = (frozen.pose(&early)?.r, frozen.pose(&late)?.r);
+            let now = frozen.pose(&theta[eye])?.r;
+            // in the camera's frame at the instant: R_now^T R_early = exp(-omega dt)
+            m.omega_wide_rad_s[eye] = [omega(&early, &now, WIDE_DT_S), omega(&now, &late, WIDE_DT_S)];
             m.band_rot[eye].clear();
             for th in &m.band_theta[eye] {
                 let row = frozen.pose(th)?;
@@ -229,8 +253,7 @@ impl KinematicsStage {
     /// Each eye's encoder latency (s) from its unit model (0 for an FK without one): what time alignment
     /// applies.
     pub fn encoder_latency_s(&self) -> [f64; 2] {
-        let latency = |unit: Option<&UnitModel>| unit.map(|u| u.encoder_time_for_camera(0.0).abs()).unwrap_or(0.0);
-        [latency(self.kin.left.unit()), latency(self.kin.right.unit())]
+        self.kin.encoder_latency_s()
     }
 }
 

@@ -29,6 +29,12 @@ pub use crate::messages::{FrameMotion, MAX_ROW_BANDS};
 /// (0.004 deg / 2 ms = 2 deg/s).
 pub const SPEED_DT_S: f64 = 1e-3;
 
+/// Half the window (s) over which an eye's mean angular velocity is taken before and after the frame's
+/// instant: about half a readout, so the two tell whether the eye moved steadily while the rows exposed (the
+/// self-check's timing evidence is first order in the speed and needs that). Within the encoder margin the
+/// align stage already waits for (20 ms past the last row), so it adds no latency.
+pub const WIDE_DT_S: f64 = 0.015;
+
 /// Default motion gate (rectified pixels of blur). 3 px at 640x480 (4.7 px/deg at the centre) is
 /// 0.64 deg of blur: 160 deg/s at a 4 ms exposure, so smooth pursuit (up to ~100 deg/s) is kept and
 /// saccades (200-1561 deg/s) are gated. The per-speed error table in runtime/BENCHMARKS.md shows depth
@@ -44,8 +50,8 @@ pub struct MotionConfig {
     pub bands: usize,
     /// Frames whose blur exceeds this many rectified pixels are gated (infinity: never).
     pub gate_blur_px: f64,
-    /// encoder_time_offset of both eyes (s), overriding their FK models' (effects.md; `None`: the models').
-    pub time_offset_s: Option<f64>,
+    /// encoder_time_offset of each eye (s), overriding their FK models' (effects.md; `None`: the models').
+    pub time_offset_s: Option<[f64; 2]>,
 }
 
 impl Default for MotionConfig {
@@ -61,6 +67,36 @@ impl MotionConfig {
             self.bands.clamp(1, MAX_ROW_BANDS)
         } else {
             0
+        }
+    }
+}
+
+/// An encoder_time_offset setting (ms: the encoder stream is stamped this much late; effects.md): one value
+/// for both eyes (`time_offset_ms = 2.0`) or one per eye, left then right (`time_offset_ms = [2.0, 2.4]`).
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(untagged)]
+pub enum TimeOffsetMs {
+    /// The same offset for both eyes (one drive board stamps both).
+    Both(f64),
+    /// Left, right.
+    PerEye([f64; 2]),
+}
+
+impl TimeOffsetMs {
+    /// Left and right offsets (ms).
+    pub fn per_eye(&self) -> [f64; 2] {
+        match *self {
+            TimeOffsetMs::Both(t) => [t, t],
+            TimeOffsetMs::PerEye(t) => t,
+        }
+    }
+
+    /// Refuses an offset beyond a second (or NaN), naming `field`.
+    #[allow(clippy::neg_cmp_op_on_partial_ord)] // refuses NaN too
+    pub fn check(&self, field: &str) -> std::result::Result<(), String> {
+        match self.per_eye().into_iter().find(|t| !(t.abs() <= 1000.0)) {
+            Some(t) => Err(format!("{field}: {t} must be in [-1000, 1000] ms")),
+            None => Ok(()),
         }
     }
 }

@@ -49,8 +49,13 @@
 //! corners matter: ORB keypoints (clustered on object corners and depth edges) read single fixations up to
 //! 0.2 deg off about y.
 //!
+//! **Timing.** With the raw cameras ([`SelfCheckSink::with_timing`]) the log also records, per match, how its
+//! vertical disparity depends on each eye's row timing (`timing`): what `abvs calib self-check` estimates the
+//! encoder-to-camera offset and the readout from.
+//!
 //! By concern: `matching` (corners, band search, Lucas-Kanade), `fit` (the rotation fit and the check of
-//! one frame), `summary` (the run's statistics, the log), `worker` (the sink and its thread).
+//! one frame), `summary` (the run's statistics, the log), `timing` (the per-match timing evidence),
+//! `worker` (the sink and its thread).
 use std::io::Write;
 use std::path::PathBuf;
 use std::thread::JoinHandle;
@@ -60,18 +65,20 @@ use nalgebra::{Matrix3, Vector3};
 use serde_json::{json, Value};
 
 use crate::error::{Result, RuntimeError};
-use crate::messages::{Published, RectifiedCamera};
+use crate::messages::{Published, RectifiedCamera, Rectification};
 use crate::sinks::Sink;
 use crate::stats::{Latency, RunStats};
 
 mod fit;
 mod matching;
 mod summary;
+mod timing;
 mod worker;
 
 pub use fit::*;
 pub use matching::*;
 pub use summary::*;
+pub use timing::*;
 pub use worker::*;
 
 /// How the self-check runs.

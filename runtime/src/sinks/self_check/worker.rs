@@ -15,6 +15,22 @@ pub struct Job {
     pub cam: RectifiedCamera,
     /// Largest disparity searched (px).
     pub max_disp: f32,
+    /// The rectifying rotations and the baseline.
+    pub rect: Rectification,
+    /// Per-row rotations of each eye (`FrameMotion::band_rot`; empty: corrected as a whole).
+    pub band_rot: [Vec<Matrix3<f64>>; 2],
+    /// Each camera's angular velocity in its own frame (rad/s).
+    pub omega_rad_s: [Vector3<f64>; 2],
+    /// Each camera's angular speed (deg/s).
+    pub speed_deg_s: [f64; 2],
+    /// Each camera's mean angular velocity just before and after the instant (`FrameMotion::omega_wide_rad_s`).
+    pub omega_wide_rad_s: [[Vector3<f64>; 2]; 2],
+    /// Readout and exposure the runtime assumed (ms), and the row the stamps fix (fraction).
+    pub readout_ms: f64,
+    /// Exposure (ms).
+    pub exposure_ms: f64,
+    /// `SourcePair::readout_anchor`.
+    pub readout_anchor: f64,
     /// Rectified left image.
     pub left: Vec<u8>,
     /// Rectified right image.
@@ -33,24 +49,23 @@ pub struct SelfCheckSink {
 impl SelfCheckSink {
     /// Starts the worker for rectified pairs of `cam`'s size; creates the log file (if any) now.
     pub fn new(cfg: SelfCheckConfig, cam: &RectifiedCamera) -> Result<SelfCheckSink> {
-        let mut log = match &cfg.log {
-            Some(p) => {
-                let f = std::fs::File::create(p).map_err(|e| RuntimeError::File {
-                    path: p.clone(),
-                    line: None,
-                    msg: e.to_string(),
-                })?;
-                Some((std::io::BufWriter::new(f), p.clone()))
-            }
-            None => None,
+        SelfCheckSink::with_timing(cfg, cam, None)
+    }
+
+    /// As [`SelfCheckSink::new`]; with `timing`, the log also gets every match's timing evidence
+    /// (`<log>.matches.csv`, [`match_log_path`]) for `abvs calib self-check` to estimate the eyes' timing.
+    pub fn with_timing(cfg: SelfCheckConfig, cam: &RectifiedCamera, timing: Option<TimingContext>) -> Result<SelfCheckSink> {
+        let create = |p: &PathBuf, header: &str| -> Result<(std::io::BufWriter<std::fs::File>, PathBuf)> {
+            let io = |e: std::io::Error| RuntimeError::File { path: p.clone(), line: None, msg: e.to_string() };
+            let mut w = std::io::BufWriter::new(std::fs::File::create(p).map_err(io)?);
+            writeln!(w, "{header}").map_err(io)?;
+            Ok((w, p.clone()))
         };
-        if let Some((w, p)) = &mut log {
-            writeln!(w, "{LOG_HEADER}").map_err(|e| RuntimeError::File {
-                path: p.clone(),
-                line: None,
-                msg: e.to_string(),
-            })?;
-        }
+        let mut log = cfg.log.as_ref().map(|p| create(p, LOG_HEADER)).transpose()?;
+        let mut match_log = match (&cfg.log, &timing) {
+            (Some(p), Some(_)) => Some(create(&match_log_path(p), MATCH_LOG_HEADER)?),
+            _ => None,
+        };
         let mut matcher = Matcher::new(cfg.features, cfg.band_px)?;
         let n = (cam.width * cam.height) as usize;
         const POOL: usize = 2;
@@ -65,6 +80,21 @@ impl SelfCheckSink {
                     rot: Matrix3::identity(),
                     cam: *cam,
                     max_disp: 0.0,
+                    rect: Rectification {
+                        rect_from_left: Matrix3::identity(),
+                        rect_from_right: Matrix3::identity(),
+                        baseline_m: 0.0,
+                    },
+                    band_rot: [
+                        Vec::with_capacity(crate::messages::MAX_ROW_BANDS + 1),
+                        Vec::with_capacity(crate::messages::MAX_ROW_BANDS + 1),
+                    ],
+                    omega_rad_s: [Vector3::zeros(); 2],
+                    speed_deg_s: [0.0; 2],
+                    omega_wide_rad_s: [[Vector3::zeros(); 2]; 2],
+                    readout_ms: 0.0,
+                    exposure_ms: 0.0,
+                    readout_anchor: 0.0,
                     left: vec![0; n],
                     right: vec![0; n],
                 }))
@@ -88,9 +118,16 @@ impl SelfCheckSink {
                         Ok(c) => {
                             sum.add(&c, &matches, &wcfg);
                             if let Some((w, p)) = &mut log {
-                                if let Err(e) = writeln!(w, "{}", log_row(&c)) {
+                                if let Err(e) = writeln!(w, "{}", log_row(&c, &job, timing.as_ref())) {
                                     log::warn!("self-check log {}: {e}", p.display());
                                     log = None;
+                                }
+                            }
+                            if let (Some((w, p)), Some(ctx)) = (&mut match_log, &timing) {
+                                let r = write_matches(w, &job, ctx, &matches);
+                                if let Err(e) = r {
+                                    log::warn!("self-check log {}: {e}", p.display());
+                                    match_log = None;
                                 }
                             }
                         }
@@ -101,7 +138,7 @@ impl SelfCheckSink {
                     }
                     let _ = free_tx.send(job);
                 }
-                if let Some((mut w, p)) = log {
+                for (mut w, p) in log.into_iter().chain(match_log) {
                     if let Err(e) = w.flush() {
                         log::warn!("self-check log {}: {e}", p.display());
                     }
@@ -111,6 +148,16 @@ impl SelfCheckSink {
             .map_err(|e| RuntimeError::Invalid(format!("self-check: starting its thread: {e}")))?;
         Ok(SelfCheckSink { cfg, tx: Some(tx), free: free_rx, worker: Some(worker), skipped: 0 })
     }
+}
+
+/// Every match's timing evidence, one line each.
+fn write_matches(w: &mut impl Write, job: &Job, ctx: &TimingContext, matches: &[Match]) -> std::io::Result<()> {
+    for m in matches {
+        if let Some(t) = match_timing(m, job, ctx) {
+            writeln!(w, "{}", match_row(job.seq, m, &t, &design_row(m, &job.cam, &job.rot)))?;
+        }
+    }
+    Ok(())
 }
 
 /// CPU time of the calling thread (ns).
@@ -158,6 +205,16 @@ impl Sink for SelfCheckSink {
         job.theta = *out.theta;
         job.rot = frame_rotation(out);
         job.max_disp = (out.cam.f * out.rect.baseline_m / self.cfg.min_depth_m) as f32 + 2.0;
+        job.rect = *out.rect;
+        let m = out.motion;
+        for eye in 0..2 {
+            job.band_rot[eye].clear();
+            job.band_rot[eye].extend_from_slice(&m.band_rot[eye]);
+        }
+        (job.omega_rad_s, job.speed_deg_s, job.omega_wide_rad_s) = (m.omega_rad_s, m.speed_deg_s, m.omega_wide_rad_s);
+        job.readout_ms = m.readout_ns as f64 * 1e-6;
+        job.exposure_ms = m.exposure_ns as f64 * 1e-6;
+        job.readout_anchor = m.readout_anchor;
         job.left.copy_from_slice(out.left_rect);
         job.right.copy_from_slice(out.right_rect);
         if tx.send(job).is_err() {
