@@ -8,18 +8,19 @@
 #      three rounds (the model is first order: far from the truth it only points the way);
 #   4. prints the estimates and, per run, the self-check's rotation error during motion and the depth error
 #      of the fast-pursuit band [30, 100) deg/s; error_by_speed.png (each round against the one before) in OUT/estimate-K.
-# usage: scripts/timing_loop.sh [OUT] [SEED] [OFFSET_MS] [READOUT_MS]   (release build; about 2 minutes)
+# usage: scripts/timing_loop.sh [OUT] [SEED] [OFFSET_MS] [READOUT_MS] [FRAMES]   (release build; about 2 minutes)
 set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
 OUT=${1:-target/timing-loop}
 SEED=${2:-21}
 OFFSET=${3:-2.5}
 READOUT=${4:-25}
+FRAMES=${5:-100}
 cargo build --release -q -p abvs
 BIN=target/release/abvs
 rm -rf "$OUT" && mkdir -p "$OUT"
 S="$OUT/session"
-"$BIN" sim session --out "$S" --seed "$SEED" --frames 100 --width 640 --height 480 --supersample 1 \
+"$BIN" sim session --out "$S" --seed "$SEED" --frames "$FRAMES" --width 640 --height 480 --supersample 1 \
   --readout-ms "$READOUT" --exposure-ms 4 --pursuit-deg-s 90 --time-offset-ms "$OFFSET" >/dev/null
 run() { # name, extra flags
   "$BIN" run --quiet --no-publish --lossless --engine sgbm --truth-stride 4 --session "$S" \

@@ -68,7 +68,7 @@ pub struct MatchEvidence {
     pub s: [f64; 2],
 }
 
-fn columns<'a>(path: &Path, head: &'a csv::StringRecord, names: &[&str]) -> anyhow::Result<Vec<usize>> {
+fn columns(path: &Path, head: &csv::StringRecord, names: &[&str]) -> anyhow::Result<Vec<usize>> {
     names
         .iter()
         .map(|n| head.iter().position(|h| h == *n).with_context(|| format!("{}: no column `{n}`", path.display())))
@@ -214,8 +214,7 @@ impl TimingFit {
     }
     /// Whether a correction is large against its sigma and the model's first-order range: worth another run.
     pub fn refine(&self) -> bool {
-        self.correction[0].value.abs().max(self.correction[1].value.abs()) > 1.0
-            || self.correction[2].value.abs() > 5.0
+        self.correction[0].value.abs().max(self.correction[1].value.abs()) > 1.0 || self.correction[2].value.abs() > 5.0
     }
     /// summary.json's `timing`.
     pub fn json(&self) -> Value {
@@ -350,9 +349,10 @@ pub fn fit(frames: &[FrameTiming], matches: &[MatchEvidence]) -> anyhow::Result<
         Some(f) => *f,
         None => return Ok(None),
     };
-    if let Some(f) = frames.iter().find(|f| {
-        f.readout_ms != first.readout_ms || f.offset_ms != first.offset_ms || f.anchor != first.anchor
-    }) {
+    if let Some(f) = frames
+        .iter()
+        .find(|f| f.readout_ms != first.readout_ms || f.offset_ms != first.offset_ms || f.anchor != first.anchor)
+    {
         bail!(
             "frame {}: the log's timing changed during the run (readout {} ms, offsets {:?} ms; first frame: {} ms, \
              {:?} ms): one log, one timing",
@@ -400,9 +400,8 @@ pub fn fit(frames: &[FrameTiming], matches: &[MatchEvidence]) -> anyhow::Result<
     abs0.sort_by(f64::total_cmp);
     let cut = 3.0 * 1.4826 * abs0[abs0.len() / 2];
     let inlier: Vec<bool> = heldout[0].iter().map(|r| r.abs() <= cut).collect();
-    let heldout_rms = [0, 1, 2].map(|t| {
-        rms(&heldout[t].iter().zip(&inlier).filter(|(_, k)| **k).map(|(r, _)| *r).collect::<Vec<_>>())
-    });
+    let heldout_rms = [0, 1, 2]
+        .map(|t| rms(&heldout[t].iter().zip(&inlier).filter(|(_, k)| **k).map(|(r, _)| *r).collect::<Vec<_>>()));
 
     let (b, c) = (&full.beta, &full.cov);
     let a = 0.5 - first.anchor;
@@ -422,10 +421,7 @@ pub fn fit(frames: &[FrameTiming], matches: &[MatchEvidence]) -> anyhow::Result<
     Ok(Some(TimingFit {
         offset: [abs(first.offset_ms[0], d_left), abs(first.offset_ms[1], d_right)],
         offset_common: abs(applied_common, d_common),
-        offset_difference: Est {
-            value: (first.offset_ms[1] - first.offset_ms[0]) - diff.value,
-            sigma: diff.sigma,
-        },
+        offset_difference: Est { value: (first.offset_ms[1] - first.offset_ms[0]) - diff.value, sigma: diff.sigma },
         readout: abs(first.readout_ms, d_readout),
         correction: [d_left, d_right, d_readout],
         applied: [first.offset_ms[0], first.offset_ms[1], first.readout_ms],
@@ -530,7 +526,11 @@ pub fn analyse(a: &crate::self_check_report::SelfCheckArgs, label: &str) -> anyh
             style: abvs_plot::SeriesStyle::LinePoints,
         });
     }
-    series.push(abvs_plot::Series { label, points: error_by_speed(&frames), style: abvs_plot::SeriesStyle::LinePoints });
+    series.push(abvs_plot::Series {
+        label,
+        points: error_by_speed(&frames),
+        style: abvs_plot::SeriesStyle::LinePoints,
+    });
     let plotted = series.iter().any(|s| !s.points.is_empty());
     if plotted {
         abvs_plot::xy_plot(

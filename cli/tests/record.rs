@@ -51,7 +51,15 @@ impl FrameSource for ReplayCamera {
         // the frame's index in the camera's list (= the fixture index when there are no early frames)
         let seq = self.next as u64;
         self.next += 1;
-        Ok(Frame { seq, t_start_ns: t_start, exposure_ns: *exposure, width: self.width, height: self.height, gray })
+        Ok(Frame {
+            seq,
+            t_start_ns: t_start,
+            exposure_ns: *exposure,
+            readout_anchor: 0.0,
+            width: self.width,
+            height: self.height,
+            gray,
+        })
     }
 
     fn frame_len(&self) -> usize {

@@ -44,8 +44,15 @@ fn run(dir: &Path, extra: &[&str]) -> (Value, String) {
 fn self_check_flags_log_and_stats() {
     let tmp = tempfile::tempdir().unwrap();
     let log = tmp.path().join("check.csv");
-    let (plain, _) = run(tmp.path(), &[]);
-    assert!(plain.get("self_check").is_none(), "off by default");
+    let (plain, _) = run(tmp.path(), &["--no-self-check"]);
+    assert!(plain.get("self_check").is_none(), "turned off");
+    let (default, stdout) = run(tmp.path(), &[]);
+    assert_eq!(
+        default["self_check"]["frames"], 10,
+        "on by default, every 5th of 50 frames: {:#}",
+        default["self_check"]
+    );
+    assert!(stdout.contains("self-check: 10 frames"), "{stdout}");
     let (v, stdout) = run(tmp.path(), &["--self-check-log", log.to_str().unwrap(), "--self-check-every", "2"]);
     let sc = &v["self_check"];
     assert_eq!(sc["frames"], 25, "every 2nd of 50 frames: {sc:#}");

@@ -14,7 +14,15 @@ fn frame(name: &str, t: i64) -> Frame {
     let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../fixtures/session");
     let small = image::open(dir.join(name)).expect("fixture frame").to_luma8();
     let big = image::imageops::resize(&small, W, H, image::imageops::FilterType::Triangle);
-    Frame { seq: 0, t_start_ns: t, exposure_ns: 4_000_000, readout_anchor: 0.0, width: W, height: H, gray: big.into_raw() }
+    Frame {
+        seq: 0,
+        t_start_ns: t,
+        exposure_ns: 4_000_000,
+        readout_anchor: 0.0,
+        width: W,
+        height: H,
+        gray: big.into_raw(),
+    }
 }
 
 fn write_pair(c: &mut Criterion) {

@@ -185,7 +185,15 @@ mod tests {
     use super::*;
 
     fn f(seq: u64, t_ms: f64) -> Frame {
-        Frame { seq, t_start_ns: (t_ms * 1e6) as i64, exposure_ns: 1_000_000, readout_anchor: 0.0, width: 0, height: 0, gray: Vec::new() }
+        Frame {
+            seq,
+            t_start_ns: (t_ms * 1e6) as i64,
+            exposure_ns: 1_000_000,
+            readout_anchor: 0.0,
+            width: 0,
+            height: 0,
+            gray: Vec::new(),
+        }
     }
 
     #[test]

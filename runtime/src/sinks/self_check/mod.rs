@@ -65,7 +65,7 @@ use nalgebra::{Matrix3, Vector3};
 use serde_json::{json, Value};
 
 use crate::error::{Result, RuntimeError};
-use crate::messages::{Published, RectifiedCamera, Rectification};
+use crate::messages::{Published, Rectification, RectifiedCamera};
 use crate::sinks::Sink;
 use crate::stats::{Latency, RunStats};
 

@@ -73,8 +73,7 @@ pub fn match_timing(m: &Match, job: &Job, ctx: &TimingContext) -> Option<MatchTi
 }
 
 /// The match log's header (`<log>.matches.csv`): one line per match of a checked frame.
-pub const MATCH_LOG_HEADER: &str =
-    "seq,xl,yl,xr,yr,row_l,row_r,dy_px,j_x,j_y,j_z,s_l_px_per_ms,s_r_px_per_ms";
+pub const MATCH_LOG_HEADER: &str = "seq,xl,yl,xr,yr,row_l,row_r,dy_px,j_x,j_y,j_z,s_l_px_per_ms,s_r_px_per_ms";
 
 /// The match log of a per-frame log `log`: `x.csv` -> `x.matches.csv`.
 pub fn match_log_path(log: &std::path::Path) -> PathBuf {

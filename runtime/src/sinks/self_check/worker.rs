@@ -54,7 +54,11 @@ impl SelfCheckSink {
 
     /// As [`SelfCheckSink::new`]; with `timing`, the log also gets every match's timing evidence
     /// (`<log>.matches.csv`, [`match_log_path`]) for `abvs calib self-check` to estimate the eyes' timing.
-    pub fn with_timing(cfg: SelfCheckConfig, cam: &RectifiedCamera, timing: Option<TimingContext>) -> Result<SelfCheckSink> {
+    pub fn with_timing(
+        cfg: SelfCheckConfig,
+        cam: &RectifiedCamera,
+        timing: Option<TimingContext>,
+    ) -> Result<SelfCheckSink> {
         let create = |p: &PathBuf, header: &str| -> Result<(std::io::BufWriter<std::fs::File>, PathBuf)> {
             let io = |e: std::io::Error| RuntimeError::File { path: p.clone(), line: None, msg: e.to_string() };
             let mut w = std::io::BufWriter::new(std::fs::File::create(p).map_err(io)?);
