@@ -28,6 +28,7 @@ run() { # name, extra flags
 }
 run true --time-offset-ms "$OFFSET" --readout-ms "$READOUT"
 run zero --time-offset-ms 0 --readout-ms 0
+"$BIN" calib self-check --log "$OUT/true.csv" --out "$OUT/estimate-true" | grep timing
 "$BIN" calib self-check --log "$OUT/zero.csv" --out "$OUT/estimate-1" --write-session "$S" | grep timing
 prev=zero
 for k in 1 2 3; do
@@ -48,7 +49,7 @@ def band(name):
     s = json.load(open(f"{out}/{name}.json"))
     b = next(b for b in s["depth_error_by_speed"] if b["deg_s"][0] == 30)
     return b["abs_rel"], b["point_mm_p50"], b["frames"]
-for k in (1, 2, 3, 4):
+for k in ("true", 1, 2, 3, 4):
     t = json.load(open(f"{out}/estimate-{k}/summary.json"))["timing"]
     print(f"estimate {k}: offset {t['encoder_time_offset_ms']['value']:.2f} +- {t['encoder_time_offset_ms']['sigma']:.2f} ms "
           f"(true {offset}), readout {t['readout_ms']['value']:.2f} +- {t['readout_ms']['sigma']:.2f} ms (true {readout})")
