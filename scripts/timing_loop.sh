@@ -3,11 +3,11 @@
 #   1. render a session whose eyes pursue (up to 90 deg/s) and verge, with a rolling-shutter readout and an
 #      encoder time offset;
 #   2. replay it with the true timing (the reference) and with the timing set to zero, self-check on every frame;
-#   3. `abvs calib self-check` estimates the timing from the zero run's log and writes it into session.toml;
-#      the replay repeated with it (no timing flags: the runtime reads the session) and estimated again,
-#      three rounds (the model is first order: far from the truth it only points the way);
+#   3. `abvs calib self-check` estimates the timing from the zero run's log, re-runs the replay with its
+#      estimate and fits again while the correction is large (up to 3 rounds: the model is first order), and
+#      writes the result into session.toml; the replay repeated with no timing flags reads it from there;
 #   4. prints the estimates and, per run, the self-check's rotation error during motion and the depth error
-#      of the fast-pursuit band [30, 100) deg/s; error_by_speed.png (each round against the one before) in OUT/estimate-K.
+#      of the fast-pursuit band [30, 100) deg/s; error_by_speed.png (the zero run and each round) in OUT/estimate.
 # usage: scripts/timing_loop.sh [OUT] [SEED] [OFFSET_MS] [READOUT_MS] [FRAMES]   (release build; about 2 minutes)
 set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
@@ -28,15 +28,10 @@ run() { # name, extra flags
 }
 run true --time-offset-ms "$OFFSET" --readout-ms "$READOUT"
 run zero --time-offset-ms 0 --readout-ms 0
-"$BIN" calib self-check --log "$OUT/true.csv" --out "$OUT/estimate-true" | grep timing
-"$BIN" calib self-check --log "$OUT/zero.csv" --out "$OUT/estimate-1" --write-session "$S" | grep timing
-prev=zero
-for k in 1 2 3; do
-  run "round-$k"
-  "$BIN" calib self-check --log "$OUT/round-$k.csv" --out "$OUT/estimate-$((k + 1))" --before "$OUT/$prev.csv" \
-    $([ "$k" -lt 3 ] && echo --write-session "$S") | grep timing
-  prev="round-$k"
-done
+"$BIN" calib self-check --log "$OUT/true.csv" --out "$OUT/estimate-true" --rounds 0 | grep timing
+# from the zero run: the fit, then up to three rounds of the replay re-run with the estimate (--rounds)
+"$BIN" calib self-check --log "$OUT/zero.csv" --out "$OUT/estimate" --write-session "$S" | grep timing
+run after   # no timing flags: the runtime reads the estimate from session.toml
 python3 - "$OUT" "$OFFSET" "$READOUT" <<'PY'
 import csv, json, statistics, sys
 out, offset, readout = sys.argv[1], float(sys.argv[2]), float(sys.argv[3])
@@ -49,13 +44,15 @@ def band(name):
     s = json.load(open(f"{out}/{name}.json"))
     b = next(b for b in s["depth_error_by_speed"] if b["deg_s"][0] == 30)
     return b["abs_rel"], b["point_mm_p50"], b["frames"]
-for k in ("true", 1, 2, 3, 4):
-    t = json.load(open(f"{out}/estimate-{k}/summary.json"))["timing"]
-    print(f"estimate {k}: offset {t['encoder_time_offset_ms']['value']:.2f} +- {t['encoder_time_offset_ms']['sigma']:.2f} ms "
-          f"(true {offset}), readout {t['readout_ms']['value']:.2f} +- {t['readout_ms']['sigma']:.2f} ms (true {readout})")
+t = json.load(open(f"{out}/estimate-true/summary.json"))["timing"]
+print(f"from the true-timing run: offset {t['encoder_time_offset_ms']['value']:.2f} +- {t['encoder_time_offset_ms']['sigma']:.2f} ms, "
+      f"readout {t['readout_ms']['value']:.2f} +- {t['readout_ms']['sigma']:.2f} ms (true {offset}, {readout})")
+for k, r in enumerate(json.load(open(f"{out}/estimate/summary.json"))["timing"]["rounds"]):
+    print(f"round {k}: offset {r['encoder_time_offset_ms']['value']:.2f} +- {r['encoder_time_offset_ms']['sigma']:.2f} ms, "
+          f"readout {r['readout_ms']['value']:.2f} +- {r['readout_ms']['sigma']:.2f} ms, held-out improvement {100 * r['heldout_improvement']:.0f} %")
 print("| run | self-check |rotation error| at >= 30 deg/s, median (deg) | [30,100) abs_rel | [30,100) point_mm_p50 |")
 print("|---|---|---|---|")
-for name in ("true", "zero", "round-1", "round-2", "round-3"):
+for name in ("true", "zero", "after"):
     e, n = motion_error(name)
     a, p, f = band(name)
     print(f"| {name} | {e:.4f} ({n} frames) | {a:.4f} | {p:.1f} ({f} frames) |")

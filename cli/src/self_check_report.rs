@@ -48,6 +48,11 @@ pub struct SelfCheckArgs {
     /// error_by_speed.png.
     #[arg(long, value_name = "LOG")]
     pub before: Option<PathBuf>,
+    /// When the log is of a replay (its `.run.toml` names a session that is still there): re-run the replay
+    /// with the timing estimate and fit again, up to this many rounds while the correction is large (the
+    /// model is first order); 0 fits the log alone. Each round's log lands in the output directory.
+    #[arg(long, default_value_t = 3, value_parser = crate::args::count(0u32, 10))]
+    pub rounds: u32,
 }
 
 /// One logged frame: its gaze per eye (yaw, pitch, torsion; deg) and the measured error (deg).

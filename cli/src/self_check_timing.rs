@@ -18,9 +18,11 @@
 //! (`tau_k = eps_k(1/2)`) and by `dR`, which decorrelates them. Sigmas are cluster-robust over frames (a
 //! frame's matches share its FK error), so they hold the frame-to-frame calibration error too. The model is
 //! first order in `omega eps`: far from the truth (a readout off by 25 ms at 90 deg/s turns rows by a
-//! degree) it only points the way; re-run with the estimate and fit again (the log records the timing each
-//! run applied, so the second fit is a correction to it): `refine` in the result says whether another round
-//! is worth it.
+//! degree) it only points the way. So it goes in rounds: the run is repeated with the estimate and fitted
+//! again (the log records the timing each run applied, so each fit is a correction to it) while the
+//! correction is larger than the accuracy asked and twice its sigma (`refine`). A log of a replay carries its
+//! configuration (`<log>.run.toml`), and `abvs calib self-check` re-runs that replay itself (`--rounds`, 3 by
+//! default); a live log asks for another minute of motion with the new values.
 //!
 //! **Held out.** The frames alternate into two halves; each half's model predicts the other's matches. The
 //! improvement is the fraction of the held-out residual (RMS, px) the timing terms remove beyond the static
@@ -28,8 +30,10 @@
 //! (backlash, a settling mechanism): the same terms divided by the speed. When it predicts as well, speed
 //! does not tell them apart and the report says so.
 use std::collections::BTreeMap;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
+use abvs_runtime::config::{RuntimeConfig, SourceKind};
+use abvs_runtime::tasks::motion::TimeOffsetMs;
 use anyhow::{bail, Context};
 use nalgebra::{DMatrix, DVector};
 use serde_json::{json, Value};
@@ -212,9 +216,11 @@ impl TimingFit {
     pub fn alternative_improvement(&self) -> f64 {
         1.0 - self.heldout_rms[2] / self.heldout_rms[0]
     }
-    /// Whether a correction is large against its sigma and the model's first-order range: worth another run.
+    /// Whether a correction is large against its sigma and the accuracy asked of it (0.3 ms of offset, 2 ms
+    /// of readout): worth another round.
     pub fn refine(&self) -> bool {
-        self.correction[0].value.abs().max(self.correction[1].value.abs()) > 1.0 || self.correction[2].value.abs() > 5.0
+        let big = |e: &Est, floor: f64| e.value.abs() > floor.max(2.0 * e.sigma);
+        big(&self.correction[0], 0.3) || big(&self.correction[1], 0.3) || big(&self.correction[2], 2.0)
     }
     /// summary.json's `timing`.
     pub fn json(&self) -> Value {
@@ -455,16 +461,58 @@ fn round2(x: f64) -> f64 {
     (x * 100.0).round() / 100.0
 }
 
-/// The offset setting to write: one value, or `[left, right]` when the eyes differ beyond three sigmas.
-fn offset_item(t: &TimingFit) -> toml_edit::Item {
+/// The timing setting of an estimate: one offset, or one per eye when they differ beyond three sigmas.
+fn offset_setting(t: &TimingFit) -> TimeOffsetMs {
     if t.offset_difference.significant(3.0) && t.offset_difference.value.abs() >= MIN_OFFSET_MS {
-        let mut arr = toml_edit::Array::new();
-        arr.push(round2(t.offset[0].value));
-        arr.push(round2(t.offset[1].value));
-        toml_edit::value(arr)
+        TimeOffsetMs::PerEye([round2(t.offset[0].value), round2(t.offset[1].value)])
     } else {
-        toml_edit::value(round2(t.offset_common.value))
+        TimeOffsetMs::Both(round2(t.offset_common.value))
     }
+}
+
+/// The offset setting as a TOML value.
+fn offset_item(t: &TimingFit) -> toml_edit::Item {
+    match offset_setting(t) {
+        TimeOffsetMs::PerEye([l, r]) => {
+            let mut arr = toml_edit::Array::new();
+            arr.push(l);
+            arr.push(r);
+            toml_edit::value(arr)
+        }
+        TimeOffsetMs::Both(v) => toml_edit::value(v),
+    }
+}
+
+/// The configuration a log's run used (`<log>.run.toml`), when it replayed a session that is still there.
+fn replay_config(log: &Path) -> anyhow::Result<Option<RuntimeConfig>> {
+    let p = abvs_runtime::sinks::self_check::run_config_path(log);
+    if !p.exists() {
+        return Ok(None);
+    }
+    let c = RuntimeConfig::load(&p)?;
+    let replay = c.source.kind == SourceKind::Session
+        && c.source.session.as_deref().is_some_and(|d| d.join("session.toml").exists());
+    Ok(replay.then_some(c))
+}
+
+/// Replays `cfg`'s session with `t`'s timing, lossless, nothing published, the self-check logging to `log`.
+fn rerun(cfg: &RuntimeConfig, t: &TimingFit, log: &Path) -> anyhow::Result<()> {
+    let mut c = cfg.clone();
+    c.motion.time_offset_ms = Some(offset_setting(t));
+    c.motion.readout_ms = Some(round2(t.readout.value.max(0.0)));
+    c.source.lossless = true;
+    c.source.paced = false;
+    c.bridges.iceoryx.enabled = false;
+    c.bridges.zenoh.enabled = false;
+    c.sinks.mcap.file = None;
+    c.sinks.stats_json = None;
+    c.sinks.dump = None;
+    c.sinks.rerun = None;
+    c.sinks.quiet = true;
+    c.sinks.self_check.enabled = true;
+    c.sinks.self_check.log = Some(log.to_path_buf());
+    abvs_runtime::Runtime::from_config(&c)?.run()?;
+    Ok(())
 }
 
 fn edit_toml(path: &Path, table: Option<&str>, t: &TimingFit) -> anyhow::Result<()> {
@@ -514,25 +562,31 @@ pub fn analyse(a: &crate::self_check_report::SelfCheckArgs, label: &str) -> anyh
     let Some(frames) = read_frames(&a.log)? else {
         return Ok(none("the log has no timing columns (written by an abvs before the timing evidence)".into()));
     };
-    let mut series = Vec::new();
     let before = match &a.before {
-        Some(p) => read_frames(p)?.with_context(|| format!("{}: no timing columns", p.display()))?,
-        None => Vec::new(),
+        Some(p) => Some(read_frames(p)?.with_context(|| format!("{}: no timing columns", p.display()))?),
+        None => None,
     };
-    if a.before.is_some() {
-        series.push(abvs_plot::Series {
-            label: "before",
-            points: error_by_speed(&before),
-            style: abvs_plot::SeriesStyle::LinePoints,
-        });
-    }
-    series.push(abvs_plot::Series {
-        label,
-        points: error_by_speed(&frames),
-        style: abvs_plot::SeriesStyle::LinePoints,
-    });
-    let plotted = series.iter().any(|s| !s.points.is_empty());
-    if plotted {
+    let plot = |logs: &[(PathBuf, Vec<FrameTiming>)]| -> anyhow::Result<bool> {
+        let labels: Vec<String> =
+            (0..logs.len()).map(|k| if k == 0 { label.to_string() } else { format!("after round {k}") }).collect();
+        let mut series = Vec::new();
+        if let Some(b) = &before {
+            series.push(abvs_plot::Series {
+                label: "before",
+                points: error_by_speed(b),
+                style: abvs_plot::SeriesStyle::LinePoints,
+            });
+        }
+        for ((_, f), l) in logs.iter().zip(&labels) {
+            series.push(abvs_plot::Series {
+                label: l,
+                points: error_by_speed(f),
+                style: abvs_plot::SeriesStyle::LinePoints,
+            });
+        }
+        if series.iter().all(|s| s.points.is_empty()) {
+            return Ok(false);
+        }
         abvs_plot::xy_plot(
             &a.out.join("error_by_speed.png"),
             &abvs_plot::XyPlot {
@@ -543,23 +597,52 @@ pub fn analyse(a: &crate::self_check_report::SelfCheckArgs, label: &str) -> anyh
                 log_y: false,
             },
         )?;
-    }
+        Ok(true)
+    };
+    let mut logs = vec![(a.log.clone(), frames.clone())];
     let mpath = abvs_runtime::sinks::self_check::match_log_path(&a.log);
     if !mpath.exists() {
         let mut r = none(format!("no match log {} (the run had no raw cameras for the evidence)", mpath.display()));
-        r.plotted = plotted;
+        r.plotted = plot(&logs)?;
         return Ok(r);
     }
     let matches = read_matches(&mpath)?;
-    let Some(t) = fit(&frames, &matches)? else {
+    let Some(first) = fit(&frames, &matches)? else {
         let mut r = none(
             "too few frames in which the eyes moved steadily (at least 10 with matches, faster than 5 deg/s): \
              record a minute of pursuit with the eyes verging"
                 .into(),
         );
-        r.plotted = plotted;
+        r.plotted = plot(&logs)?;
         return Ok(r);
     };
+    // rounds: a replay is run again with the estimate and fitted again while the correction is large
+    let mut fits = vec![first];
+    let replay = if a.rounds > 0 { replay_config(&a.log)? } else { None };
+    if let Some(cfg) = &replay {
+        for k in 1..=a.rounds {
+            let prev = fits.last().expect("one fit");
+            if !prev.refine() {
+                break;
+            }
+            let log = a.out.join(format!("round-{k}.csv"));
+            eprintln!(
+                "timing: round {k}: replaying {} with offset {:.2} ms, readout {:.2} ms",
+                cfg.source.session.as_deref().unwrap_or(Path::new("?")).display(),
+                prev.offset_common.value,
+                prev.readout.value
+            );
+            rerun(cfg, prev, &log)?;
+            let frames = read_frames(&log)?.with_context(|| format!("{}: no timing columns", log.display()))?;
+            let matches = read_matches(&abvs_runtime::sinks::self_check::match_log_path(&log))?;
+            let Some(t) = fit(&frames, &matches)? else { break };
+            fits.push(t);
+            logs.push((log, frames));
+        }
+    }
+    let plotted = plot(&logs)?;
+    let t = fits.last().expect("one fit").clone();
+    let first = &fits[0];
     let named_offset = t.offset_common.significant(3.0) && t.offset_common.value.abs() >= MIN_OFFSET_MS;
     let named_readout = t.readout.significant(3.0) && t.readout.value.abs() >= MIN_READOUT_MS;
     let per_eye = t.offset_difference.significant(3.0) && t.offset_difference.value.abs() >= MIN_OFFSET_MS;
@@ -594,12 +677,26 @@ pub fn analyse(a: &crate::self_check_report::SelfCheckArgs, label: &str) -> anyh
         e(&Est { value: -t.correction[2].value, sigma: t.correction[2].sigma }),
         if named_readout { "yes" } else { "no" }
     );
+    if fits.len() > 1 {
+        md += "Rounds (the replay run again with each estimate, `--rounds`; the table above is the last's):\n\n\
+               | round | log | offset (ms) | readout (ms) | held-out improvement |\n|---|---|---|---|---|\n";
+        for (k, (f, (log, _))) in fits.iter().zip(&logs).enumerate() {
+            md += &format!(
+                "| {k} | {} | {} | {} | {:.0} % |\n",
+                log.display(),
+                e(&f.offset_common),
+                e(&f.readout),
+                100.0 * f.improvement()
+            );
+        }
+        md += "\n";
+    }
     md += &format!(
-        "**Held out** (alternate frames predict each other): the timing terms remove {:.0} % of the vertical \
-         disparity residual the static rotation leaves (RMS {:.4} -> {:.4} px).\n\n",
-        100.0 * t.improvement(),
-        t.heldout_rms[0],
-        t.heldout_rms[1]
+        "**Held out** (alternate frames predict each other): on the log given, the timing terms remove {:.0} % \
+         of the vertical disparity residual the static rotation leaves (RMS {:.4} -> {:.4} px).\n\n",
+        100.0 * first.improvement(),
+        first.heldout_rms[0],
+        first.heldout_rms[1]
     );
     md += &format!(
         "**What else could explain it.** A pose error along the direction of motion whose size does not grow with \
@@ -607,8 +704,8 @@ pub fn analyse(a: &crate::self_check_report::SelfCheckArgs, label: &str) -> anyh
          (compliance, platform lag) gives an error proportional to the speed, exactly as an encoder offset does: it \
          appears here as offset and is corrected by it. A row-dependent error proportional to the speed has no \
          other source than the readout: lens and rectification errors do not grow with speed.\n\n",
-        100.0 * t.alternative_improvement(),
-        if t.alternative_improvement() >= t.improvement() - 0.02 {
+        100.0 * first.alternative_improvement(),
+        if first.alternative_improvement() >= first.improvement() - 0.02 {
             ": speed does not tell it from timing in this log (record faster or slower pursuits)"
         } else {
             ", less than the timing"
@@ -638,12 +735,29 @@ pub fn analyse(a: &crate::self_check_report::SelfCheckArgs, label: &str) -> anyh
         if named_offset { "" } else { " (not named)" },
         e(&t.readout),
         if named_readout { "" } else { " (not named)" },
-        100.0 * t.improvement()
+        100.0 * first.improvement()
     )];
+    if fits.len() > 1 {
+        console.insert(0, format!("timing: {} rounds of replay with the estimate", fits.len() - 1));
+    }
     if t.refine() {
         console.push("timing: large correction: re-run with these values and fit again".into());
     }
     let mut json = t.json();
+    json["heldout_improvement"] = json!(first.improvement());
+    json["alternative_improvement"] = json!(first.alternative_improvement());
+    json["rounds"] = fits
+        .iter()
+        .zip(&logs)
+        .map(|(f, (log, _))| {
+            json!({
+                "log": log.display().to_string(),
+                "encoder_time_offset_ms": f.offset_common.json(),
+                "readout_ms": f.readout.json(),
+                "heldout_improvement": f.improvement(),
+            })
+        })
+        .collect();
     json["named"] = json!({ "encoder_time_offset": named_offset, "readout": named_readout, "per_eye": per_eye });
     if let Some(p) = &a.write_config {
         edit_toml(p, Some("motion"), &t)?;
@@ -660,4 +774,52 @@ pub fn analyse(a: &crate::self_check_report::SelfCheckArgs, label: &str) -> anyh
         md += "\n![error against eye speed](error_by_speed.png)\n";
     }
     Ok(Analysis { json, markdown: md, console, plotted })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proptest::prelude::*;
+
+    #[test]
+    fn a_damaged_match_log_names_file_line_and_field() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("x.matches.csv");
+        let head = abvs_runtime::sinks::self_check::MATCH_LOG_HEADER;
+        std::fs::write(
+            &p,
+            format!("{head}\n0,1,2,3,4,0.1,0.2,0.5,1,2,3,0.01,0.02\n0,1,2,3,4,0.1,0.2,oops,1,2,3,0.01,0.02\n"),
+        )
+        .unwrap();
+        let e = format!("{:#}", read_matches(&p).unwrap_err());
+        assert!(e.contains("x.matches.csv:3") && e.contains("dy_px") && e.contains("oops"), "{e}");
+        std::fs::write(&p, "seq,xl\n1,2\n").unwrap();
+        let e = format!("{:#}", read_matches(&p).unwrap_err());
+        assert!(e.contains("no column `row_l`"), "{e}");
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig { cases: 256, ..ProptestConfig::default() })]
+        /// Arbitrary bytes after a valid header: an answer or a named error, never a panic.
+        #[test]
+        fn the_logs_parsers_never_panic(body in proptest::collection::vec(any::<u8>(), 0..400)) {
+            let dir = tempfile::tempdir().unwrap();
+            let m = dir.path().join("l.matches.csv");
+            let mut bytes = abvs_runtime::sinks::self_check::MATCH_LOG_HEADER.as_bytes().to_vec();
+            bytes.push(b'\n');
+            bytes.extend(&body);
+            std::fs::write(&m, &bytes).unwrap();
+            let _ = read_matches(&m);
+            let f = dir.path().join("l.csv");
+            let mut bytes = abvs_runtime::sinks::self_check::LOG_HEADER.as_bytes().to_vec();
+            bytes.push(b'\n');
+            bytes.extend(&body);
+            std::fs::write(&f, &bytes).unwrap();
+            if let Ok(Some(frames)) = read_frames(&f) {
+                if let Ok(ms) = read_matches(&m) {
+                    let _ = fit(&frames, &ms);
+                }
+            }
+        }
+    }
 }

@@ -378,6 +378,15 @@ fn sinks(c: &RuntimeConfig, out: &RectifiedCamera, timing: Option<TimingContext>
             blocking: c.source.lossless,
             ..Default::default()
         };
+        if let Some(log) = &sc.log {
+            // the run's configuration beside its log: an offline estimate can replay it with other timing
+            let p = crate::sinks::self_check::run_config_path(log);
+            std::fs::write(&p, c.to_toml_string()).map_err(|e| RuntimeError::File {
+                path: p.clone(),
+                line: None,
+                msg: format!("writing: {e}"),
+            })?;
+        }
         sinks.push(Box::new(crate::sinks::self_check::SelfCheckSink::with_timing(cfg, out, timing)?));
     }
     Ok(sinks)

@@ -80,6 +80,12 @@ pub fn match_log_path(log: &std::path::Path) -> PathBuf {
     log.with_extension("matches.csv")
 }
 
+/// The run's configuration beside a log (`x.csv` -> `x.run.toml`): what `abvs calib self-check` re-runs a
+/// replay with, the timing replaced by its estimate.
+pub fn run_config_path(log: &std::path::Path) -> PathBuf {
+    log.with_extension("run.toml")
+}
+
 /// One line of the match log (`j`: the match's design row for the rotation error, px/rad).
 pub(super) fn match_row(seq: u64, m: &Match, t: &MatchTiming, j: &Vector3<f64>) -> String {
     format!(
