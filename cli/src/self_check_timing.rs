@@ -70,6 +70,8 @@ pub struct MatchEvidence {
     pub j: [f64; 3],
     /// d(dy)/d(eps) per eye (px/ms).
     pub s: [f64; 2],
+    /// Parallax of each camera's optical centre moving for a millisecond (px/ms; 0 in older logs).
+    pub u: [f64; 2],
 }
 
 fn columns(path: &Path, head: &csv::StringRecord, names: &[&str]) -> anyhow::Result<Vec<usize>> {
@@ -137,6 +139,8 @@ pub fn read_matches(path: &Path) -> anyhow::Result<Vec<MatchEvidence>> {
     let head = rd.headers()?.clone();
     let names = ["seq", "row_l", "row_r", "dy_px", "j_x", "j_y", "j_z", "s_l_px_per_ms", "s_r_px_per_ms"];
     let idx = columns(path, &head, &names)?;
+    // the translation columns came later: a log without them reads as without the parallax
+    let u_idx = ["u_l_px_per_ms", "u_r_px_per_ms"].map(|n| head.iter().position(|h| h == n));
     let mut out = Vec::new();
     for (i, rec) in rd.records().enumerate() {
         let line = i + 2;
@@ -149,12 +153,22 @@ pub fn read_matches(path: &Path) -> anyhow::Result<Vec<MatchEvidence>> {
         if v[0] < 0.0 {
             bail!("{}:{line}: `seq` must not be negative", path.display());
         }
+        let mut u = [0.0; 2];
+        for (k, i) in u_idx.iter().enumerate() {
+            if let Some(i) = i {
+                u[k] = number(path, &rec, line, *i, ["u_l_px_per_ms", "u_r_px_per_ms"][k])?;
+                if !u[k].is_finite() {
+                    bail!("{}:{line}: `{}` must be a number", path.display(), ["u_l_px_per_ms", "u_r_px_per_ms"][k]);
+                }
+            }
+        }
         out.push(MatchEvidence {
             seq: v[0] as u64,
             row: [v[1], v[2]],
             dy: v[3],
             j: [v[4], v[5], v[6]],
             s: [v[7], v[8]],
+            u,
         });
     }
     Ok(out)
@@ -276,7 +290,8 @@ fn design_row(m: &MatchEvidence, f: &FrameTiming, terms: Terms) -> Vec<f64> {
         Terms::Timing => {
             x.push(m.s[0]);
             x.push(m.s[1]);
-            x.push(m.s[0] * (m.row[0] - 0.5) + m.s[1] * (m.row[1] - 0.5));
+            // the readout error turns the rows (s) and changes the parallax the rows keep (-u, see `observed`)
+            x.push((m.s[0] - m.u[0]) * (m.row[0] - 0.5) + (m.s[1] - m.u[1]) * (m.row[1] - 0.5));
         }
         Terms::Alternative => {
             let sl = m.s[0] / f.speed[0].max(1.0) * 30.0;
@@ -287,6 +302,13 @@ fn design_row(m: &MatchEvidence, f: &FrameTiming, terms: Terms) -> Vec<f64> {
         }
     }
     x
+}
+
+/// The vertical disparity less the parallax the per-row correction leaves with the applied readout: a row
+/// read `(rho - 1/2) R` from the instant has its camera centre moved by the velocity times that (the correction
+/// turns rows, it does not move them), `u (rho - 1/2) R_true` px, and `R_true = R_applied - dR`.
+fn observed(m: &MatchEvidence, f: &FrameTiming) -> f64 {
+    m.dy - (m.u[0] * (m.row[0] - 0.5) + m.u[1] * (m.row[1] - 0.5)) * f.readout_ms
 }
 
 struct Fitted {
@@ -386,7 +408,10 @@ pub fn fit(frames: &[FrameTiming], matches: &[MatchEvidence]) -> anyhow::Result<
         return Ok(None);
     }
     let rows = |terms: Terms, keep: &dyn Fn(u64) -> bool| -> Vec<(Vec<f64>, f64, u64)> {
-        used.iter().filter(|(m, _)| keep(m.seq)).map(|(m, f)| (design_row(m, f, terms), m.dy, m.seq)).collect()
+        used.iter()
+            .filter(|(m, _)| keep(m.seq))
+            .map(|(m, f)| (design_row(m, f, terms), observed(m, f), m.seq))
+            .collect()
     };
     let Some(full) = irls(&rows(Terms::Timing, &|_| true)) else { return Ok(None) };
     // held out: alternate frames
@@ -788,7 +813,7 @@ mod tests {
         let head = abvs_runtime::sinks::self_check::MATCH_LOG_HEADER;
         std::fs::write(
             &p,
-            format!("{head}\n0,1,2,3,4,0.1,0.2,0.5,1,2,3,0.01,0.02\n0,1,2,3,4,0.1,0.2,oops,1,2,3,0.01,0.02\n"),
+            format!("{head}\n0,1,2,3,4,0.1,0.2,0.5,1,2,3,0.01,0.02,0,0\n0,1,2,3,4,0.1,0.2,oops,1,2,3,0.01,0.02,0,0\n"),
         )
         .unwrap();
         let e = format!("{:#}", read_matches(&p).unwrap_err());

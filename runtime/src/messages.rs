@@ -142,6 +142,9 @@ pub struct FrameMotion {
     /// Each camera's mean angular velocity over the `WIDE_DT_S` before and after its frame instant, in its
     /// frame at that instant (rad/s): the two differ when the eye accelerated while the rows exposed.
     pub omega_wide_rad_s: [[Vector3<f64>; 2]; 2],
+    /// Velocity of each camera's optical centre at its frame instant, in that camera's frame (m/s): the camera
+    /// sits off the mechanism's centre, so it translates while the eye turns.
+    pub vel_m_s: [Vector3<f64>; 2],
     /// [`SourcePair::readout_anchor`] of the frame.
     pub readout_anchor: f64,
     /// Motion blur of the faster eye over the exposure, in rectified output pixels at the image centre.
@@ -172,6 +175,7 @@ impl FrameMotion {
             omega_rad_s: [Vector3::zeros(); 2],
             theta_wide: [[[0.0; 3]; 2]; 2],
             omega_wide_rad_s: [[Vector3::zeros(); 2]; 2],
+            vel_m_s: [Vector3::zeros(); 2],
             readout_anchor: 0.0,
             blur_px: 0.0,
             gated: false,
@@ -184,7 +188,8 @@ impl FrameMotion {
         (self.theta_pm, self.speed_deg_s, self.blur_px, self.gated) =
             (other.theta_pm, other.speed_deg_s, other.blur_px, other.gated);
         (self.omega_rad_s, self.readout_anchor) = (other.omega_rad_s, other.readout_anchor);
-        (self.theta_wide, self.omega_wide_rad_s) = (other.theta_wide, other.omega_wide_rad_s);
+        (self.theta_wide, self.omega_wide_rad_s, self.vel_m_s) =
+            (other.theta_wide, other.omega_wide_rad_s, other.vel_m_s);
         for eye in 0..2 {
             self.band_theta[eye].clear();
             self.band_theta[eye].extend_from_slice(&other.band_theta[eye]);
@@ -376,6 +381,7 @@ impl Work {
         m.readout_anchor = f.readout_anchor;
         m.omega_rad_s = [Vector3::zeros(); 2];
         m.omega_wide_rad_s = [[Vector3::zeros(); 2]; 2];
+        m.vel_m_s = [Vector3::zeros(); 2];
         m.band_theta.iter_mut().for_each(Vec::clear);
         m.band_rot.iter_mut().for_each(Vec::clear);
         m.speed_deg_s = [0.0; 2];

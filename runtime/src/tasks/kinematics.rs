@@ -237,6 +237,8 @@ impl KinematicsStage {
             let [early, late] = m.theta_wide[eye];
             let (early, late) = (frozen.pose(&early)?.r, frozen.pose(&late)?.r);
             let now = frozen.pose(&theta[eye])?.r;
+            // the optical centre (the pose's translation, home frame) differentiated, in the camera's frame
+            m.vel_m_s[eye] = now.transpose() * (b.t - a.t) / (2.0 * SPEED_DT_S);
             // in the camera's frame at the instant: R_now^T R_early = exp(-omega dt)
             m.omega_wide_rad_s[eye] = [omega(&early, &now, WIDE_DT_S), omega(&now, &late, WIDE_DT_S)];
             m.band_rot[eye].clear();

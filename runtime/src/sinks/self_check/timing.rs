@@ -37,6 +37,11 @@ pub struct MatchTiming {
     pub row: [f64; 2],
     /// Change of the vertical disparity (px) per millisecond of the left and the right eye's time error.
     pub px_per_ms: [f64; 2],
+    /// Change of the vertical disparity (px) per millisecond that each camera's optical centre moves at its
+    /// velocity. The per-row correction turns rows but does not move them (`tasks::motion`), so a row read
+    /// `dt` from the frame's instant keeps this parallax, `u dt`, even with the timing right: the fit
+    /// subtracts it rather than reading it as readout.
+    pub translation_px_per_ms: [f64; 2],
 }
 
 /// Vertical image motion (px) of a point at `p` (camera frame) when the camera turns by `a` (rad), to first
@@ -44,6 +49,12 @@ pub struct MatchTiming {
 fn dy_px(f: f64, p: &Vector3<f64>, a: &Vector3<f64>) -> f64 {
     let dp = -a.cross(p);
     f * (dp.y * p.z - p.y * dp.z) / (p.z * p.z)
+}
+
+/// Vertical image motion (px) of a point at `p` (camera frame) when the camera's centre moves by `c`.
+fn dy_translation_px(f: f64, p: &Vector3<f64>, c: &Vector3<f64>) -> f64 {
+    let q = p - c;
+    f * (q.y / q.z - p.y / p.z)
 }
 
 /// The timing evidence of match `m` of the checked pair `job`; `None` where a point leaves a raw image or
@@ -69,11 +80,18 @@ pub fn match_timing(m: &Match, job: &Job, ctx: &TimingContext) -> Option<MatchTi
     let q = p - Vector3::new(rect.baseline_m, 0.0, 0.0);
     let a_l = -(rect.rect_from_left * job.omega_rad_s[0]) * 1e-3;
     let a_r = -(rect.rect_from_right * job.omega_rad_s[1]) * 1e-3;
-    Some(MatchTiming { row, px_per_ms: [-dy_px(cam.f, &p, &a_l), dy_px(cam.f, &q, &a_r)] })
+    let c_l = rect.rect_from_left * job.vel_m_s[0] * 1e-3;
+    let c_r = rect.rect_from_right * job.vel_m_s[1] * 1e-3;
+    Some(MatchTiming {
+        row,
+        px_per_ms: [-dy_px(cam.f, &p, &a_l), dy_px(cam.f, &q, &a_r)],
+        translation_px_per_ms: [-dy_translation_px(cam.f, &p, &c_l), dy_translation_px(cam.f, &q, &c_r)],
+    })
 }
 
 /// The match log's header (`<log>.matches.csv`): one line per match of a checked frame.
-pub const MATCH_LOG_HEADER: &str = "seq,xl,yl,xr,yr,row_l,row_r,dy_px,j_x,j_y,j_z,s_l_px_per_ms,s_r_px_per_ms";
+pub const MATCH_LOG_HEADER: &str =
+    "seq,xl,yl,xr,yr,row_l,row_r,dy_px,j_x,j_y,j_z,s_l_px_per_ms,s_r_px_per_ms,u_l_px_per_ms,u_r_px_per_ms";
 
 /// The match log of a per-frame log `log`: `x.csv` -> `x.matches.csv`.
 pub fn match_log_path(log: &std::path::Path) -> PathBuf {
@@ -89,7 +107,7 @@ pub fn run_config_path(log: &std::path::Path) -> PathBuf {
 /// One line of the match log (`j`: the match's design row for the rotation error, px/rad).
 pub(super) fn match_row(seq: u64, m: &Match, t: &MatchTiming, j: &Vector3<f64>) -> String {
     format!(
-        "{seq},{:.3},{:.3},{:.3},{:.3},{:.5},{:.5},{:.4},{:.3},{:.3},{:.3},{:.6},{:.6}",
+        "{seq},{:.3},{:.3},{:.3},{:.3},{:.5},{:.5},{:.4},{:.3},{:.3},{:.3},{:.6},{:.6},{:.6},{:.6}",
         m.xl,
         m.yl,
         m.xr,
@@ -101,6 +119,8 @@ pub(super) fn match_row(seq: u64, m: &Match, t: &MatchTiming, j: &Vector3<f64>) 
         j.y,
         j.z,
         t.px_per_ms[0],
-        t.px_per_ms[1]
+        t.px_per_ms[1],
+        t.translation_px_per_ms[0],
+        t.translation_px_per_ms[1]
     )
 }

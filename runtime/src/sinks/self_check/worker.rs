@@ -25,6 +25,8 @@ pub struct Job {
     pub speed_deg_s: [f64; 2],
     /// Each camera's mean angular velocity just before and after the instant (`FrameMotion::omega_wide_rad_s`).
     pub omega_wide_rad_s: [[Vector3<f64>; 2]; 2],
+    /// Each camera's optical-centre velocity in its own frame (m/s).
+    pub vel_m_s: [Vector3<f64>; 2],
     /// Readout and exposure the runtime assumed (ms), and the row the stamps fix (fraction).
     pub readout_ms: f64,
     /// Exposure (ms).
@@ -96,6 +98,7 @@ impl SelfCheckSink {
                     omega_rad_s: [Vector3::zeros(); 2],
                     speed_deg_s: [0.0; 2],
                     omega_wide_rad_s: [[Vector3::zeros(); 2]; 2],
+                    vel_m_s: [Vector3::zeros(); 2],
                     readout_ms: 0.0,
                     exposure_ms: 0.0,
                     readout_anchor: 0.0,
@@ -216,6 +219,7 @@ impl Sink for SelfCheckSink {
             job.band_rot[eye].extend_from_slice(&m.band_rot[eye]);
         }
         (job.omega_rad_s, job.speed_deg_s, job.omega_wide_rad_s) = (m.omega_rad_s, m.speed_deg_s, m.omega_wide_rad_s);
+        job.vel_m_s = m.vel_m_s;
         job.readout_ms = m.readout_ns as f64 * 1e-6;
         job.exposure_ms = m.exposure_ns as f64 * 1e-6;
         job.readout_anchor = m.readout_anchor;
