@@ -70,15 +70,8 @@ pub struct MatchEvidence {
     pub j: [f64; 3],
     /// d(dy)/d(eps) per eye (px/ms).
     pub s: [f64; 2],
-    /// Parallax of each camera's optical centre moving for a millisecond (px/ms; 0 in older logs).
+    /// Parallax of each camera's optical centre moving for a millisecond (px/ms).
     pub u: [f64; 2],
-}
-
-fn columns(path: &Path, head: &csv::StringRecord, names: &[&str]) -> anyhow::Result<Vec<usize>> {
-    names
-        .iter()
-        .map(|n| head.iter().position(|h| h == *n).with_context(|| format!("{}: no column `{n}`", path.display())))
-        .collect()
 }
 
 fn number(path: &Path, rec: &csv::StringRecord, line: usize, k: usize, name: &str) -> anyhow::Result<f64> {
@@ -89,10 +82,31 @@ fn number(path: &Path, rec: &csv::StringRecord, line: usize, k: usize, name: &st
     s.parse().with_context(|| format!("{}:{line}: `{name}`: `{s}` is not a number", path.display()))
 }
 
-/// The per-frame log's timing columns (`None` when the log predates them or its run had no timing context).
-pub fn read_frames(path: &Path) -> anyhow::Result<Option<Vec<FrameTiming>>> {
+/// The columns `names` of a CSV file, per record (its line, the values; an empty field is NaN). `None` when
+/// a column is missing and `optional`; an error naming it otherwise.
+fn read_columns(path: &Path, names: &[&str], optional: bool) -> anyhow::Result<Option<Vec<(usize, Vec<f64>)>>> {
     let mut rd = csv::Reader::from_path(path).with_context(|| format!("reading {}", path.display()))?;
     let head = rd.headers()?.clone();
+    let mut idx = Vec::with_capacity(names.len());
+    for n in names {
+        match head.iter().position(|h| h == *n) {
+            Some(k) => idx.push(k),
+            None if optional => return Ok(None),
+            None => bail!("{}: no column `{n}`", path.display()),
+        }
+    }
+    let mut out = Vec::new();
+    for (i, rec) in rd.records().enumerate() {
+        let line = i + 2;
+        let rec = rec.with_context(|| format!("{}:{line}: unreadable record", path.display()))?;
+        let v = idx.iter().zip(names).map(|(&k, n)| number(path, &rec, line, k, n)).collect::<anyhow::Result<_>>()?;
+        out.push((line, v));
+    }
+    Ok(Some(out))
+}
+
+/// The per-frame log's timing columns (`None` when the log predates them).
+pub fn read_frames(path: &Path) -> anyhow::Result<Option<Vec<FrameTiming>>> {
     let names = [
         "seq",
         "speed_l_deg_s",
@@ -107,16 +121,9 @@ pub fn read_frames(path: &Path) -> anyhow::Result<Option<Vec<FrameTiming>>> {
         "rot_y_deg",
         "rot_z_deg",
     ];
-    if !names.iter().all(|n| head.iter().any(|h| h == *n)) {
-        return Ok(None);
-    }
-    let idx = columns(path, &head, &names)?;
-    let mut out = Vec::new();
-    for (i, rec) in rd.records().enumerate() {
-        let line = i + 2;
-        let rec = rec.with_context(|| format!("{}:{line}: unreadable record", path.display()))?;
-        let v: Vec<f64> =
-            idx.iter().zip(names).map(|(&k, n)| number(path, &rec, line, k, n)).collect::<anyhow::Result<_>>()?;
+    let Some(rows) = read_columns(path, &names, true)? else { return Ok(None) };
+    let mut out = Vec::with_capacity(rows.len());
+    for (line, v) in rows {
         if !(v[0] >= 0.0) || v[1..9].iter().any(|x| !x.is_finite()) {
             bail!("{}:{line}: timing fields (seq, speeds, readout, offsets) must be numbers", path.display());
         }
@@ -135,32 +142,27 @@ pub fn read_frames(path: &Path) -> anyhow::Result<Option<Vec<FrameTiming>>> {
 
 /// The match log (`<log>.matches.csv`).
 pub fn read_matches(path: &Path) -> anyhow::Result<Vec<MatchEvidence>> {
-    let mut rd = csv::Reader::from_path(path).with_context(|| format!("reading {}", path.display()))?;
-    let head = rd.headers()?.clone();
-    let names = ["seq", "row_l", "row_r", "dy_px", "j_x", "j_y", "j_z", "s_l_px_per_ms", "s_r_px_per_ms"];
-    let idx = columns(path, &head, &names)?;
-    // the translation columns came later: a log without them reads as without the parallax
-    let u_idx = ["u_l_px_per_ms", "u_r_px_per_ms"].map(|n| head.iter().position(|h| h == n));
-    let mut out = Vec::new();
-    for (i, rec) in rd.records().enumerate() {
-        let line = i + 2;
-        let rec = rec.with_context(|| format!("{}:{line}: unreadable record", path.display()))?;
-        let v: Vec<f64> =
-            idx.iter().zip(names).map(|(&k, n)| number(path, &rec, line, k, n)).collect::<anyhow::Result<_>>()?;
+    let names = [
+        "seq",
+        "row_l",
+        "row_r",
+        "dy_px",
+        "j_x",
+        "j_y",
+        "j_z",
+        "s_l_px_per_ms",
+        "s_r_px_per_ms",
+        "u_l_px_per_ms",
+        "u_r_px_per_ms",
+    ];
+    let rows = read_columns(path, &names, false)?.unwrap_or_default();
+    let mut out = Vec::with_capacity(rows.len());
+    for (line, v) in rows {
         if let Some(k) = v.iter().position(|x| !x.is_finite()) {
             bail!("{}:{line}: `{}` must be a number", path.display(), names[k]);
         }
         if v[0] < 0.0 {
             bail!("{}:{line}: `seq` must not be negative", path.display());
-        }
-        let mut u = [0.0; 2];
-        for (k, i) in u_idx.iter().enumerate() {
-            if let Some(i) = i {
-                u[k] = number(path, &rec, line, *i, ["u_l_px_per_ms", "u_r_px_per_ms"][k])?;
-                if !u[k].is_finite() {
-                    bail!("{}:{line}: `{}` must be a number", path.display(), ["u_l_px_per_ms", "u_r_px_per_ms"][k]);
-                }
-            }
         }
         out.push(MatchEvidence {
             seq: v[0] as u64,
@@ -168,7 +170,7 @@ pub fn read_matches(path: &Path) -> anyhow::Result<Vec<MatchEvidence>> {
             dy: v[3],
             j: [v[4], v[5], v[6]],
             s: [v[7], v[8]],
-            u,
+            u: [v[9], v[10]],
         });
     }
     Ok(out)
