@@ -192,7 +192,11 @@ pub fn estimate(
         bail!("left {}x{} and right {}x{} differ in size", l.cols(), l.rows(), r.cols(), r.rows());
     }
     disparity::set_opencv_threads(threads)?;
-    let onnx = disparity::OnnxEngine::load(model, threads)?;
+    let onnx = if kind == EngineKind::CensusRefine {
+        disparity::OnnxEngine::load(&disparity::refine_base(model)?, threads)?
+    } else {
+        disparity::OnnxEngine::load(model, threads)?
+    };
     let (mw, mh) = (onnx.manifest.width, onnx.manifest.height);
     let (iw, ih) = (l.cols() as u32, l.rows() as u32);
     let isize = (iw as usize, ih as usize);

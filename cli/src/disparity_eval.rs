@@ -252,13 +252,17 @@ fn run_native(a: &EvalArgs, l: &Mat, r: &Mat) -> anyhow::Result<Vec<serde_json::
         (EngineKind::CensusRefine, default_model.clone(), false),
         (EngineKind::Onnx, default_model, true),
     ];
-    cases.extend(nets.into_iter().map(|m| (EngineKind::Onnx, m, false)));
+    // every other network alone and refined, so a cheaper base for census-refine is measured too
+    cases.extend(
+        nets.into_iter().flat_map(|m| [(EngineKind::CensusRefine, m.clone(), false), (EngineKind::Onnx, m, false)]),
+    );
     for (kind, model, default) in cases {
         let est = estimate(l, r, kind, &model, a.threads, None)?;
         let mut s = score(&est.disparity, &gt, max);
         // time: the engine on the pair, resizing and resampling included, model loading not
         let ms = {
-            let onnx = disparity::OnnxEngine::load(&model, a.threads)?;
+            let net = if kind == EngineKind::CensusRefine { disparity::refine_base(&model)? } else { model.clone() };
+            let onnx = disparity::OnnxEngine::load(&net, a.threads)?;
             let (mw, mh) = onnx.size();
             if kind == EngineKind::Fused {
                 let mut e = abvs_runtime::tasks::disparity_fused::FusedEngine::new(onnx, iw, ih)?;

@@ -83,7 +83,7 @@ fn the_default_engine_end_to_end_bounds_its_depth_error_and_beats_sgbm() {
     let sgbm = run_with(&s, &["--lossless", "--engine", "sgbm"]).unwrap();
     let small = run(&s, &["--lossless"]).unwrap();
     assert_eq!(net["frames_published"], 50, "{net:#}");
-    assert_eq!(net["engine"], "census-refine:hitnet-m");
+    assert_eq!(net["engine"], "census-refine:hitnet-m4");
     // every published frame scored, beside the pipeline
     let lane = &net["truth_side_lane"];
     assert_eq!(lane["frames_consumed"], net["frames_published"], "{lane}");

@@ -55,6 +55,43 @@ pub struct DisparityManifest {
     /// Hex SHA-256 of the model file, checked on load (a damaged model would silently change the depth).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub onnx_sha256: Option<String>,
+    /// The network census-refine runs in this one's place (a sibling directory's name): the same weights
+    /// without the finest propagation level, whose job the census search does at full resolution. The
+    /// shipped hitnet-m names `hitnet-m4`: the same bad-2 after refinement at 0.77x the network's time.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub refine_base: Option<String>,
+}
+
+/// The network census-refine runs for the model at `path`: the sibling its manifest names as `refine_base`,
+/// else the model itself (an .onnx file, or a manifest without one).
+pub fn refine_base(path: &Path) -> Result<PathBuf> {
+    let mp = path.join("manifest.json");
+    if !path.is_dir() || !mp.is_file() {
+        return Ok(path.to_path_buf());
+    }
+    let text =
+        std::fs::read_to_string(&mp).map_err(|e| RuntimeError::Model { path: mp.clone(), msg: e.to_string() })?;
+    let m: DisparityManifest = serde_json::from_str(&text)
+        .map_err(|e| RuntimeError::Model { path: mp.clone(), msg: format!("bad manifest: {e}") })?;
+    match m.refine_base {
+        None => Ok(path.to_path_buf()),
+        Some(name) => {
+            let mut parts = Path::new(&name).components();
+            match (parts.next(), parts.next()) {
+                (Some(std::path::Component::Normal(_)), None) => {}
+                _ => {
+                    return Err(RuntimeError::Model {
+                        path: mp,
+                        msg: format!("bad manifest: `refine_base` `{name}`: must be a sibling directory's name"),
+                    })
+                }
+            }
+            // `path` may end in a separator or be relative without a parent: go through its file name
+            let dir =
+                std::path::absolute(path).map_err(|e| RuntimeError::Model { path: mp.clone(), msg: e.to_string() })?;
+            Ok(dir.parent().unwrap_or(Path::new("/")).join(name))
+        }
+    }
 }
 
 /// A stereo matcher on rectified 8-bit gray images of a fixed size.
@@ -230,6 +267,7 @@ fn describe(
             metrics: serde_json::Value::Null,
             training: serde_json::Value::Null,
             onnx_sha256: None,
+            refine_base: None,
         },
     };
     Ok((m, [1, shape[1] as usize, h as usize, w as usize]))
@@ -407,7 +445,11 @@ pub fn engine(
             Ok(Box::new(e))
         }
         // these two resize the network's input, so any model size goes
-        "census-refine" => Ok(Box::new(super::disparity_census::CensusRefineEngine::new(load()?.1, size.0, size.1)?)),
+        "census-refine" => {
+            let p = refine_base(model.ok_or_else(|| RuntimeError::Invalid(format!("engine {kind} needs a model")))?)?;
+            let net = OnnxEngine::load(&p, threads)?;
+            Ok(Box::new(super::disparity_census::CensusRefineEngine::new(net, size.0, size.1)?))
+        }
         "fused" => Ok(Box::new(super::disparity_fused::FusedEngine::new(load()?.1, size.0, size.1)?)),
         other => Err(RuntimeError::Invalid(format!("unknown disparity engine `{other}` ({})", ENGINES.join(" | ")))),
     }
