@@ -95,8 +95,22 @@ pub struct RectifyMaps {
     nodes: Vec<[f32; 2]>,
     /// Nodes interpolated along x: one row per node row, one entry per output column.
     rows: Vec<[f32; 2]>,
+    /// The rolling-shutter correction (per-row source minus global-shutter source) at every
+    /// [`ROW_DELTA_STRIDE`]-th node, interpolated to the others.
+    delta: Vec<[f32; 2]>,
     nodes_w: usize,
     nodes_h: usize,
+}
+
+/// Node stride of the rolling-shutter correction: it is exact every this many nodes (16 px at the default
+/// 8 px grid) and bilinear in between, a smooth field (a rotation that varies along the rows) on top of
+/// the exact global map. It costs a quarter of the extra lens projections of an exact per-row map; at
+/// 100 deg/s the map's 99th-percentile error against the exact per-row one is 0.007 px (0.0004 exact at
+/// every node), its worst 0.067 px on the last rows (test below).
+const ROW_DELTA_STRIDE: usize = 2;
+
+fn delta_dims(nodes_w: usize, nodes_h: usize) -> (usize, usize) {
+    ((nodes_w - 1).div_ceil(ROW_DELTA_STRIDE) + 1, (nodes_h - 1).div_ceil(ROW_DELTA_STRIDE) + 1)
 }
 
 impl RectifyMaps {
@@ -114,6 +128,13 @@ impl RectifyMaps {
             map_y: Mat::new_rows_cols_with_default(h, w, opencv::core::CV_32FC1, Scalar::all(-1.0)).map_err(cv)?,
             nodes: vec![[f32::NAN; 2]; nodes_w * nodes_h],
             rows: vec![[f32::NAN; 2]; nodes_h * out.width as usize],
+            delta: vec![
+                [f32::NAN; 2];
+                {
+                    let (dw, dh) = delta_dims(nodes_w, nodes_h);
+                    dw * dh
+                }
+            ],
             nodes_w,
             nodes_h,
         })
@@ -134,15 +155,15 @@ impl RectifyMaps {
         let step = self.grid_step as usize;
         // node (i, j) sits at output pixel ((i - 1) * step, (j - 1) * step): one node before the image and two
         // past its end give every pixel the four-node support of the cubic.
+        let at = |i: usize| (i as f64 - 1.0) * step as f64;
+        let px = |p: Option<Vector2<f64>>| p.map_or([f32::NAN; 2], |p| [p.x as f32, p.y as f32]);
         for j in 0..self.nodes_h {
-            let v = (j as f64 - 1.0) * step as f64;
             for i in 0..self.nodes_w {
-                let u = (i as f64 - 1.0) * step as f64;
-                self.nodes[j * self.nodes_w + i] = match source_pixel(cam, &out, &cam_from_rect, rows, u, v) {
-                    Some(p) => [p.x as f32, p.y as f32],
-                    None => [f32::NAN; 2],
-                };
+                self.nodes[j * self.nodes_w + i] = px(source_pixel(cam, &out, &cam_from_rect, None, at(i), at(j)));
             }
+        }
+        if let Some(rows) = rows {
+            self.add_row_correction(cam, &cam_from_rect, rows);
         }
         let (w, h) = (out.width as usize, out.height as usize);
         let inv = 1.0 / step as f32;
@@ -183,6 +204,57 @@ impl RectifyMaps {
                 let inside = sx >= 0.0 && sy >= 0.0 && sx <= maxx && sy <= maxy;
                 mx[y * w + x] = if inside { sx } else { -1.0 };
                 my[y * w + x] = if inside { sy } else { -1.0 };
+            }
+        }
+    }
+
+    /// Moves the global-shutter nodes to their per-row sources: exact every [`ROW_DELTA_STRIDE`] nodes,
+    /// bilinear in between; a node whose surrounding corrections are not all known is computed exactly.
+    fn add_row_correction(&mut self, cam: &Camera, cam_from_rect: &Matrix3<f64>, rows: &RowRotations) {
+        let (out, step, nw, nh) = (self.out, self.grid_step as f64, self.nodes_w, self.nodes_h);
+        let (dw, dh) = delta_dims(nw, nh);
+        let exact = |i: usize, j: usize| {
+            let (u, v) = ((i as f64 - 1.0) * step, (j as f64 - 1.0) * step);
+            source_pixel(cam, &out, cam_from_rect, Some(rows), u, v).map(|p| [p.x as f32, p.y as f32])
+        };
+        for cj in 0..dh {
+            let j = (cj * ROW_DELTA_STRIDE).min(nh - 1);
+            for ci in 0..dw {
+                let i = (ci * ROW_DELTA_STRIDE).min(nw - 1);
+                let g = self.nodes[j * nw + i];
+                self.delta[cj * dw + ci] = match exact(i, j) {
+                    Some(p) => [p[0] - g[0], p[1] - g[1]],
+                    None => [f32::NAN; 2],
+                };
+            }
+        }
+        let (delta, nodes) = (&self.delta, &mut self.nodes);
+        for j in 0..nh {
+            let cj = (j / ROW_DELTA_STRIDE).min(dh - 2);
+            // the last coarse row/column sits at the last node, not a stride past the one before it
+            let span_j = ((cj + 1) * ROW_DELTA_STRIDE).min(nh - 1) - cj * ROW_DELTA_STRIDE;
+            let tj = (j - cj * ROW_DELTA_STRIDE) as f32 / span_j as f32;
+            for i in 0..nw {
+                let n = &mut nodes[j * nw + i];
+                if !n[0].is_finite() {
+                    continue;
+                }
+                let ci = (i / ROW_DELTA_STRIDE).min(dw - 2);
+                let span_i = ((ci + 1) * ROW_DELTA_STRIDE).min(nw - 1) - ci * ROW_DELTA_STRIDE;
+                let ti = (i - ci * ROW_DELTA_STRIDE) as f32 / span_i as f32;
+                let d = |a: usize, b: usize| delta[(cj + b) * dw + ci + a];
+                let (d00, d10, d01, d11) = (d(0, 0), d(1, 0), d(0, 1), d(1, 1));
+                let known = [d00, d10, d01, d11].iter().all(|x| x[0].is_finite());
+                *n = if known {
+                    let lerp = |k: usize| {
+                        let top = d00[k] + (d10[k] - d00[k]) * ti;
+                        let bottom = d01[k] + (d11[k] - d01[k]) * ti;
+                        n[k] + top + (bottom - top) * tj
+                    };
+                    [lerp(0), lerp(1)]
+                } else {
+                    exact(i, j).unwrap_or([f32::NAN; 2])
+                };
             }
         }
     }
@@ -449,6 +521,45 @@ mod tests {
         // the correction itself moves sources by several pixels here (8.4 px): the test is not vacuous
         assert!(moved > 5.0, "rolling shutter moves sources by {moved} px");
         assert!(worst < 0.01, "{ROW_STEPS} steps leave {worst} px");
+    }
+
+    #[test]
+    fn the_per_row_map_is_within_a_hundredth_of_a_pixel_of_the_exact_one_at_100_deg_s() {
+        let cam = Camera::ov8856().scaled(800, 600);
+        let out = RectifiedCamera::with_hfov(640, 480, 100.0);
+        let e = Pose::new(Fick::from_deg([10.0, 5.0, -20.0]).to_matrix(), Vector3::new(-0.065, 0.0, 0.0));
+        let rect = rectify(&e).unwrap();
+        let axis = Vector3::new(0.8, 0.5, 0.33).normalize();
+        let nodes: Vec<Matrix3<f64>> = (0..=8)
+            .map(|b| {
+                let t = (b as f64 / 8.0 - 0.5) * 0.030;
+                *nalgebra::Rotation3::from_scaled_axis(axis * 100f64.to_radians() * t).matrix()
+            })
+            .collect();
+        let rows = RowRotations { nodes: &nodes, rows: 600 };
+        let mut maps = RectifyMaps::new(out, 8).unwrap();
+        maps.build_rows(&cam, &rect.rect_from_left, Some(&rows));
+        // per pixel against the exact per-row source: the 99th percentile is what matching sees; the worst
+        // is on the last rows, where the row rotations stop at the image's edge (a kink the bilinear
+        // correction rounds off; an exact per-row map at every node: p99 0.0004, worst 0.016 px)
+        let cam_from_rect = rect.rect_from_left.transpose();
+        let (mx, my) = (maps.map_x(), maps.map_y.data_typed::<f32>().unwrap());
+        let mut errs: Vec<f64> = (0..640 * 480)
+            .filter(|i| mx[*i] >= 0.0)
+            .filter_map(|i| {
+                let p = source_pixel(&cam, &out, &cam_from_rect, Some(&rows), (i % 640) as f64, (i / 640) as f64)?;
+                Some((p - Vector2::new(mx[i] as f64, my[i] as f64)).norm())
+            })
+            .collect();
+        errs.sort_by(f64::total_cmp);
+        let (p99, worst) = (errs[errs.len() * 99 / 100], errs[errs.len() - 1]);
+        assert!(p99 < 0.01 && worst < 0.1, "per-row map error p99 {p99} px, worst {worst} px");
+        // and it is a different map from the global shutter's: the correction is there
+        let mut global = RectifyMaps::new(out, 8).unwrap();
+        global.build(&cam, &rect.rect_from_left);
+        let moved = maps.map_x().iter().zip(global.map_x()).filter(|(a, b)| **a >= 0.0 && **b >= 0.0);
+        let moved = moved.map(|(a, b)| (a - b).abs()).fold(0f32, f32::max);
+        assert!(moved > 3.0, "the correction moves sources by {moved} px");
     }
 
     #[test]
