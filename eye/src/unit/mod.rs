@@ -425,7 +425,7 @@ mod tests {
         let w = crate::pose::rotation_vector(&(down.r * up.r.transpose())).map(f64::to_degrees);
         assert!((w.norm() - 0.08).abs() < 1e-6, "{w:?}");
         let other = fk.pose(&q, &Conditions { dir: [1.0, -1.0, -1.0], ..Default::default() }, None).unwrap().0;
-        assert!(crate::pose::rotation_angle_deg(&other.r, &up.r) < 1e-9);
+        assert!(crate::pose::rotation_vector(&(other.r * up.r.transpose())).norm() < 1e-12);
         // Reloaded from a file without the field, a unit has none of it (older files load).
         let old = "format = \"abvs-unit/1\"\nname = \"x\"\n[effects.hinge_backlash]\nenabled = true\nbacklash_deg = [0.1, 0.1, 0.1]\nplatform_lag_deg = 0.02\n";
         let v = UnitModel::from_toml_str(old, Path::new("u.toml")).unwrap();
