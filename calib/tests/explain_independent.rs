@@ -6,6 +6,9 @@
 //! of every choice and run once at the end (README, "Discrepancy workflow"). Round 2 (`dev2`,
 //! held-out `final2`, see the generator's README) adds larger ripples of any cycle count,
 //! backlash in each link's reading, sizes beyond effects.md's range and three effects together.
+//! Round 3 (`dev3`, held-out `final3`, run once at the end) adds backlash as the platform settling
+//! about each leg's hinge axis, a ripple with its second harmonic, a drift of the measured
+//! orientation, and a library effect under a drift. CI runs `final2` and `final3`.
 //!
 //! Each set: 4,851 samples on the paper's 3 deg grid, noise 0.01 deg / 0.05 mm, explained from
 //! the default start (nothing given), except `link_angle_error_hidden`, which starts from the
@@ -202,10 +205,13 @@ macro_rules! family {
     };
 }
 
-// The development families were tuned on; CI runs the held-out ones (a clean CI's time is bounded): run
-// these by hand with `cargo test --release -p abvs-calib --test explain_independent -- --ignored`.
+// The development families were tuned on; CI runs the newest held-out ones (a clean CI's time is
+// bounded): run these by hand with `cargo test --release -p abvs-calib --test explain_independent -- --ignored`.
 family!(dev, "dev", #[ignore = "development family (tuned on): run by hand with --ignored"]);
-family!(held_out_final, "final");
+// Round 1's held-out family made room in CI for round 3's. Its cases stay in CI through final2, final3
+// and explain.rs (the null unit, a hidden link_angle_error), except the generator's platform-lag
+// backlash, which dev and final keep covering by hand.
+family!(held_out_final, "final", #[ignore = "oldest held-out family, out of CI for time: run by hand with --ignored"]);
 
 /// Round 2 (families `dev2`, `final2`): larger outside ripples of any cycle count, backlash in
 /// each link's reading, sizes beyond effects.md's range, three effects together. Every hidden
@@ -365,3 +371,4 @@ macro_rules! family3 {
 }
 
 family3!(dev3, "dev3", #[ignore = "development family (tuned on): run by hand with --ignored"]);
+family3!(held_out_final3, "final3");
