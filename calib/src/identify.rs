@@ -18,16 +18,101 @@ use abvs_eye::unit::{Effect, UnitModel};
 use abvs_eye::Pose;
 use nalgebra::{DMatrix, DVector};
 
-/// One free scalar: an effect and the index into its parameter vector.
+/// One free scalar: an effect and the index into its parameter vector, or, for a tied form,
+/// the index into the tie's own scalars (which set all of the effect's parameters).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Param {
     pub effect: Effect,
     pub index: usize,
+    pub tie: Option<Tie>,
+}
+
+/// A physical tie among one effect's parameters, fitted through fewer scalars. One shared code
+/// wheel makes them: its eccentricity shows every head the same amplitude at a phase set by the
+/// head's place on the wheel, and its pitch is one scale for all links. Free, the per-head and
+/// per-link parameters can trade sizes between scale and eccentricity (a common scale looks like
+/// a slow part of three free sinusoids); tied, they cannot.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum Tie {
+    /// code_wheel_eccentricity of one wheel read by heads at [`HEAD_LAYOUTS`]`[layout]`: the
+    /// offset's components `(e cos phi, e sin phi)` (um).
+    WheelAt { layout: usize },
+    /// encoder_scale common to the three links: one relative error.
+    CommonScale,
+}
+
+/// Where the three read heads may sit on the shared wheel (deg, at readings 0), as the design
+/// documents allow: on the spec's zero markers (conventions.md: 0, 9.944, 180 deg), or 120 deg
+/// apart under the legs (psi = 90, 210, 330 deg).
+pub const HEAD_LAYOUTS: [(&str, [f64; 3]); 2] = [
+    ("heads on the zero markers (0, 9.944, 180 deg)", [0.0, 9.944, 180.0]),
+    ("heads under the legs (90, 210, 330 deg)", [90.0, 210.0, 330.0]),
+];
+
+/// Per-head eccentricity `[x_i, y_i]` (um, the unit model's per-head form) of one wheel
+/// offset `(a, b) = (e cos phi, e sin phi)` read by heads at `layout` (deg):
+/// `x_i = e cos(s_i - phi)`, `y_i = e sin(s_i - phi)`.
+pub fn wheel_heads(layout: &[f64; 3], a: f64, b: f64) -> [[f64; 2]; 3] {
+    std::array::from_fn(|i| {
+        let (si, co) = layout[i].to_radians().sin_cos();
+        [a * co + b * si, a * si - b * co]
+    })
+}
+
+impl Tie {
+    /// The effect whose parameters it ties.
+    pub fn effect(self) -> Effect {
+        match self {
+            Tie::WheelAt { .. } => Effect::CodeWheelEccentricity,
+            Tie::CommonScale => Effect::EncoderScale,
+        }
+    }
+    pub fn names(self) -> Vec<String> {
+        match self {
+            Tie::WheelAt { .. } => vec!["one_wheel.e_cos_phi_um".into(), "one_wheel.e_sin_phi_um".into()],
+            Tie::CommonScale => vec!["common.relative_error".into()],
+        }
+    }
+    /// The effect's parameters for the tie's scalars `t`.
+    pub fn expand(self, t: &[f64]) -> Vec<f64> {
+        match self {
+            Tie::WheelAt { layout } => {
+                let h = wheel_heads(&HEAD_LAYOUTS[layout].1, t[0], t[1]);
+                vec![h[0][0], h[1][0], h[2][0], h[0][1], h[1][1], h[2][1]]
+            }
+            Tie::CommonScale => vec![t[0]; 3],
+        }
+    }
+    /// The tie's scalars closest (least squares) to the effect's parameters `p`: the inverse of
+    /// [`Tie::expand`] on what it can describe.
+    pub fn reduce(self, p: &[f64]) -> Vec<f64> {
+        match self {
+            Tie::WheelAt { layout } => {
+                // The two per-head basis vectors are orthonormal head by head.
+                let s = HEAD_LAYOUTS[layout].1.map(f64::to_radians);
+                let a = (0..3).map(|i| p[i] * s[i].cos() + p[3 + i] * s[i].sin()).sum::<f64>() / 3.0;
+                let b = (0..3).map(|i| p[i] * s[i].sin() - p[3 + i] * s[i].cos()).sum::<f64>() / 3.0;
+                vec![a, b]
+            }
+            Tie::CommonScale => vec![p.iter().sum::<f64>() / p.len() as f64],
+        }
+    }
+    /// The tie's scalars as parameters to fit.
+    pub fn params(self) -> Vec<Param> {
+        (0..self.names().len()).map(|index| Param { effect: self.effect(), index, tie: Some(self) }).collect()
+    }
 }
 
 impl Param {
+    /// The parameter's name within its effect.
+    pub fn local_name(&self) -> String {
+        match self.tie {
+            Some(t) => t.names()[self.index].clone(),
+            None => self.effect.param_names()[self.index].clone(),
+        }
+    }
     pub fn name(&self) -> String {
-        format!("{}.{}", self.effect.name(), self.effect.param_names()[self.index])
+        format!("{}.{}", self.effect.name(), self.local_name())
     }
     /// (typical, upper) size in the parameter's unit, from the ranges of effects.md. The one
     /// table of effect magnitudes used for fitting and plausibility.
@@ -60,30 +145,66 @@ impl Param {
     pub fn plausible_max(&self) -> f64 {
         3.0 * self.sizes().1
     }
-    /// The unit model's hard limit (a little inside it, so a clamped value still validates).
+    /// The unit model's hard limit (a little inside it, so a clamped value still validates);
+    /// a tie's scalars share their effect's limit.
     pub fn hard_limit(&self) -> f64 {
-        0.999 * self.effect.param_limits()[self.index]
+        let limits = self.effect.param_limits();
+        0.999 * if self.tie.is_some() { limits[0] } else { limits[self.index] }
     }
 }
 
-/// All scalar parameters of the given effects.
+/// All scalar parameters of the given effects (untied).
 pub fn params_of(effects: &[Effect]) -> Vec<Param> {
-    effects.iter().flat_map(|&e| (0..e.param_names().len()).map(move |index| Param { effect: e, index })).collect()
+    effects
+        .iter()
+        .flat_map(|&e| (0..e.param_names().len()).map(move |index| Param { effect: e, index, tie: None }))
+        .collect()
 }
 
-fn get(unit: &UnitModel, ps: &[Param]) -> Vec<f64> {
-    ps.iter().map(|p| unit.params(p.effect)[p.index]).collect()
+/// The current values of `ps` in `unit` (a tie's scalars reduced from its effect's parameters).
+pub fn get(unit: &UnitModel, ps: &[Param]) -> Vec<f64> {
+    ps.iter()
+        .map(|p| match p.tie {
+            Some(t) => t.reduce(&unit.params(p.effect))[p.index],
+            None => unit.params(p.effect)[p.index],
+        })
+        .collect()
 }
 
-fn set(unit: &mut UnitModel, ps: &[Param], x: &[f64]) {
-    for (p, v) in ps.iter().zip(x) {
-        let mut cur = unit.params(p.effect);
-        // Iterates stay inside the feasible set: clearances cannot be negative, and no value
-        // may pass the unit model's hard limits (a fit that wants to is reported, not aborted).
-        let lim = p.hard_limit();
+/// Sets `ps` to `x` in `unit`, inside the feasible set: clearances cannot be negative, and no
+/// value may pass the unit model's hard limits (a fit that wants to is reported, not aborted).
+/// A tie sets all of its effect's parameters from its scalars.
+pub fn set(unit: &mut UnitModel, ps: &[Param], x: &[f64]) {
+    let feasible = |e: Effect, lim: f64, v: f64| {
         let v = if v.is_finite() { v.clamp(-lim, lim) } else { 0.0 };
-        cur[p.index] = if p.effect == Effect::HingeBacklash { v.max(0.0) } else { v };
-        unit.set_params(p.effect, &cur).expect("length from param_names");
+        if e == Effect::HingeBacklash {
+            v.max(0.0)
+        } else {
+            v
+        }
+    };
+    let mut tied: Vec<(Tie, Vec<f64>)> = vec![];
+    for (p, &v) in ps.iter().zip(x) {
+        match p.tie {
+            Some(t) => {
+                if !tied.iter().any(|(u, _)| *u == t) {
+                    tied.push((t, t.reduce(&unit.params(p.effect))));
+                }
+                let k = tied.iter().position(|(u, _)| *u == t).expect("just added");
+                tied[k].1[p.index] = feasible(p.effect, p.hard_limit(), v);
+            }
+            None => {
+                let mut cur = unit.params(p.effect);
+                cur[p.index] = feasible(p.effect, p.hard_limit(), v);
+                unit.set_params(p.effect, &cur).expect("length from param_names");
+            }
+        }
+    }
+    for (t, vals) in tied {
+        let lim = t.effect().param_limits();
+        let full: Vec<f64> =
+            t.expand(&vals).iter().zip(&lim).map(|(v, l)| feasible(t.effect(), 0.999 * l, *v)).collect();
+        unit.set_params(t.effect(), &full).expect("length from param_names");
     }
 }
 

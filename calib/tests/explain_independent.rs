@@ -6,6 +6,9 @@
 //! of every choice and run once at the end (README, "Discrepancy workflow"). Round 2 (`dev2`,
 //! held-out `final2`, see the generator's README) adds larger ripples of any cycle count,
 //! backlash in each link's reading, sizes beyond effects.md's range and three effects together.
+//! Round 3 (`dev3`, held-out `final3`, run once at the end) adds backlash as the platform settling
+//! about each leg's hinge axis, a ripple with its second harmonic, a drift of the measured
+//! orientation, and a library effect under a drift. CI runs `final2` and `final3`.
 //!
 //! Each set: 4,851 samples on the paper's 3 deg grid, noise 0.01 deg / 0.05 mm, explained from
 //! the default start (nothing given), except `link_angle_error_hidden`, which starts from the
@@ -47,12 +50,14 @@ fn run(family: &str, set: &str) -> (Vec<String>, Option<String>, ExplainResult) 
         }
     }
     let verbose = std::env::var_os("ABVS_PROGRESS").is_some();
+    let t0 = std::time::Instant::now();
     let r = explain(&start, &data, &ExplainOptions::default(), &mut |m| {
         if verbose {
             eprintln!("  {m}")
         }
     })
     .unwrap();
+    let secs = t0.elapsed().as_secs_f64();
     // Sizes as pose signatures (RMS rotation each effect contributes, deg): the generator's own
     // parameterisations differ from ours, the pose change they cause does not.
     let truth = truth_json(family);
@@ -65,11 +70,12 @@ fn run(family: &str, set: &str) -> (Vec<String>, Option<String>, ExplainResult) 
                 .as_f64()
                 .or_else(|| truth["sets"][set]["hidden_effect_pose_change"]["rms_rot_deg"].as_f64())
                 .unwrap_or(f64::NAN);
-            format!("{} (signature {:.4} deg, truth {:.4})", s.effect, s.signature_rms_rot_deg, t)
+            let form = s.form.as_deref().map(|f| format!(" as {f}")).unwrap_or_default();
+            format!("{}{form} (signature {:.4} deg, truth {:.4})", s.effect, s.signature_rms_rot_deg, t)
         })
         .collect();
     eprintln!(
-        "{family}/{set}: hidden {names:?} {geometric:?} named {named:?} ambiguous {:?} unexplained {:?} held-out rot {:.4} -> {:.4} deg, floor {:.4} ({:.2}x)",
+        "{family}/{set}: hidden {names:?} {geometric:?} named {named:?} ambiguous {:?} unexplained {:?} held-out rot {:.4} -> {:.4} deg, floor {:.4} ({:.2}x), {secs:.1} s",
         r.ambiguous.iter().map(|a| &a.effects).collect::<Vec<_>>(),
         r.unexplained.iter().map(|u| &u.description).collect::<Vec<_>>(),
         r.initial_rms.0,
@@ -199,10 +205,13 @@ macro_rules! family {
     };
 }
 
-// The development families were tuned on; CI runs the held-out ones (a clean CI's time is bounded): run
-// these by hand with `cargo test --release -p abvs-calib --test explain_independent -- --ignored`.
+// The development families were tuned on; CI runs the newest held-out ones (a clean CI's time is
+// bounded): run these by hand with `cargo test --release -p abvs-calib --test explain_independent -- --ignored`.
 family!(dev, "dev", #[ignore = "development family (tuned on): run by hand with --ignored"]);
-family!(held_out_final, "final");
+// Round 1's held-out family made room in CI for round 3's. Its cases stay in CI through final2, final3
+// and explain.rs (the null unit, a hidden link_angle_error), except the generator's platform-lag
+// backlash, which dev and final keep covering by hand.
+family!(held_out_final, "final", #[ignore = "oldest held-out family, out of CI for time: run by hand with --ignored"]);
 
 /// Round 2 (families `dev2`, `final2`): larger outside ripples of any cycle count, backlash in
 /// each link's reading, sizes beyond effects.md's range, three effects together. Every hidden
@@ -222,7 +231,8 @@ fn assert_round2(family: &str, set: &str) -> ExplainResult {
     let t = truth_json(family);
     let outside: Vec<&serde_json::Value> =
         names.iter().filter(|n| n.starts_with("outside:")).map(|n| &t["sets"][set]["hidden_effects"][n]).collect();
-    for o in &outside {
+    // Ripples: link, cycle count (the fundamental's), amplitude; drifts are checked by round 3.
+    for o in outside.iter().filter(|o| o["link"].is_u64()) {
         let (link, cycles, amp) = (
             o["link"].as_u64().unwrap() as usize,
             o["cycles_per_rev"].as_u64().unwrap() as usize,
@@ -296,3 +306,69 @@ macro_rules! family2 {
 
 family2!(dev2, "dev2", #[ignore = "development family (tuned on): run by hand with --ignored"]);
 family2!(held_out_final2, "final2");
+
+/// Round 3 (families `dev3`, `final3`): backlash as the platform settling about each leg's hinge
+/// axis, a ripple with its second harmonic, a drift of the measured orientation over the session,
+/// three effects with the hinge form, a library effect under a drift. As round 2, and: the
+/// hinge_backlash form fitted is the one hidden; a ripple's second harmonic and a drift are
+/// reported with their sizes (within 30%).
+fn assert_round3(family: &str, set: &str) {
+    let r = assert_round2(family, set);
+    let (names, _) = hidden(family, set);
+    let t = truth_json(family);
+    let h = &t["sets"][set]["hidden_effects"];
+    if names.iter().any(|n| n == "hinge_backlash") {
+        assert_eq!(h["hinge_backlash"]["model"], "hinge_lag");
+        let s = r.steps.iter().find(|s| s.effect == "hinge_backlash").expect("named");
+        let form = s.form.as_deref().unwrap_or("");
+        assert!(form.contains("hinge_lag_deg"), "{family}/{set}: fitted as {form}");
+    }
+    if names.iter().any(|n| n == "outside:ripple_harmonic") {
+        let want = h["outside:ripple_harmonic"]["harmonic"]["amplitude_deg"].as_f64().unwrap();
+        let got = r.unexplained.iter().find_map(|u| u.ripple).and_then(|h| h.second_harmonic_deg);
+        let got = got.unwrap_or_else(|| panic!("{family}/{set}: no second harmonic reported: {:?}", r.unexplained));
+        assert!((got / want - 1.0).abs() < 0.3, "{family}/{set}: second harmonic {got} vs {want}");
+    }
+    if names.iter().any(|n| n == "outside:drift") {
+        let want = h["outside:drift"]["size"].as_f64().unwrap();
+        let got = r.unexplained.iter().find_map(|u| u.drift_deg);
+        let got = got.unwrap_or_else(|| panic!("{family}/{set}: no drift reported: {:?}", r.unexplained));
+        assert!((got / want - 1.0).abs() < 0.3, "{family}/{set}: drift {got} vs {want} deg");
+    }
+}
+
+macro_rules! family3 {
+    ($m:ident, $f:literal $(, #[$a:meta])?) => {
+        mod $m {
+            use super::*;
+            #[test]
+            $(#[$a])?
+            fn backlash_at_the_platform_hinges() {
+                assert_round3($f, "hinge_backlash_at_hinges");
+            }
+            #[test]
+            $(#[$a])?
+            fn ripple_with_its_second_harmonic() {
+                assert_round3($f, "ripple_with_harmonic");
+            }
+            #[test]
+            $(#[$a])?
+            fn drift_names_nothing_and_is_reported() {
+                assert_round3($f, "drift");
+            }
+            #[test]
+            $(#[$a])?
+            fn hinge_backlash_eccentricity_and_sag() {
+                assert_round3($f, "hinge_backlash_eccentricity_sag");
+            }
+            #[test]
+            $(#[$a])?
+            fn scale_under_a_drift() {
+                assert_round3($f, "scale_under_drift");
+            }
+        }
+    };
+}
+
+family3!(dev3, "dev3", #[ignore = "development family (tuned on): run by hand with --ignored"]);
+family3!(held_out_final3, "final3");

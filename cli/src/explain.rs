@@ -62,6 +62,9 @@ pub fn run(a: ExplainArgs) -> anyhow::Result<ExitCode> {
             "added {:<24} held-out {:.4} -> {:.4} deg, {:.4} -> {:.4} mm",
             s.effect, s.rms_rot_deg_before, s.rms_rot_deg_after, s.rms_trans_mm_before, s.rms_trans_mm_after
         );
+        if let Some(f) = &s.form {
+            println!("  as {f}");
+        }
         if let Some(w) = &s.warning {
             println!("  warning: {w}");
         }

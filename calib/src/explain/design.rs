@@ -4,9 +4,9 @@
 //! zero) and every link-angle ripple no library effect describes. Cross-validated chi-square of
 //! any set of columns then costs a few small matrix solves (per-fold Gram matrices), so effects
 //! can be compared jointly, in pairs and triples, instead of one at a time.
-use super::structure::ripple_columns;
+use super::structure::{drift_columns, ripple_columns};
 use crate::error::Result;
-use crate::identify::{params_of, weighted_jacobian, Param};
+use crate::identify::{params_of, weighted_jacobian, wheel_heads, Param, Tie, HEAD_LAYOUTS};
 use abvs_eye::dataset::Dataset;
 use abvs_eye::unit::{Effect, UnitModel};
 use nalgebra::{DMatrix, DVector};
@@ -22,30 +22,16 @@ pub enum BlockKind {
         cycles: usize,
     },
     /// code_wheel_eccentricity of one wheel read by heads at a known layout
-    /// ([`HEAD_LAYOUTS`]): two columns, the offset's components `(e cos phi, e sin phi)` (um).
+    /// ([`HEAD_LAYOUTS`]): two columns, the offset's components `(e cos phi, e sin phi)` (um),
+    /// the scalars of [`Tie::WheelAt`].
     Wheel {
         layout: usize,
     },
     /// encoder_scale common to the three links (one shared wheel, one pitch): one column.
     CommonScale,
-}
-
-/// Where the three read heads may sit on the shared wheel (deg, at readings 0), as the design
-/// documents allow: on the spec's zero markers (conventions.md: 0, 9.944, 180 deg), or 120 deg
-/// apart under the legs (psi = 90, 210, 330 deg). The layout that fits best is the one used.
-pub const HEAD_LAYOUTS: [(&str, [f64; 3]); 2] = [
-    ("heads on the zero markers (0, 9.944, 180 deg)", [0.0, 9.944, 180.0]),
-    ("heads under the legs (90, 210, 330 deg)", [90.0, 210.0, 330.0]),
-];
-
-/// Per-head eccentricity `[x_i, y_i]` (um, the unit model's per-head form) of one wheel
-/// offset `(a, b) = (e cos phi, e sin phi)` read by heads at `layout` (deg):
-/// `x_i = e cos(s_i - phi)`, `y_i = e sin(s_i - phi)`.
-pub fn wheel_heads(layout: &[f64; 3], a: f64, b: f64) -> [[f64; 2]; 3] {
-    std::array::from_fn(|i| {
-        let (si, co) = layout[i].to_radians().sin_cos();
-        [a * co + b * si, a * si - b * co]
-    })
+    /// A drift of the measured orientation over the session (outside the library): three
+    /// columns, a base-frame rotation growing linearly in time (deg at the last sample).
+    Drift,
 }
 
 #[derive(Debug, Clone)]
@@ -119,7 +105,7 @@ impl Design {
                     blocks.push(Block {
                         kind: BlockKind::Wheel { layout },
                         cols: start..cols.len(),
-                        params: blk.params.clone(),
+                        params: Tie::WheelAt { layout }.params(),
                     });
                 }
             }
@@ -131,7 +117,7 @@ impl Design {
                 blocks.push(Block {
                     kind: BlockKind::CommonScale,
                     cols: cols.len() - 1..cols.len(),
-                    params: blk.params.clone(),
+                    params: Tie::CommonScale.params(),
                 });
             }
         }
@@ -139,6 +125,11 @@ impl Design {
             let start = cols.len();
             cols.extend(pair);
             blocks.push(Block { kind: BlockKind::Ripple { link, cycles }, cols: start..cols.len(), params: vec![] });
+        }
+        if let Some(d) = drift_columns(data, sigma.0) {
+            let start = cols.len();
+            cols.extend(d);
+            blocks.push(Block { kind: BlockKind::Drift, cols: start..cols.len(), params: vec![] });
         }
         let rows = 6 * n;
         let m = cols.len();

@@ -8,8 +8,9 @@
 //!    spaced samples.
 //! 3. **Rounds**: linearise around the fitted model ([`design`]) and choose jointly which
 //!    candidate effects to add ([`select`]): sets of up to three effects scored by 3-fold
-//!    cross-validated chi-square, every member necessary and plausible, ripples competing only
-//!    for what no library set explains, substitutes reported as ambiguity with the experiment
+//!    cross-validated chi-square, every member necessary and plausible, outside structure
+//!    (ripples, with their harmonics, drifts) competing with library sets under the same
+//!    penalty, substitutes reported as ambiguity with the experiment
 //!    that would separate them ([`separate`]). The chosen effects are then fitted for real
 //!    (Levenberg-Marquardt on the unit model) and their held-out residual measured by real
 //!    cross-validated refits.
@@ -25,10 +26,10 @@ mod structure;
 pub use report::{explaining_variable, report_markdown, summary_json};
 pub use separate::SeparatingPose;
 pub use start::KNOWN_GEOMETRIC;
-pub use structure::{noise_from_second_differences, Harmonic};
+pub use structure::{noise_from_second_differences, Harmonic, Outside};
 
 use crate::error::{CalibError, Result};
-use crate::identify::{fit_params, residuals, FitOptions, Param};
+use crate::identify::{fit_params, get, residuals, set, FitOptions, Param};
 use abvs_eye::dataset::Dataset;
 use abvs_eye::unit::{Effect, UnitModel};
 use design::Design;
@@ -88,6 +89,9 @@ pub struct CandidateScore {
 #[derive(Debug, Clone, Serialize)]
 pub struct Step {
     pub effect: String,
+    /// The form fitted, where the effect has several (the hinge_backlash reading the data
+    /// support, one wheel or free heads, a common or per-link scale).
+    pub form: Option<String>,
     pub params: BTreeMap<String, f64>,
     pub std_errors: BTreeMap<String, f64>,
     pub score: f64,
@@ -133,8 +137,12 @@ pub struct AtBound {
 pub struct Unexplained {
     pub description: String,
     pub rms_rot_deg: f64,
-    /// The ripple behind the description, when it is one (link, cycle count, amplitude).
+    /// The ripple behind the description, when it is one (link, cycle count, amplitude, and
+    /// its second harmonic where the data need it).
     pub ripple: Option<Harmonic>,
+    /// The drift behind the description, when it is one: rotation of the measured orientation
+    /// from the first to the last sample (deg).
+    pub drift_deg: Option<f64>,
 }
 
 #[derive(Debug, Clone)]
@@ -241,16 +249,11 @@ impl Ctx<'_> {
 /// hard limits.
 fn apply(unit: &UnitModel, params: &[Param], delta: &[f64]) -> UnitModel {
     let mut u = unit.clone();
-    for (p, d) in params.iter().zip(delta) {
+    for p in params {
         u.set_enabled(p.effect, true);
-        let mut v = u.params(p.effect);
-        let lim = p.hard_limit();
-        v[p.index] = (v[p.index] + d).clamp(-lim, lim);
-        if p.effect == Effect::HingeBacklash {
-            v[p.index] = v[p.index].max(0.0);
-        }
-        u.set_params(p.effect, &v).expect("length from param_names");
     }
+    let x: Vec<f64> = get(&u, params).iter().zip(delta).map(|(v, d)| v + d).collect();
+    set(&mut u, params, &x);
     u
 }
 
@@ -343,7 +346,7 @@ pub fn explain(
     let mut steps: Vec<Step> = vec![];
     let mut ambiguous: Vec<Ambiguity> = vec![];
     let mut final_candidates = vec![];
-    let mut last_ripple = None;
+    let mut last_outside = None;
     let mut last_design: Option<(Design, Vec<select::Cand>)> = None;
     for round in 0..opts.max_rounds.max(1) {
         let cands: Vec<Effect> =
@@ -352,7 +355,7 @@ pub fn explain(
         let design = Design::build(&unit, &free, &cands, data, &ctx.folds, ctx.sigma)?;
         progress(&format!("round {}: scoring sets of up to {} effects", round + 1, sel_opts.max_joint));
         let choice = select::choose(&design, &sel_opts);
-        last_ripple = choice.ripple;
+        last_outside = choice.outside;
         final_candidates = choice.table.clone();
         if choice.named.is_empty() {
             last_design = Some((design, choice.candidates));
@@ -395,18 +398,24 @@ pub fn explain(
             let cv_new = ctx.cv(&full.unit, &f_new)?;
             let (before, after) = (rms_norm(&held_out), rms_norm(&cv_new));
             if m.alternatives.is_empty() {
-                let names = e.param_names();
                 let mut params = BTreeMap::new();
                 let mut ses = BTreeMap::new();
                 for (p, se) in full.free.iter().zip(full.std_error.iter().chain(std::iter::repeat(&f64::NAN))) {
                     if p.effect == e {
-                        params.insert(names[p.index].clone(), full.unit.params(e)[p.index]);
-                        ses.insert(names[p.index].clone(), *se);
+                        params.insert(p.local_name(), get(&full.unit, &[*p])[0]);
+                        ses.insert(p.local_name(), *se);
+                    }
+                }
+                // A tied form also shows the effect's own parameters it sets.
+                if m.params.iter().any(|p| p.tie.is_some()) {
+                    for (n, v) in e.param_names().into_iter().zip(full.unit.params(e)) {
+                        params.insert(n, v);
                     }
                 }
                 let sig = signature_rms(&full.unit, e, data).map(|s| s.0).unwrap_or(f64::NAN);
                 steps.push(Step {
                     effect: e.name().into(),
+                    form: m.form.clone(),
                     params,
                     std_errors: ses,
                     score: m.marginal / choice.chi_base.max(1e-300),
@@ -447,7 +456,7 @@ pub fn explain(
         }
     };
     for (k, p) in free.iter().enumerate() {
-        let v = unit.params(p.effect)[p.index];
+        let v = get(&unit, &[*p])[0];
         let bound = if v.abs() >= 0.98 * p.hard_limit() { p.hard_limit() } else { p.plausible_max() };
         if v.abs() >= 0.98 * bound {
             let absorbing = design.as_ref().map(|(d, c)| select::absorbing(d, k, c)).unwrap_or_default();
@@ -455,14 +464,22 @@ pub fn explain(
         }
     }
     let mut unexplained = vec![];
-    // Structure left: above the floor, or a ripple that still removes significant held-out
-    // chi-square (a small effect outside the library can hide under the floor factor).
-    if final_rms.0 > opts.floor_factor * nf_r || final_rms.1 > opts.floor_factor * nf_t || last_ripple.is_some() {
-        let ripple = last_ripple.filter(|h| h.amplitude_deg > 0.5 * ctx.sigma.0);
+    // Structure left: above the floor, or outside structure that still removes significant
+    // held-out chi-square (a small effect outside the library can hide under the floor factor).
+    if final_rms.0 > opts.floor_factor * nf_r || final_rms.1 > opts.floor_factor * nf_t || last_outside.is_some() {
+        let ripple = match last_outside {
+            Some(Outside::Ripple(h)) if h.amplitude_deg > 0.5 * ctx.sigma.0 => Some(h),
+            _ => None,
+        };
+        let drift_deg = match last_outside {
+            Some(Outside::Drift { end_deg, .. }) if end_deg > ctx.sigma.0 => Some(end_deg),
+            _ => None,
+        };
         unexplained.push(Unexplained {
-            description: structure::describe(data, &held_out, last_ripple, ctx.sigma.0),
+            description: structure::describe(data, &held_out, last_outside, ctx.sigma.0),
             rms_rot_deg: final_rms.0,
             ripple,
+            drift_deg,
         });
     }
     let held = fit_params(&unit, &free, data, &FitOptions { max_iter: 0, ..ctx.opts(None, false, 0) })

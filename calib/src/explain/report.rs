@@ -73,6 +73,7 @@ pub fn summary_json(r: &ExplainResult) -> serde_json::Value {
         "named": r.steps.iter().map(|s| s.effect.clone()).collect::<Vec<_>>(),
         "steps": r.steps.iter().map(|s| serde_json::json!({
             "effect": s.effect,
+            "form": s.form,
             "params": s.params,
             "std_errors": s.std_errors,
             "score": s.score,
@@ -131,6 +132,9 @@ pub fn report_markdown(r: &ExplainResult, data_name: &str, plots: &[(String, Str
     }
     for (i, st) in r.steps.iter().enumerate() {
         s += &format!("## Step {}: {}\n\n", i + 1, st.effect);
+        if let Some(f) = &st.form {
+            s += &format!("Fitted as {f} (the form the held-out data support best).\n\n");
+        }
         if let Some(w) = &st.warning {
             s += &format!("**Warning:** {w}.\n\n");
         }

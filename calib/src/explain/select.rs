@@ -2,15 +2,18 @@
 //! `max_joint` candidate effects is scored by its cross-validated chi-square (linearised around
 //! the current model, see [`Design`]) plus `ln(rows)` per parameter. The best set whose every
 //! member is necessary (removes more than its penalty and a real share of what the others
-//! leave) and physically plausible wins. The generic link-angle ripple competes only for what
-//! no library set explains: it displaces library effects only where it explains more than the
-//! best set, and then only members that explain nothing beyond it are dropped. A named effect
-//! that another candidate replaces almost as well is reported as ambiguous, not named.
-use super::design::{wheel_heads, BlockKind, Design, HEAD_LAYOUTS};
-use super::structure::Harmonic;
+//! leave) and physically plausible wins. Structure outside the library (a ripple of any link and
+//! cycle count, with its second harmonic, a drift over the session) competes under the same
+//! penalty: an outside description with the best library set beside it displaces the best
+//! library set where it scores better, and members that explain nothing beyond the outside
+//! structure are dropped. Effects with several forms (one wheel, a common scale, the readings of
+//! hinge_backlash) compete in each, a set carrying one. A named effect that another candidate
+//! replaces almost as well is reported as ambiguous, not named.
+use super::design::{BlockKind, Design};
+use super::structure::{Harmonic, Outside};
 use super::CandidateScore;
-use crate::identify::Param;
-use abvs_eye::unit::Effect;
+use crate::identify::{Param, HEAD_LAYOUTS};
+use abvs_eye::unit::{BacklashForm, Effect};
 use std::collections::HashMap;
 
 pub struct SelectOptions {
@@ -36,21 +39,16 @@ pub struct Cand {
     pub cols: Vec<usize>,
     pub params: Vec<Param>,
     /// A tied form ([`BlockKind::Wheel`], [`BlockKind::CommonScale`]): fewer columns stand
-    /// for the effect's parameters.
+    /// for the effect's parameters (the params are the tie's scalars).
     pub tied: Option<BlockKind>,
+    /// Which form of the effect, where it has several (for the report).
+    pub form: Option<String>,
 }
 
 impl Cand {
     /// The parameters' values for this candidate's fitted column coefficients `x`.
     pub fn values(&self, x: &[f64]) -> Vec<f64> {
-        match self.tied {
-            Some(BlockKind::Wheel { layout }) => {
-                let h = wheel_heads(&HEAD_LAYOUTS[layout].1, x[0], x[1]);
-                [h[0][0], h[1][0], h[2][0], h[0][1], h[1][1], h[2][1]].to_vec()
-            }
-            Some(BlockKind::CommonScale) => vec![x[0]; 3],
-            _ => x.to_vec(),
-        }
+        x.to_vec()
     }
     /// Largest fitted size relative to the plausible maximum, for coefficients `x`.
     fn size_ratio(&self, x: &[f64]) -> f64 {
@@ -63,6 +61,8 @@ impl Cand {
 
 pub struct Named {
     pub effect: Effect,
+    /// The form fitted, where the effect has several.
+    pub form: Option<String>,
     /// Held-out chi-square it removes given the others.
     pub marginal: f64,
     /// Candidates that replace it almost as well (empty: named without doubt).
@@ -74,8 +74,8 @@ pub struct Named {
 pub struct Choice {
     pub named: Vec<Named>,
     pub table: Vec<CandidateScore>,
-    /// The best ripple given the chosen set, when it is significant there.
-    pub ripple: Option<Harmonic>,
+    /// The best outside structure given the chosen set, when it is significant there.
+    pub outside: Option<Outside>,
     /// Held-out chi-square of the base.
     pub chi_base: f64,
     pub candidates: Vec<Cand>,
@@ -85,39 +85,41 @@ struct Scorer<'a> {
     d: &'a Design,
     base: Vec<usize>,
     cands: &'a [Cand],
+    outs: Vec<OutsideCand>,
     memo: HashMap<(Vec<usize>, Option<usize>), f64>,
 }
 
 impl Scorer<'_> {
-    fn cols(&self, set: &[usize], ripple: Option<usize>) -> Vec<usize> {
+    fn cols(&self, set: &[usize], out: Option<usize>) -> Vec<usize> {
         let mut c = self.base.clone();
         for &i in set {
             c.extend(&self.cands[i].cols);
         }
-        if let Some(r) = ripple {
-            c.extend(self.d.blocks[r].cols.clone());
+        if let Some(r) = out {
+            c.extend(&self.outs[r].cols);
         }
         c
     }
-    fn chi(&mut self, set: &[usize], ripple: Option<usize>) -> f64 {
+    fn chi(&mut self, set: &[usize], out: Option<usize>) -> f64 {
         let mut key = set.to_vec();
         key.sort();
-        if let Some(v) = self.memo.get(&(key.clone(), ripple)) {
+        if let Some(v) = self.memo.get(&(key.clone(), out)) {
             return *v;
         }
-        let v = self.d.cv_chi2(&self.cols(&key, ripple));
-        self.memo.insert((key, ripple), v);
+        let v = self.d.cv_chi2(&self.cols(&key, out));
+        self.memo.insert((key, out), v);
         v
     }
-    fn k(&self, set: &[usize], ripple: Option<usize>) -> f64 {
-        (set.iter().map(|&i| self.cands[i].cols.len()).sum::<usize>() + ripple.map_or(0, |_| 2)) as f64
+    fn k(&self, set: &[usize], out: Option<usize>) -> f64 {
+        (set.iter().map(|&i| self.cands[i].cols.len()).sum::<usize>() + out.map_or(0, |r| self.outs[r].cols.len()))
+            as f64
     }
-    fn pchi(&mut self, set: &[usize], ripple: Option<usize>, pen: f64) -> f64 {
-        self.chi(set, ripple) + pen * self.k(set, ripple)
+    fn pchi(&mut self, set: &[usize], out: Option<usize>, pen: f64) -> f64 {
+        self.chi(set, out) + pen * self.k(set, out)
     }
     /// Largest fitted size relative to its plausible maximum, per member of the set.
-    fn size_ratio(&self, set: &[usize], ripple: Option<usize>, member: usize) -> f64 {
-        let cols = self.cols(set, ripple);
+    fn size_ratio(&self, set: &[usize], out: Option<usize>, member: usize) -> f64 {
+        let cols = self.cols(set, out);
         let (x, _) = self.d.fit(&cols);
         let c = &self.cands[member];
         let xs: Vec<f64> =
@@ -128,8 +130,8 @@ impl Scorer<'_> {
     /// fact); one eccentric wheel shows every head the same amplitude. Per-head amplitudes that
     /// differ beyond their uncertainty (chi-square, 2 dof, 99.9%) describe something else (a
     /// ripple of one link, a scale error), not the wheel.
-    fn not_one_wheel(&self, set: &[usize], ripple: Option<usize>, member: usize) -> Option<String> {
-        let cols = self.cols(set, ripple);
+    fn not_one_wheel(&self, set: &[usize], out: Option<usize>, member: usize) -> Option<String> {
+        let cols = self.cols(set, out);
         let (x, _) = self.d.fit(&cols);
         let se = self.d.std_errors(&cols);
         let c = &self.cands[member];
@@ -152,9 +154,9 @@ impl Scorer<'_> {
     }
 
     /// Why a member of `set` does not hold (None: it holds).
-    fn member_fails(&mut self, set: &[usize], ripple: Option<usize>, i: usize, o: &SelectOptions) -> Option<String> {
+    fn member_fails(&mut self, set: &[usize], out: Option<usize>, i: usize, o: &SelectOptions) -> Option<String> {
         let rest: Vec<usize> = set.iter().copied().filter(|&j| j != i).collect();
-        let (with, without) = (self.chi(set, ripple), self.chi(&rest, ripple));
+        let (with, without) = (self.chi(set, out), self.chi(&rest, out));
         let m = without - with;
         let k = self.cands[i].cols.len() as f64;
         if m <= o.penalty * k {
@@ -165,11 +167,11 @@ impl Scorer<'_> {
             return Some(format!("explains only {:.0}% of the structured misfit", 100.0 * m / structured));
         }
         if self.cands[i].effect == Effect::CodeWheelEccentricity && self.cands[i].tied.is_none() {
-            if let Some(why) = self.not_one_wheel(set, ripple, i) {
+            if let Some(why) = self.not_one_wheel(set, out, i) {
                 return Some(why);
             }
         }
-        let ratio = self.size_ratio(set, ripple, i);
+        let ratio = self.size_ratio(set, out, i);
         if ratio > 1.0 {
             return Some(format!(
                 "fitted size {ratio:.1}x the plausible maximum: it would be absorbing something else"
@@ -177,8 +179,8 @@ impl Scorer<'_> {
         }
         None
     }
-    fn valid(&mut self, set: &[usize], ripple: Option<usize>, o: &SelectOptions) -> bool {
-        set.iter().all(|&i| self.member_fails(set, ripple, i, o).is_none())
+    fn valid(&mut self, set: &[usize], out: Option<usize>, o: &SelectOptions) -> bool {
+        set.iter().all(|&i| self.member_fails(set, out, i, o).is_none())
     }
 }
 
@@ -192,6 +194,24 @@ fn subsets(n: usize, max: usize) -> Vec<Vec<usize>> {
     out
 }
 
+/// Drops the columns whose parameters the data do not determine given the base, worst first.
+fn reduce_identifiable(d: &Design, base: &[usize], cols: &mut Vec<usize>, params: &mut Vec<Param>, o: &SelectOptions) {
+    while !cols.is_empty() {
+        let all: Vec<usize> = base.iter().chain(cols.iter()).copied().collect();
+        let se = d.std_errors(&all);
+        let (worst, ratio) = cols
+            .iter()
+            .enumerate()
+            .map(|(k, _)| (k, se[base.len() + k] / params[k].scale()))
+            .fold((0, 0.0), |a, b| if b.1 > a.1 || !b.1.is_finite() { b } else { a });
+        if ratio.is_finite() && ratio <= o.ident_ratio {
+            break;
+        }
+        cols.remove(worst);
+        params.remove(worst);
+    }
+}
+
 /// Reduces each candidate block to its identifiable parameters (worst standard error out
 /// first, given the base).
 pub fn candidates(d: &Design, o: &SelectOptions) -> Vec<(Effect, Option<Cand>)> {
@@ -201,21 +221,10 @@ pub fn candidates(d: &Design, o: &SelectOptions) -> Vec<(Effect, Option<Cand>)> 
         let BlockKind::Effect(e) = blk.kind else { continue };
         let mut cols: Vec<usize> = blk.cols.clone().collect();
         let mut params = blk.params.clone();
-        while !cols.is_empty() {
-            let all: Vec<usize> = base.iter().chain(&cols).copied().collect();
-            let se = d.std_errors(&all);
-            let (worst, ratio) = cols
-                .iter()
-                .enumerate()
-                .map(|(k, _)| (k, se[base.len() + k] / params[k].scale()))
-                .fold((0, 0.0), |a, b| if b.1 > a.1 || !b.1.is_finite() { b } else { a });
-            if ratio.is_finite() && ratio <= o.ident_ratio {
-                break;
-            }
-            cols.remove(worst);
-            params.remove(worst);
-        }
-        let cand = (!cols.is_empty()).then_some(Cand { effect: e, cols, params, tied: None });
+        reduce_identifiable(d, &base, &mut cols, &mut params, o);
+        let form =
+            (e == Effect::HingeBacklash).then(|| "any mix of its readings (the parameters the data determine)".into());
+        let cand = (!cols.is_empty()).then_some(Cand { effect: e, cols, params, tied: None, form });
         out.push((e, cand));
     }
     out
@@ -237,24 +246,94 @@ fn one_wheel(d: &Design, e: Effect) -> Option<Cand> {
         })
         .map(|b| {
             let cols: Vec<usize> = b.cols.clone().collect();
-            (chi(&cols), Cand { effect: e, cols, params: b.params.clone(), tied: Some(b.kind) })
+            let form = match b.kind {
+                BlockKind::Wheel { layout } => format!("one wheel, {}", HEAD_LAYOUTS[layout].0),
+                _ => "one scale common to the three links".into(),
+            };
+            (chi(&cols), Cand { effect: e, cols, params: b.params.clone(), tied: Some(b.kind), form: Some(form) })
         })
         .min_by(|a, b| a.0.total_cmp(&b.0))
         .map(|c| c.1)
 }
 
-/// The best ripple added to `set` (block index, chi-square with it).
-fn best_ripple(s: &mut Scorer, set: &[usize]) -> Option<(usize, f64)> {
-    let ripples: Vec<usize> =
-        (0..s.d.blocks.len()).filter(|&b| matches!(s.d.blocks[b].kind, BlockKind::Ripple { .. })).collect();
-    ripples.into_iter().map(|r| (r, s.chi(set, Some(r)))).min_by(|a, b| a.1.total_cmp(&b.1))
+/// The readings of hinge_backlash ([`BacklashForm`]), each a candidate beside the free mix:
+/// a lag of each link, of the platform about each hinge axis, of the platform along its own last
+/// motion. Their signatures differ in where and how the direction of approach shows, so the
+/// held-out comparison (same penalty as every candidate) picks the one the data support; a
+/// reading with fewer parameters wins where it fits as well.
+fn backlash_forms(d: &Design, o: &SelectOptions) -> Vec<Cand> {
+    let Some(blk) = d.blocks.iter().find(|b| b.kind == BlockKind::Effect(Effect::HingeBacklash)) else { return vec![] };
+    if blk.cols.len() != Effect::HingeBacklash.param_names().len() {
+        return vec![];
+    }
+    let base = d.base();
+    BacklashForm::ALL
+        .into_iter()
+        .filter_map(|f| {
+            let mut cols: Vec<usize> = f.indices().map(|k| blk.cols.start + k).collect();
+            let mut params: Vec<Param> = f.indices().map(|k| blk.params[k]).collect();
+            reduce_identifiable(d, &base, &mut cols, &mut params, o);
+            (!cols.is_empty()).then(|| Cand {
+                effect: Effect::HingeBacklash,
+                cols,
+                params,
+                tied: None,
+                form: Some(f.describe().into()),
+            })
+        })
+        .collect()
 }
 
-fn best_valid(s: &mut Scorer, all: &[Vec<usize>], ripple: Option<usize>, o: &SelectOptions) -> Vec<usize> {
-    let mut scored: Vec<(f64, &Vec<usize>)> = all.iter().map(|set| (s.pchi(set, ripple, o.penalty), set)).collect();
+/// A description outside the library, competing with library sets under the same penalty: a
+/// ripple of one link's angle, that ripple with its second harmonic, a drift over the session.
+#[derive(Clone)]
+struct OutsideCand {
+    kind: OutsideKind,
+    cols: Vec<usize>,
+}
+
+#[derive(Clone, Copy)]
+enum OutsideKind {
+    Ripple { link: usize, cycles: usize },
+    WithHarmonic { link: usize, cycles: usize },
+    Drift,
+}
+
+fn outside_cands(d: &Design) -> Vec<OutsideCand> {
+    let mut out = vec![];
+    for blk in &d.blocks {
+        match blk.kind {
+            BlockKind::Ripple { link, cycles } => {
+                out.push(OutsideCand { kind: OutsideKind::Ripple { link, cycles }, cols: blk.cols.clone().collect() });
+                let second = d.blocks.iter().find(|b| b.kind == BlockKind::Ripple { link, cycles: 2 * cycles });
+                if let Some(h) = second {
+                    out.push(OutsideCand {
+                        kind: OutsideKind::WithHarmonic { link, cycles },
+                        cols: blk.cols.clone().chain(h.cols.clone()).collect(),
+                    });
+                }
+            }
+            BlockKind::Drift => out.push(OutsideCand { kind: OutsideKind::Drift, cols: blk.cols.clone().collect() }),
+            _ => {}
+        }
+    }
+    out
+}
+
+/// The outside descriptions that explain most on top of `set`, best first (index, penalised
+/// chi-square).
+fn best_outside(s: &mut Scorer, set: &[usize], pen: f64, n: usize) -> Vec<(usize, f64)> {
+    let mut v: Vec<(usize, f64)> = (0..s.outs.len()).map(|r| (r, s.pchi(set, Some(r), pen))).collect();
+    v.sort_by(|a, b| a.1.total_cmp(&b.1));
+    v.truncate(n);
+    v
+}
+
+fn best_valid(s: &mut Scorer, all: &[Vec<usize>], out: Option<usize>, o: &SelectOptions) -> Vec<usize> {
+    let mut scored: Vec<(f64, &Vec<usize>)> = all.iter().map(|set| (s.pchi(set, out, o.penalty), set)).collect();
     scored.sort_by(|a, b| a.0.total_cmp(&b.0));
     for (_, set) in scored {
-        if s.valid(set, ripple, o) {
+        if s.valid(set, out, o) {
             return set.clone();
         }
     }
@@ -267,7 +346,8 @@ pub fn choose(d: &Design, o: &SelectOptions) -> Choice {
     for e in [Effect::CodeWheelEccentricity, Effect::EncoderScale] {
         cands.extend(one_wheel(d, e));
     }
-    let mut s = Scorer { d, base: d.base(), cands: &cands, memo: HashMap::new() };
+    cands.extend(backlash_forms(d, o));
+    let mut s = Scorer { d, base: d.base(), cands: &cands, outs: outside_cands(d), memo: HashMap::new() };
     let chi_base = s.chi(&[], None);
     // A set carries each effect in one form.
     let all: Vec<Vec<usize>> = subsets(cands.len(), o.max_joint)
@@ -278,46 +358,67 @@ pub fn choose(d: &Design, o: &SelectOptions) -> Choice {
         .collect();
     let lib = best_valid(&mut s, &all, None, o);
     let mut chosen = lib.clone();
-    let mut ripple_note: Option<(usize, String)> = None;
-    // The ripple competes for what the best library set leaves or explains no better.
-    if let Some((r, chi_r)) = best_ripple(&mut s, &[]) {
-        if chi_r + 2.0 * o.penalty < s.pchi(&lib, None, o.penalty) {
-            chosen = best_valid(&mut s, &all, Some(r), o);
-            ripple_note = Some((r, ripple_name(d, r)));
+    let mut out_note: Option<(usize, String)> = None;
+    // Outside structure competes with the best library set on the same footing: each of the
+    // outside descriptions that explain most (alone, or on top of that set), with the best valid
+    // library set beside it. A library set is named only where it scores better.
+    let mut best = s.pchi(&lib, None, o.penalty);
+    let mut tops = best_outside(&mut s, &[], o.penalty, 3);
+    tops.extend(best_outside(&mut s, &lib, o.penalty, 3));
+    for (r, _) in tops {
+        let set = best_valid(&mut s, &all, Some(r), o);
+        let score = s.pchi(&set, Some(r), o.penalty);
+        if score < best {
+            best = score;
+            chosen = set;
+            out_note = Some((r, outside_name(&s.outs[r])));
         }
     }
-    // Every member must also explain something beyond the best ripple on top of the set.
-    if let Some((r, chi_r)) = best_ripple(&mut s, &chosen) {
-        if chi_r + 2.0 * o.penalty < s.chi(&chosen, None) {
+    // Every member must also explain something beyond the best outside structure on top of it.
+    if let Some(&(r, p_r)) = best_outside(&mut s, &chosen, o.penalty, 1).first() {
+        if p_r < s.pchi(&chosen, None, o.penalty) {
             let keep: Vec<usize> =
                 chosen.iter().copied().filter(|&i| s.member_fails(&chosen, Some(r), i, o).is_none()).collect();
             if keep.len() < chosen.len() {
-                ripple_note = Some((r, ripple_name(d, r)));
+                out_note = Some((r, outside_name(&s.outs[r])));
             }
             chosen = keep;
         }
     }
     let chi_chosen = s.chi(&chosen, None);
+    // Outside structure significant on top of the set: members are weighed beside it.
+    let sig_out = best_outside(&mut s, &chosen, o.penalty, 1)
+        .first()
+        .filter(|(_, p_r)| *p_r < s.pchi(&chosen, None, o.penalty))
+        .map(|(r, _)| *r);
 
     // Marginal evidence and substitutes of each member.
     let mut named = vec![];
     for &i in &chosen {
         let rest: Vec<usize> = chosen.iter().copied().filter(|&j| j != i).collect();
-        let m = s.chi(&rest, None) - chi_chosen;
-        let here = s.pchi(&chosen, None, o.penalty);
-        let mut alternatives = vec![];
+        let m = s.chi(&rest, sig_out) - s.chi(&chosen, sig_out);
+        let here = s.pchi(&chosen, sig_out, o.penalty);
+        let mut alternatives: Vec<(Effect, f64)> = vec![];
         for j in 0..cands.len() {
-            // Another form of a member is not a substitute for it.
-            if chosen.iter().any(|&c| cands[c].effect == cands[j].effect) {
+            // Another form of a member is not a substitute for it; an effect is listed once.
+            if chosen.iter().any(|&c| cands[c].effect == cands[j].effect)
+                || alternatives.iter().any(|a| a.0 == cands[j].effect)
+            {
                 continue;
             }
             let swapped: Vec<usize> = rest.iter().copied().chain([j]).collect();
-            let there = s.pchi(&swapped, None, o.penalty);
-            if there - here < 2.0 * o.penalty + o.ambiguity_margin * m && s.size_ratio(&swapped, None, j) <= 1.0 {
-                alternatives.push((cands[j].effect, s.chi(&rest, None) - s.chi(&swapped, None)));
+            let there = s.pchi(&swapped, sig_out, o.penalty);
+            if there - here < 2.0 * o.penalty + o.ambiguity_margin * m && s.size_ratio(&swapped, sig_out, j) <= 1.0 {
+                alternatives.push((cands[j].effect, s.chi(&rest, sig_out) - s.chi(&swapped, sig_out)));
             }
         }
-        named.push(Named { effect: cands[i].effect, marginal: m, alternatives, params: cands[i].params.clone() });
+        named.push(Named {
+            effect: cands[i].effect,
+            form: cands[i].form.clone(),
+            marginal: m,
+            alternatives,
+            params: cands[i].params.clone(),
+        });
     }
     named.sort_by(|a, b| b.marginal.total_cmp(&a.marginal));
 
@@ -359,9 +460,9 @@ pub fn choose(d: &Design, o: &SelectOptions) -> Choice {
                 // Why not: judged as an addition to the chosen set.
                 let mut with: Vec<usize> = chosen.clone();
                 with.push(i);
-                let rip = ripple_note.as_ref().map(|r| r.0);
+                let rip = out_note.as_ref().map(|r| r.0);
                 let why: String = match s.member_fails(&with, rip, i, o) {
-                    Some(why) => match &ripple_note {
+                    Some(why) => match &out_note {
                         Some((_, rn)) if s.member_fails(&with, None, i, o).is_none() => {
                             format!("explains nothing beyond {rn}")
                         }
@@ -387,18 +488,44 @@ pub fn choose(d: &Design, o: &SelectOptions) -> Choice {
     }
     table.sort_by(|a, b| b.score.total_cmp(&a.score));
 
-    // The ripple left on top of the chosen set, if significant.
-    let ripple = best_ripple(&mut s, &chosen).and_then(|(r, chi_r)| {
-        let drop = chi_chosen - chi_r;
-        (drop > 2.0 * o.penalty).then(|| {
-            let BlockKind::Ripple { link, cycles } = d.blocks[r].kind else { unreachable!("ripple block") };
+    // The outside structure left on top of the chosen set, if significant.
+    let outside = best_outside(&mut s, &chosen, o.penalty, 1).first().and_then(|&(r, p_r)| {
+        let drop = chi_chosen - s.chi(&chosen, Some(r));
+        (p_r < s.pchi(&chosen, None, o.penalty)).then(|| {
             let cols = s.cols(&chosen, Some(r));
             let (x, _) = d.fit(&cols);
-            let n = x.len();
-            Harmonic { link, cycles, drop, amplitude_deg: x[n - 2].hypot(x[n - 1]) }
+            let k = s.outs[r].cols.len();
+            let c = &x[x.len() - k..];
+            match s.outs[r].kind {
+                OutsideKind::Ripple { link, cycles } => Outside::Ripple(Harmonic {
+                    link,
+                    cycles,
+                    drop,
+                    amplitude_deg: c[0].hypot(c[1]),
+                    second_harmonic_deg: None,
+                }),
+                OutsideKind::WithHarmonic { link, cycles } => Outside::Ripple(Harmonic {
+                    link,
+                    cycles,
+                    drop,
+                    amplitude_deg: c[0].hypot(c[1]),
+                    second_harmonic_deg: Some(c[2].hypot(c[3])),
+                }),
+                OutsideKind::Drift => Outside::Drift { end_deg: c.iter().map(|v| v * v).sum::<f64>().sqrt(), drop },
+            }
         })
     });
-    Choice { named, table, ripple, chi_base, candidates: cands }
+    Choice { named, table, outside, chi_base, candidates: cands }
+}
+
+fn outside_name(c: &OutsideCand) -> String {
+    match c.kind {
+        OutsideKind::Ripple { link, cycles } => format!("a {cycles}-cycle ripple of theta{}", link + 1),
+        OutsideKind::WithHarmonic { link, cycles } => {
+            format!("a {cycles}-cycle ripple of theta{} with its second harmonic", link + 1)
+        }
+        OutsideKind::Drift => "a drift over the session".into(),
+    }
 }
 
 fn ripple_name(d: &Design, r: usize) -> String {

@@ -131,15 +131,56 @@ pub fn periodic(data: &Dataset, res: &[[f64; 6]], cycles: usize) -> (f64, usize)
     (best.0, best.1)
 }
 
+/// The columns of a slow drift of the measured orientation over the session: a rotation about
+/// each base-frame axis growing linearly from the first sample (home is measured at the start)
+/// to the last, as the change of the weighted rotation residual (6 rows per sample; the
+/// residual is in the camera frame, so each axis is seen through the measured orientation).
+/// None where the samples carry no time span.
+pub fn drift_columns(data: &Dataset, sigma_rot: f64) -> Option<[DVector<f64>; 3]> {
+    let t0 = data.samples.iter().map(|s| s.t_s).fold(f64::INFINITY, f64::min);
+    let t1 = data.samples.iter().map(|s| s.t_s).fold(f64::NEG_INFINITY, f64::max);
+    if !(t1 > t0) {
+        return None;
+    }
+    let n = data.len();
+    let mut cols = [DVector::zeros(6 * n), DVector::zeros(6 * n), DVector::zeros(6 * n)];
+    for (k, s) in data.samples.iter().enumerate() {
+        let f = (s.t_s - t0) / (t1 - t0);
+        let r = abvs_eye::Pose::from_p6(&s.pose).r;
+        for (axis, c) in cols.iter_mut().enumerate() {
+            // R^T e_axis: a base-frame rotation on the left of R_rel, in the residual's frame.
+            for m in 0..3 {
+                c[6 * k + m] = f * r[(axis, m)] / sigma_rot;
+            }
+        }
+    }
+    Some(cols)
+}
+
 /// A ripple fitted with the model: the yardstick for structure no library effect describes.
 #[derive(Debug, Clone, Copy, serde::Serialize)]
 pub struct Harmonic {
     pub link: usize,
+    /// Cycles per revolution of the fundamental.
     pub cycles: usize,
     /// Held-out chi-square (noise units) it removes beyond the model's own parameters.
     pub drop: f64,
     /// Link-angle amplitude (deg).
     pub amplitude_deg: f64,
+    /// Amplitude of its second harmonic (2 x cycles), where the data need it (deg).
+    pub second_harmonic_deg: Option<f64>,
+}
+
+/// Structure outside the library that the selection fitted with the model.
+#[derive(Debug, Clone, Copy, serde::Serialize)]
+pub enum Outside {
+    Ripple(Harmonic),
+    /// The measured orientation drifting over the session: rotation from the first to the last
+    /// sample (deg) and the held-out chi-square it removes.
+    Drift {
+        end_deg: f64,
+        drop: f64,
+    },
 }
 
 /// Drift of the rotation residual over the session (deg from start to end).
@@ -158,18 +199,28 @@ fn drift(data: &Dataset, res: &[[f64; 6]]) -> f64 {
     d.sqrt()
 }
 
-/// Names the strongest structure left that no library effect explains: a link-angle ripple
-/// (fitted with the model, significant on held-out data), a drift over the session, or else
-/// the plain statement that structure remains.
-pub fn describe(data: &Dataset, res: &[[f64; 6]], ripple: Option<Harmonic>, sigma_rot: f64) -> String {
+/// Names the strongest structure left that no library effect explains: the outside structure
+/// the selection fitted with the model (a ripple, with its harmonic, or a drift; significant on
+/// held-out data), a drift of the residual over the session, or else the plain statement that
+/// structure remains.
+pub fn describe(data: &Dataset, res: &[[f64; 6]], outside: Option<Outside>, sigma_rot: f64) -> String {
     let dr = drift(data, res);
-    match ripple {
-        Some(h) if h.amplitude_deg > 0.5 * sigma_rot => format!(
-            "periodic in theta{}, {} cycles per revolution, {:.3} deg of link angle",
-            h.link + 1,
-            h.cycles,
-            h.amplitude_deg
-        ),
+    match outside {
+        Some(Outside::Ripple(h)) if h.amplitude_deg > 0.5 * sigma_rot => {
+            let second = h
+                .second_harmonic_deg
+                .map(|a| format!(", with its second harmonic ({} cycles, {a:.3} deg)", 2 * h.cycles))
+                .unwrap_or_default();
+            format!(
+                "periodic in theta{}, {} cycles per revolution, {:.3} deg of link angle{second}",
+                h.link + 1,
+                h.cycles,
+                h.amplitude_deg
+            )
+        }
+        Some(Outside::Drift { end_deg, .. }) if end_deg > sigma_rot => {
+            format!("drift of the measured orientation over the session, {end_deg:.3} deg from start to end")
+        }
         _ if dr > 3.0 * sigma_rot => format!("drift over the session, {dr:.3} deg from start to end"),
         _ => "structured residual without a periodic or temporal pattern; see the residual heatmap".to_string(),
     }

@@ -44,7 +44,8 @@ READ_RADIUS_MM = 15.0
 HEAD_WHEEL_ANGLE_DEG = PSI  # wheel angle under head i when link i is at true angle 0
 HOMING_LAST_MOTION = (0.0, 0.0, 1.0)  # start-up roll ends moving in +roll (+z)
 
-FAMILY_SEEDS = {"dev": 271828, "final": 314159, "dev2": 161803, "final2": 577215}
+FAMILY_SEEDS = {"dev": 271828, "final": 314159, "dev2": 161803, "final2": 577215, "dev3": 141421,
+                "final3": 662607}
 
 # (set name, hidden effects in effects.md vocabulary / "outside:ripple3")
 SETS = [
@@ -75,8 +76,24 @@ SETS2 = [
 ]
 
 
+# Round 3 (families dev3 / final3): backlash as a settling of the platform about each leg's hinge,
+# a ripple with its second harmonic, a slow drift of the measured orientation over the session,
+# three effects with the hinge form, and a library effect under a drift.
+SETS3 = [
+    ("hinge_backlash_at_hinges", ["hinge_backlash"]),
+    ("ripple_with_harmonic", ["outside:ripple_harmonic"]),
+    ("drift", ["outside:drift"]),
+    ("hinge_backlash_eccentricity_sag", ["hinge_backlash", "code_wheel_eccentricity", "gravity_sag"]),
+    ("scale_under_drift", ["encoder_scale", "outside:drift"]),
+]
+
+
+def round_of(family):
+    return 3 if family.endswith("3") else 2 if family.endswith("2") else 1
+
+
 def sets_of(family):
-    return SETS2 if family.endswith("2") else SETS
+    return {1: SETS, 2: SETS2, 3: SETS3}[round_of(family)]
 
 
 GEOM_MAX_ROT_DEG = 1.5  # bound on the deviation of a unit's mechanism from nominal
@@ -477,6 +494,23 @@ def draw_hidden2(rng, name):
     return h
 
 
+def draw_hidden3(rng, name):
+    """Round 3: the round-2 draws, then the round-3 forms (drawn after, as round 2 does)."""
+    h = draw_hidden2(rng, name)
+    # effects.md: "the platform settles differently depending on the direction from which each link
+    # last approached". Read at the platform: the clearance of leg i's hinge on the platform lets the
+    # platform turn about that hinge's axis, to the side link i last pushed from.
+    h["hinge_backlash"] = {"model": "hinge_lag", "clearance_deg": rng.uniform(0.05, 0.08, 3)}
+    # a ripple of k cycles (2..5) with its second harmonic (2k cycles), e.g. a polygonal hub
+    h["outside:ripple_harmonic"] = {"link": int(rng.integers(0, 3)) + 1, "cycles": int(rng.integers(2, 6)),
+                                    "amplitude_deg": rng.uniform(0.08, 0.12), "phase_deg": rng.uniform(0.0, 360.0),
+                                    "harmonic_amplitude_deg": rng.uniform(0.04, 0.06),
+                                    "harmonic_phase_deg": rng.uniform(0.0, 360.0)}
+    # the measured orientation drifts linearly over the session (board or head warming up)
+    h["outside:drift"] = {"end_deg": rng.uniform(0.06, 0.1), "axis": _random_unit(rng)}
+    return h
+
+
 class Unit:
     def __init__(self, geom, hidden_params, on):
         self.g = geom
@@ -524,6 +558,12 @@ class Unit:
                 j = p["link"] - 1
                 A, rho, k = p["amplitude_deg"], p["phase_deg"] * RAD, float(p.get("cycles", 3))
                 r[:, j] = r[:, j] + A * (np.sin(k * th[:, j] * RAD + rho) - np.sin(k * z[0, j] * RAD + rho))
+        if "outside:ripple_harmonic" in on:
+            p = self.h["outside:ripple_harmonic"]
+            j = p["link"] - 1
+            for A, ph, k in ((p["amplitude_deg"], p["phase_deg"], p["cycles"]),
+                             (p["harmonic_amplitude_deg"], p["harmonic_phase_deg"], 2 * p["cycles"])):
+                r[:, j] = r[:, j] + A * (np.sin(k * th[:, j] * RAD + ph * RAD) - np.sin(k * z[0, j] * RAD + ph * RAD))
         return r
 
     def link_lag(self, readings_deg, on=None):
@@ -545,6 +585,30 @@ class Unit:
             prev = rd[k]
             out[k] = -last * half
         return out, -half
+
+    @staticmethod
+    def approach_directions(readings_deg):
+        """(N,3) sign of the last change of each link's reading (kept while it does not change;
+        +1 before any change: homing ends with every motor turning +)."""
+        rd = np.asarray(readings_deg, float)
+        last = np.ones(3)
+        prev = np.zeros(3)
+        out = np.empty((len(rd), 3))
+        for k in range(len(rd)):
+            d = rd[k] - prev
+            last = np.where(d > 0, 1.0, np.where(d < 0, -1.0, last))
+            prev = rd[k]
+            out[k] = last
+        return out
+
+    def hinge_settle(self, R, dirs, v0):
+        """Leg by leg, the platform turns about its hinge axis on leg i (R v0_i, base frame) by
+        -dir_i c_i / 2 (dirs (N,3), R (N,3,3))."""
+        half = 0.5 * np.asarray(self.h["hinge_backlash"]["clearance_deg"], float) * RAD
+        for i in range(3):
+            axis = np.einsum("nab,b->na", R, v0[i])
+            R = rotvec_to_R(-(dirs[:, i] * half[i])[:, None] * axis) @ R
+        return R
 
     def true_from_reading(self, reading_deg, on=None):
         """Invert reading_from_true numerically (Newton, per element)."""
@@ -576,7 +640,7 @@ class Unit:
         on = self.on if on is None else set(on)
         R = R_geo.copy()
         Rh = R_geo_home.copy()
-        if "hinge_backlash" in on and self.h["hinge_backlash"].get("model") != "link_lag":
+        if "hinge_backlash" in on and self.h["hinge_backlash"].get("model") not in ("link_lag", "hinge_lag"):
             b = self.h["hinge_backlash"]["lag_deg"] * RAD
             n = len(R_geo)
             dirs = np.empty((n, 3))
@@ -631,6 +695,10 @@ class Unit:
         R_geo, ok = mech.fk_track(th_true, R_start=Rh, theta_start=th_home)
         R_geo_h = np.array(Rh)
         Rg = np.where(ok[:, None, None], R_geo, np.eye(3))
+        if "hinge_backlash" in on and self.h["hinge_backlash"].get("model") == "hinge_lag":
+            dirs = self.approach_directions(readings_deg)
+            Rg = self.hinge_settle(Rg, dirs, mech.v0np)
+            R_geo_h = self.hinge_settle(R_geo_h[None], np.ones((1, 3)), mech.v0np)[0]
         R_P, R_Ph = self.apply_platform_effects(Rg, R_geo_h, on)
         Rrel, trel = self.camera_pose(R_P, R_Ph)
         return {"theta_true": th_true, "theta_home": th_home, "R_geo": R_geo, "R_geo_home": R_geo_h,
@@ -669,7 +737,18 @@ def command_readings():
     return cmd, th_cmd, counts, readings
 
 
-def build_unit(seed, hidden, readings, name=None):
+def drifted(unit, sim):
+    """The measured orientation drifts linearly with the sample's time, from 0 at the first sample
+    (home is measured at the start) to end_deg about a fixed base-frame axis at the last."""
+    p = unit.h["outside:drift"]
+    n = len(sim["R_rel"])
+    f = np.arange(n) / max(n - 1, 1)
+    out = dict(sim)
+    out["R_rel"] = rotvec_to_R((f * p["end_deg"] * RAD)[:, None] * np.asarray(p["axis"])[None, :]) @ sim["R_rel"]
+    return out
+
+
+def build_unit(seed, hidden, readings, name=None, rnd=1):
     rng = np.random.default_rng(seed)
     force = "link_angle_error" in hidden
     attempts = 0
@@ -686,8 +765,8 @@ def build_unit(seed, hidden, readings, name=None):
             break
         if attempts > 200:
             raise RuntimeError("could not draw a moderate unit")
-    hp = draw_hidden(rng) if name is None else draw_hidden2(rng, name)
-    unit = Unit(geom, hp, [h for h in hidden if h != "link_angle_error"])
+    hp = {1: draw_hidden, 2: draw_hidden2, 3: draw_hidden3}[rnd](rng, *([] if rnd == 1 else [name]))
+    unit = Unit(geom, hp, [h for h in hidden if h not in ("link_angle_error", "outside:drift")])
     # gravity sag: scale the compliance so that the peak sag over the workspace = target
     hp["gravity_sag"]["compliance_rad_per_mm"] = 1.0
     base = unit.simulate(readings, on=[])
@@ -699,8 +778,10 @@ def build_unit(seed, hidden, readings, name=None):
 
 def make_set(family, idx, name, hidden, cmd, th_cmd, counts, readings):
     seed = FAMILY_SEEDS[family] * 100 + idx
-    unit, rng, geodev, attempts = build_unit(seed, hidden, readings, name if family.endswith("2") else None)
+    unit, rng, geodev, attempts = build_unit(seed, hidden, readings, name, round_of(family))
     sim = unit.simulate(readings)
+    if "outside:drift" in hidden:
+        sim = drifted(unit, sim)
     # the same unit without its hidden effect(s)
     if "link_angle_error" in hidden:
         without = unit.simulate(readings, link_errors=False)
@@ -712,6 +793,8 @@ def make_set(family, idx, name, hidden, cmd, th_cmd, counts, readings):
     if len(hidden) > 1:
         for h in hidden:
             only = unit.simulate(readings, on=[h])
+            if h == "outside:drift":
+                only = drifted(unit, only)
             per_effect[h] = change_stats(only, without)
     ok = sim["ok"]
     n = len(readings)
@@ -836,6 +919,13 @@ def hidden_description(unit, h):
                 "model": "link_lag", "clearance_deg": _r(q["clearance_deg"]),
                 "meaning": "link i's true angle is shifted by -dir_i c_i / 2, dir_i the sign of the last "
                            "change of its reading (+1 at home: homing ends moving +)"}
+    if h == "hinge_backlash" and p[h].get("model") == "hinge_lag":
+        q = p[h]
+        return {"size": _r(float(np.max(q["clearance_deg"]))), "size_unit": "deg (largest hinge clearance)",
+                "model": "hinge_lag", "clearance_deg": _r(q["clearance_deg"]),
+                "meaning": "leg by leg, R_P <- exp(-dir_i c_i / 2 n_i) R_P, n_i = R_P v0_i the axis of leg i's "
+                           "platform hinge (base frame), dir_i the sign of the last change of link i's reading "
+                           "(+1 at home)"}
     if h == "hinge_backlash":
         q = p[h]
         return {"size": _r(q["lag_deg"]), "size_unit": "deg (platform lag)",
@@ -865,6 +955,19 @@ def hidden_description(unit, h):
         return {"size": _r(q["amplitude_deg"]), "size_unit": "deg (ripple amplitude)",
                 "link": q["link"], "phase_deg": _r(q["phase_deg"]), "cycles_per_rev": q["cycles"],
                 "meaning": "reading_j += A[sin(k theta_j + rho) - sin(k z_j + rho)], theta_j true link angle"}
+    if h == "outside:ripple_harmonic":
+        q = p[h]
+        return {"size": _r(q["amplitude_deg"]), "size_unit": "deg (fundamental's amplitude)",
+                "link": q["link"], "cycles_per_rev": q["cycles"], "phase_deg": _r(q["phase_deg"]),
+                "harmonic": {"cycles_per_rev": 2 * q["cycles"], "amplitude_deg": _r(q["harmonic_amplitude_deg"]),
+                             "phase_deg": _r(q["harmonic_phase_deg"])},
+                "meaning": "reading_j += A[sin(k theta_j + rho) - sin(k z_j + rho)] + A2[sin(2k theta_j + rho2) - "
+                           "sin(2k z_j + rho2)], theta_j true link angle"}
+    if h == "outside:drift":
+        q = p[h]
+        return {"size": _r(q["end_deg"]), "size_unit": "deg (drift from the first to the last sample)",
+                "axis_base_frame": _r(q["axis"]),
+                "meaning": "measured R_rel <- exp(f end_deg axis) R_rel, f = sample index / (rows - 1)"}
     raise KeyError(h)
 
 
@@ -874,7 +977,7 @@ def main(argv=None):
     ap.add_argument("--family", choices=sorted(FAMILY_SEEDS), action="append")
     ap.add_argument("--only", action="append", help="set name(s) to generate")
     args = ap.parse_args(argv)
-    fams = args.family or ["dev", "final", "dev2", "final2"]
+    fams = args.family or ["dev", "final", "dev2", "final2", "dev3", "final3"]
     t0 = time.time()
     cmd, th_cmd, counts, readings = command_readings()
     print(f"grid: {len(cmd)} commanded poses, nominal link angles in "

@@ -9,7 +9,7 @@
 4. each hidden effect changes the (noise-free) poses by about its stated size relative to
    the same unit without it; prints the table for both families.
 
-Options: --data DIR (default: data next to this file), --quick (family dev only).
+Options: --data DIR (default: data next to this file), --quick (the development families only).
 """
 import argparse
 import io
@@ -103,6 +103,8 @@ def equiv_deg(name, hd, sim):
     """Size of a hidden effect as an angle (deg) for the comparison with the pose change."""
     if name == "code_wheel_eccentricity":
         return hd["peak_deg"]
+    if name == "outside:drift":
+        return hd["size"]
     if name == "encoder_scale":
         travel = np.max(np.abs(sim["theta_true"] - sim["theta_home"][None, :]))
         return abs(hd["size"]) * travel
@@ -123,7 +125,7 @@ def main(argv=None):
     check_kinematics(cmd, th_cmd)
 
     table = []
-    fams = ["dev", "dev2"] if args.quick else ["dev", "final", "dev2", "final2"]
+    fams = ["dev", "dev2", "dev3"] if args.quick else ["dev", "final", "dev2", "final2", "dev3", "final3"]
     seeds = {}
     for fam in fams:
         truth = json.load(open(os.path.join(args.data, fam, "truth.json")))
@@ -148,10 +150,14 @@ def main(argv=None):
             assert np.max(np.abs(c - np.rint(c))) < 1e-3
             assert np.array_equal(np.rint(c).astype(np.int64), counts)
             # re-simulate the unit noise-free and compare with the measured poses
-            unit, _, _, _ = G.build_unit(tr["seed"], hidden, readings, name if fam.endswith("2") else None)
+            rnd = G.round_of(fam)
+            unit, _, _, _ = G.build_unit(tr["seed"], hidden, readings, name, rnd)
             sim = unit.simulate(readings)
-            if idx in (1, 2, 9, 11) and not fam.endswith("2") or fam.endswith("2") and idx in (2, 6):  # a few units with different effects (the checks are slow-ish)
+            # a few units with different effects (the checks are slow-ish)
+            if idx in {1: (1, 2, 9, 11), 2: (2, 6), 3: (1, 2)}[rnd]:
                 check_unit_model(unit, readings, sim)
+            if "outside:drift" in hidden:
+                sim = G.drifted(unit, sim)
             Rm = G.fick_to_R(d["alpha_deg"], d["beta_deg"], d["gamma_deg"])
             nrot = G.R_to_rotvec(np.einsum("nab,ncb->nac", Rm, sim["R_rel"])) * G.DEG
             npos = np.column_stack([d["x_mm"], d["y_mm"], d["z_mm"]]) - sim["t_rel"]

@@ -131,10 +131,16 @@ pub struct EncoderScale {
     pub relative_error: [f64; 3],
 }
 
-/// hinge_backlash: clearance in the passive hinges. It shows two ways: per leg, as an
-/// equivalent link-angle clearance that depends on the direction each link last moved, and at
-/// the platform, which settles behind its own last motion (the clearances of all nine hinges
-/// seen together, whatever mix of links produced the motion).
+/// hinge_backlash: clearance in the passive hinges, "the platform settles differently depending
+/// on the direction from which each link last approached" (effects.md). The spec's sentence reads
+/// three ways, each its own parameters (all clearances >= 0, deg; any mix may be on):
+/// - `backlash_deg`: a lag of each link: leg i acts as if its link angle were shifted by
+///   -/+ half its clearance after the link last moved +/- (the clearance seen at the input);
+/// - `hinge_lag_deg`: a lag of the platform about each leg's platform hinge axis: the platform
+///   settles rotated about that axis (`R_P v_i`, base frame) by -/+ half the leg's clearance,
+///   signed by the direction link i last moved (the clearance seen at the platform, per hinge);
+/// - `platform_lag_deg`: direction-dependent settling of the platform as a whole: it lags its own
+///   last motion (the nine hinges' clearances seen together, whatever mix of links moved it).
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct HingeBacklash {
@@ -144,6 +150,42 @@ pub struct HingeBacklash {
     /// The platform lags its last motion by this angle (deg, >= 0): rotated by it about the
     /// direction of that motion, backwards.
     pub platform_lag_deg: f64,
+    /// Full clearance per leg at its platform hinge: after link i last moved +/-, the platform
+    /// sits rotated by -/+ half of it about that hinge's axis (unit files before it load as 0).
+    pub hinge_lag_deg: [f64; 3],
+}
+
+/// The three readings of hinge_backlash, as parameter subsets of [`Effect::HingeBacklash`]
+/// (indices into its parameter vector): what the discrepancy workflow fits one at a time.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum BacklashForm {
+    /// `backlash_deg`: a lag of each link.
+    LinkLag,
+    /// `hinge_lag_deg`: a lag of the platform about each leg's platform hinge axis.
+    HingeLag,
+    /// `platform_lag_deg`: the platform lags its own last motion.
+    PlatformLag,
+}
+
+impl BacklashForm {
+    pub const ALL: [BacklashForm; 3] = [BacklashForm::LinkLag, BacklashForm::HingeLag, BacklashForm::PlatformLag];
+
+    /// Indices of this form's parameters in [`Effect::param_names`] of hinge_backlash.
+    pub fn indices(self) -> std::ops::Range<usize> {
+        match self {
+            BacklashForm::LinkLag => 0..3,
+            BacklashForm::PlatformLag => 3..4,
+            BacklashForm::HingeLag => 4..7,
+        }
+    }
+
+    pub fn describe(self) -> &'static str {
+        match self {
+            BacklashForm::LinkLag => "a lag of each link (backlash_deg)",
+            BacklashForm::HingeLag => "a lag of the platform about each leg's platform hinge axis (hinge_lag_deg)",
+            BacklashForm::PlatformLag => "the platform lagging its own last motion (platform_lag_deg)",
+        }
+    }
 }
 
 /// gravity_sag: elastic deflection under the platform's and camera's weight.
@@ -267,7 +309,9 @@ impl Effect {
             .to_vec(),
             Effect::CodeWheelEccentricity => [per_leg("head_x_um"), per_leg("head_y_um")].concat(),
             Effect::EncoderScale => per_leg("relative_error"),
-            Effect::HingeBacklash => [per_leg("backlash_deg"), vec!["platform_lag_deg".into()]].concat(),
+            Effect::HingeBacklash => {
+                [per_leg("backlash_deg"), vec!["platform_lag_deg".into()], per_leg("hinge_lag_deg")].concat()
+            }
             Effect::GravitySag => ["sag_deg.x", "sag_deg.y", "sag_deg.z"].map(String::from).to_vec(),
             Effect::EncoderTimeOffset => vec!["latency_ms".into()],
             Effect::MeasurementNoise => vec!["rot_deg".into(), "trans_mm".into()],

@@ -168,12 +168,22 @@ impl UnitFk {
         Ok(sol.r)
     }
 
-    /// Camera pose in B from the mechanism's platform orientation: platform lag, sag, mount.
+    /// Camera pose in B from the mechanism's platform orientation: platform lag, hinge lag, sag,
+    /// mount.
     fn camera_from_platform(&self, r: &Matrix3<f64>, cond: &Conditions) -> Pose {
         let mut rp = *r;
         let lag = self.model.effects.hinge_backlash.platform_lag_deg;
         if self.model.effects.hinge_backlash.enabled && lag != 0.0 {
             rp = exp_so3(&(Vector3::from(cond.platform_dir) * -lag.to_radians())) * rp;
+        }
+        let hb = &self.model.effects.hinge_backlash;
+        if hb.enabled && hb.hinge_lag_deg.iter().any(|h| *h != 0.0) {
+            // Each leg's clearance at its platform hinge: a turn about that hinge's axis, on the
+            // side link i last pushed from (summed: each is a few hundredths of a degree).
+            let w: Vector3<f64> = (0..3)
+                .map(|i| rp * self.geom.legs[i].v0 * (-0.5 * cond.dir[i] * hb.hinge_lag_deg[i].to_radians()))
+                .sum();
+            rp = exp_so3(&w) * rp;
         }
         let sag = &self.model.effects.gravity_sag;
         if sag.enabled {

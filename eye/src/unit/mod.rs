@@ -16,7 +16,8 @@
 //! 2. hinge_backlash: `theta_i -= dir_i * backlash_i / 2` (`dir_i` = +1 if link i last moved
 //!    in +, -1 if in -; the platform settles on the side it was pushed from); after step 3 the
 //!    platform also lags its own last motion: `R_P <- exp(-lag u) R_P`, `u` the unit axis of
-//!    the last platform rotation between samples (B);
+//!    the last platform rotation between samples (B); and it settles about each leg's platform
+//!    hinge axis: `R_P <- exp(-sum_i dir_i hinge_lag_i / 2 (R_P v_i)) R_P` ([`HingeBacklash`]);
 //! 3. SPM with per-leg link_angle_error (d1, d2), input_axis_tilt and platform_axis_error ->
 //!    platform orientation `R_P` (working mode, Newton);
 //! 4. gravity_sag: `R_P <- exp(rad((R_P a) x g)) R_P`, `a` the sag vector in P (deg);
@@ -161,6 +162,9 @@ impl UnitModel {
         if e.hinge_backlash.backlash_deg.iter().any(|b| *b < 0.0) {
             return Err("effects.hinge_backlash.backlash_deg: must be >= 0".into());
         }
+        if e.hinge_backlash.hinge_lag_deg.iter().any(|b| *b < 0.0) {
+            return Err("effects.hinge_backlash.hinge_lag_deg: must be >= 0".into());
+        }
         if e.hinge_backlash.platform_lag_deg < 0.0 {
             return Err("effects.hinge_backlash.platform_lag_deg: must be >= 0".into());
         }
@@ -226,7 +230,8 @@ impl UnitModel {
             }
             Effect::EncoderScale => x.encoder_scale.relative_error.to_vec(),
             Effect::HingeBacklash => {
-                [x.hinge_backlash.backlash_deg.to_vec(), vec![x.hinge_backlash.platform_lag_deg]].concat()
+                let b = &x.hinge_backlash;
+                [b.backlash_deg.to_vec(), vec![b.platform_lag_deg], b.hinge_lag_deg.to_vec()].concat()
             }
             Effect::GravitySag => x.gravity_sag.sag_deg.to_vec(),
             Effect::EncoderTimeOffset => vec![x.encoder_time_offset.latency_ms],
@@ -279,7 +284,11 @@ impl UnitModel {
             Effect::EncoderScale => fill(&mut arr_mut(&mut x.encoder_scale.relative_error)),
             Effect::HingeBacklash => {
                 let b = &mut x.hinge_backlash;
-                fill(&mut arr_mut(&mut b.backlash_deg).chain(std::iter::once(&mut b.platform_lag_deg)))
+                fill(
+                    &mut arr_mut(&mut b.backlash_deg)
+                        .chain(std::iter::once(&mut b.platform_lag_deg))
+                        .chain(arr_mut(&mut b.hinge_lag_deg)),
+                )
             }
             Effect::GravitySag => fill(&mut arr_mut(&mut x.gravity_sag.sag_deg)),
             Effect::EncoderTimeOffset => x.encoder_time_offset.latency_ms = p[0],
@@ -370,8 +379,7 @@ mod tests {
     #[test]
     fn backlash_depends_on_direction() {
         let mut u = UnitModel::nominal();
-        u.effects.hinge_backlash =
-            HingeBacklash { enabled: true, backlash_deg: [0.1, 0.1, 0.1], platform_lag_deg: 0.0 };
+        u.effects.hinge_backlash = HingeBacklash { enabled: true, backlash_deg: [0.1, 0.1, 0.1], ..Default::default() };
         let fk = u.compile().unwrap();
         let q = [5.0, 5.0, 5.0];
         let up = fk.p6(&q, &Conditions { dir: [1.0; 3], ..Default::default() }).unwrap();
@@ -383,7 +391,7 @@ mod tests {
     #[test]
     fn platform_lags_its_last_motion() {
         let mut u = UnitModel::nominal();
-        u.effects.hinge_backlash = HingeBacklash { enabled: true, backlash_deg: [0.0; 3], platform_lag_deg: 0.05 };
+        u.effects.hinge_backlash = HingeBacklash { enabled: true, platform_lag_deg: 0.05, ..Default::default() };
         let fk = u.compile().unwrap();
         let nominal = UnitModel::nominal().compile().unwrap();
         // Reach the same reading from two sides: the platform sits behind each motion by the lag.
@@ -400,6 +408,31 @@ mod tests {
         assert!(da > 0.01 && db > 0.01, "{da} {db}");
         let ab = crate::pose::rotation_angle_deg(&pa.r, &pb.r);
         assert!((ab - 0.1).abs() < 0.02, "{ab}");
+    }
+
+    /// The hinge reading of backlash: reached from the two sides of every link, the platform
+    /// differs by the full clearance about each hinge axis; home carries the + side.
+    #[test]
+    fn platform_settles_about_each_hinge_axis() {
+        let mut u = UnitModel::nominal();
+        u.effects.hinge_backlash =
+            HingeBacklash { enabled: true, hinge_lag_deg: [0.08, 0.0, 0.0], ..Default::default() };
+        let fk = u.compile().unwrap();
+        let q = [6.0, -4.0, 9.0];
+        let up = fk.pose(&q, &Conditions { dir: [1.0; 3], ..Default::default() }, None).unwrap().0;
+        let down = fk.pose(&q, &Conditions { dir: [-1.0, 1.0, 1.0], ..Default::default() }, None).unwrap().0;
+        // The two differ by 0.08 deg about leg 1's platform hinge axis (the other legs' flips do not matter).
+        let w = crate::pose::rotation_vector(&(down.r * up.r.transpose())).map(f64::to_degrees);
+        assert!((w.norm() - 0.08).abs() < 1e-6, "{w:?}");
+        let other = fk.pose(&q, &Conditions { dir: [1.0, -1.0, -1.0], ..Default::default() }, None).unwrap().0;
+        assert!(crate::pose::rotation_vector(&(other.r * up.r.transpose())).norm() < 1e-12);
+        // Reloaded from a file without the field, a unit has none of it (older files load).
+        let old = "format = \"abvs-unit/1\"\nname = \"x\"\n[effects.hinge_backlash]\nenabled = true\nbacklash_deg = [0.1, 0.1, 0.1]\nplatform_lag_deg = 0.02\n";
+        let v = UnitModel::from_toml_str(old, Path::new("u.toml")).unwrap();
+        assert_eq!(v.effects.hinge_backlash.hinge_lag_deg, [0.0; 3]);
+        let mut bad = u.clone();
+        bad.effects.hinge_backlash.hinge_lag_deg[2] = -0.01;
+        assert!(bad.validate().unwrap_err().0.contains("hinge_lag_deg"));
     }
 
     /// The per-head form describes the wheel exactly (heads at their markers), and any other
