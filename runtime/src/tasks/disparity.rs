@@ -57,7 +57,7 @@ pub struct DisparityManifest {
     pub onnx_sha256: Option<String>,
     /// The network census-refine runs in this one's place (a sibling directory's name): the same weights
     /// without the finest propagation level, whose job the census search does at full resolution. The
-    /// shipped hitnet-m names `hitnet-m4`: the same bad-2 after refinement at 0.77x the network's time.
+    /// shipped hitnet-m names `hitnet-m4`: the same bad-2 after refinement at 0.79x the network's time (disparity-eval).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub refine_base: Option<String>,
 }
