@@ -35,6 +35,7 @@
 #![warn(missing_docs)]
 pub mod bridges;
 pub mod config;
+pub mod cpu;
 pub mod error;
 pub mod messages;
 pub mod outputs;

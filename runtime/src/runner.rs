@@ -17,6 +17,7 @@ use std::time::Duration;
 
 use crossbeam_channel::{bounded, Receiver, RecvTimeoutError, Select, Sender, TrySendError};
 
+use crate::cpu::RunCpu;
 use crate::error::{Result, RuntimeError};
 use crate::messages::{monotonic_ns, DepthFrame, RectifiedCamera, Work};
 use crate::sinks::Sink;
@@ -263,6 +264,31 @@ fn prewarm_waiter_lists(free: &Queue, queues: &[Queue]) {
     }
 }
 
+/// A lane's thread: named `abvs-{lane}` (what `top -H` and `perf` show). Panics where the system cannot
+/// make a thread, as `Scope::spawn` does: the lanes already running would otherwise wait on it for ever.
+fn lane_thread<'scope, 'env, T: Send + 'scope>(
+    s: &'scope std::thread::Scope<'scope, 'env>,
+    lane: &str,
+    f: impl FnOnce() -> T + Send + 'scope,
+) -> std::thread::ScopedJoinHandle<'scope, T> {
+    std::thread::Builder::new().name(format!("abvs-{lane}")).spawn_scoped(s, f).expect("spawning a lane's thread")
+}
+
+/// A lane thread's own CPU time, from its start.
+struct LaneCpu {
+    tid: i32,
+    ns: i64,
+}
+
+impl LaneCpu {
+    fn start() -> LaneCpu {
+        LaneCpu { tid: crate::cpu::thread_id(), ns: crate::cpu::thread_cpu_ns() }
+    }
+    fn stop(self) -> LaneCpu {
+        LaneCpu { tid: self.tid, ns: crate::cpu::thread_cpu_ns() - self.ns }
+    }
+}
+
 /// Runs a lane's stages on one frame; the first failure names its counter.
 fn process(stages: &mut [Box<dyn Stage>], w: &mut Work) -> std::result::Result<(), &'static str> {
     for s in stages.iter_mut() {
@@ -326,6 +352,8 @@ pub fn run<S: PairSource>(graph: Graph<S>, cfg: &RunConfig) -> Result<RunStats> 
     let (free_tx, free_rx) = free;
     let (output, middle) = lanes.split_last_mut().expect("checked: at least one lane");
 
+    let cpu_before = crate::cpu::threads();
+    let process_cpu0 = crate::cpu::process_cpu_ns();
     let result = std::thread::scope(|s| -> Result<()> {
         // ---- source
         let src = {
@@ -334,7 +362,8 @@ pub fn run<S: PairSource>(graph: Graph<S>, cfg: &RunConfig) -> Result<RunStats> 
             let progress = progress.clone();
             let stop = cfg.stop.clone();
             let source = &mut source;
-            s.spawn(move || -> Latency {
+            lane_thread(s, "source", move || -> (Latency, LaneCpu) {
+                let cpu = LaneCpu::start();
                 prewarm_thread();
                 if source_steps_back {
                     step_back_priority();
@@ -371,7 +400,7 @@ pub fn run<S: PairSource>(graph: Graph<S>, cfg: &RunConfig) -> Result<RunStats> 
                     push(&q_tx, &q_rx, &free_tx, w, cfg.lossless, &progress.frames_dropped);
                 }
                 drop(q_tx);
-                lat
+                (lat, cpu.stop())
             })
         };
         // ---- the lanes before the output, one thread each
@@ -382,7 +411,8 @@ pub fn run<S: PairSource>(graph: Graph<S>, cfg: &RunConfig) -> Result<RunStats> 
             let progress = progress.clone();
             let name = lane.name;
             let steps_back = step_back[i];
-            let h = s.spawn(move || -> (Latency, Vec<&'static str>) {
+            let h = lane_thread(s, name, move || -> (Latency, Vec<&'static str>, LaneCpu) {
+                let cpu = LaneCpu::start();
                 prewarm_thread();
                 if steps_back {
                     step_back_priority();
@@ -402,7 +432,7 @@ pub fn run<S: PairSource>(graph: Graph<S>, cfg: &RunConfig) -> Result<RunStats> 
                         }
                     }
                 }
-                (lat, failed)
+                (lat, failed, cpu.stop())
             });
             handles.push((name, h));
         }
@@ -413,6 +443,7 @@ pub fn run<S: PairSource>(graph: Graph<S>, cfg: &RunConfig) -> Result<RunStats> 
         let window_ns = (cfg.window.as_nanos().clamp(1_000_000, i64::MAX as u128)) as i64;
         let mut win = WindowCounter::new(started, window_ns);
         win.prepare(&mut stats, cfg.duration);
+        let out_cpu = LaneCpu::start();
         loop {
             let now = monotonic_ns();
             if now >= win.end_ns {
@@ -460,15 +491,26 @@ pub fn run<S: PairSource>(graph: Graph<S>, cfg: &RunConfig) -> Result<RunStats> 
             let _ = free_tx.send(w);
         }
         win.close(monotonic_ns(), &mut stats, &progress);
-        let src_lat = src.join().map_err(|_| RuntimeError::Invalid("source thread panicked".into()))?;
+        let out_cpu = out_cpu.stop();
+        let (src_lat, src_cpu) = src.join().map_err(|_| RuntimeError::Invalid("source thread panicked".into()))?;
+        let mut lane_cpu = vec![("source", src_cpu)];
         for (name, h) in handles {
-            let (lat, failed) = h.join().map_err(|_| RuntimeError::Invalid(format!("{name} thread panicked")))?;
+            let (lat, failed, cpu) = h.join().map_err(|_| RuntimeError::Invalid(format!("{name} thread panicked")))?;
             stats.stage_mut(name).merge(&lat);
             for f in failed {
                 stats.fail(f);
             }
+            lane_cpu.push((name, cpu));
         }
+        lane_cpu.push((output.name, out_cpu));
         stats.stage_mut("source").merge(&src_lat);
+        let process_name = std::fs::read_to_string("/proc/self/comm").unwrap_or_default();
+        let tids: Vec<i32> = lane_cpu.iter().map(|(_, c)| c.tid).collect();
+        stats.cpu = Some(RunCpu {
+            lanes: lane_cpu.iter().map(|(n, c)| (*n, c.ns)).collect(),
+            process_ns: crate::cpu::process_cpu_ns() - process_cpu0,
+            others: RunCpu::others_between(&cpu_before, &crate::cpu::threads(), &tids, process_name.trim()),
+        });
         Ok(())
     });
     result?;

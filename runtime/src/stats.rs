@@ -5,6 +5,8 @@ use std::collections::BTreeMap;
 use std::time::Instant;
 
 use hdrhistogram::Histogram;
+
+use crate::cpu::RunCpu;
 use serde_json::{json, Value};
 
 /// CLOCK_MONOTONIC in nanoseconds (the one clock of frames, encoders and published headers).
@@ -202,6 +204,8 @@ pub struct RunStats {
     pub windows: Vec<Window>,
     /// What stages, sinks and the embedding program added, by name (in the JSON at the top level).
     pub extra: BTreeMap<String, Value>,
+    /// CPU time the run used, per lane and per other thread (`None` until a run ends).
+    pub cpu: Option<RunCpu>,
 }
 
 impl RunStats {
@@ -223,6 +227,7 @@ impl RunStats {
             window_s: 60.0,
             windows: Vec::new(),
             extra: BTreeMap::new(),
+            cpu: None,
         }
     }
 
@@ -274,10 +279,32 @@ impl RunStats {
         v["window_s"] = json!(self.window_s);
         v["windows"] = Value::Array(self.windows.iter().map(Window::json).collect());
         v["rss"] = self.rss_summary();
+        if let Some(c) = self.cpu_json(elapsed_s) {
+            v["cpu"] = c;
+        }
         for (k, x) in &self.extra {
             v[k] = x.clone();
         }
         v
+    }
+
+    /// CPU per frame taken from the source (ms): the whole process, each lane and the other threads by name,
+    /// with the cores busy on average over the run and the cores the machine has.
+    pub fn cpu_json(&self, elapsed_s: f64) -> Option<Value> {
+        let c = self.cpu.as_ref()?;
+        let per = |ns: i64| round3(ns as f64 * 1e-6 / self.frames_in.max(1) as f64);
+        let lanes: serde_json::Map<String, Value> = c.lanes.iter().map(|(n, ns)| (n.to_string(), per(*ns))).collect();
+        let others: serde_json::Map<String, Value> = c.others.iter().map(|(n, ns)| (n.clone(), per(*ns))).collect();
+        let lane_sum: i64 = c.lanes.iter().map(|l| l.1).sum();
+        Some(json!({
+            "frames": self.frames_in,
+            "ms_per_frame": per(c.process_ns),
+            "lanes_ms_per_frame": lanes,
+            "other_threads_ms_per_frame": per(c.process_ns - lane_sum),
+            "other_threads_by_name_ms_per_frame": others,
+            "cores_busy": round3(c.process_ns as f64 * 1e-9 / elapsed_s.max(1e-9)),
+            "cores": std::thread::available_parallelism().map_or(1, |n| n.get()),
+        }))
     }
 
     /// Resident memory over the run's windows: first, last and highest (MB), and the least-squares slope (MB
@@ -357,6 +384,23 @@ impl RunStats {
                     w.rss_bytes as f64 / 1048576.0
                 );
             }
+        }
+        if let Some(c) = self.cpu_json(elapsed_s) {
+            let f = |v: &Value| v.as_f64().unwrap_or(f64::NAN);
+            let list = |m: &Value| {
+                m.as_object().map_or(String::new(), |m| {
+                    m.iter().map(|(n, v)| format!("{n} {:.1}", f(v))).collect::<Vec<_>>().join(", ")
+                })
+            };
+            s += &format!(
+                "CPU per frame: {:.1} ms ({:.2} of {} cores busy); lanes: {}; other threads {:.1} ({})\n",
+                f(&c["ms_per_frame"]),
+                f(&c["cores_busy"]),
+                c["cores"],
+                list(&c["lanes_ms_per_frame"]),
+                f(&c["other_threads_ms_per_frame"]),
+                list(&c["other_threads_by_name_ms_per_frame"])
+            );
         }
         if let Some(e) = self.depth_error.filter(|e| e.points == 0) {
             s += &format!("depth error vs truth: nothing scored (0 of {} pixels had a valid depth)\n", e.pixels);

@@ -176,3 +176,79 @@ fn descriptions_must_place_exactly_the_stages_given() {
     assert!(e.contains("stage `depth` writes depth and must be on the output lane, not `a`"), "{e}");
     assert!(build("a = x; output = depth", vec![depth(), Box::new(Named("x"))]).starts_with("ok"));
 }
+
+/// Works until the calling thread has used `ms` of CPU time (not wall time).
+fn burn(ms: i64) {
+    let t = abvs_runtime::cpu::thread_cpu_ns();
+    let mut x = 0u64;
+    while abvs_runtime::cpu::thread_cpu_ns() - t < ms * 1_000_000 {
+        x = std::hint::black_box(x.wrapping_mul(6364136223846793005).wrapping_add(1));
+    }
+}
+
+/// A stage that works 3 ms of CPU per frame on its lane's thread, and whose named helper thread works 40 ms
+/// once, on the first frame, and lives until the stage is dropped.
+struct Burner {
+    helper: Option<std::sync::mpsc::Sender<()>>,
+}
+
+impl Stage for Burner {
+    fn name(&self) -> &'static str {
+        "burner"
+    }
+    fn start(&mut self, _: &mut StageContext) -> abvs_runtime::Result<()> {
+        let (tx, rx) = std::sync::mpsc::channel::<()>();
+        std::thread::Builder::new()
+            .name("burner-helper".into())
+            .spawn(move || {
+                if rx.recv().is_ok() {
+                    burn(40);
+                }
+                // until the stage is dropped (the sender with it)
+                while rx.recv().is_ok() {}
+            })
+            .unwrap();
+        self.helper = Some(tx);
+        Ok(())
+    }
+    fn process(&mut self, _: &mut Work) -> abvs_runtime::Result<()> {
+        burn(3);
+        if let Some(tx) = &self.helper {
+            let _ = tx.send(());
+        }
+        Ok(())
+    }
+}
+
+#[test]
+fn cpu_time_is_counted_per_lane_and_per_named_thread() {
+    let mut g = standard();
+    let at = g.lanes.len() - 1;
+    g.lanes.insert(at, Lane { name: "burn", stages: vec![Box::new(Burner { helper: None })] });
+    let stats = runner::run(g, &cfg().run_config()).unwrap();
+    let cpu = stats.cpu.as_ref().expect("a finished run reports its CPU");
+    let lane = |n: &str| cpu.lanes.iter().find(|l| l.0 == n).map(|l| l.1).unwrap_or_else(|| panic!("lane {n}"));
+    let names: Vec<&str> = cpu.lanes.iter().map(|l| l.0).collect();
+    assert_eq!(names, ["source", "rectify", "disparity", "burn", "output"]);
+    // the burning lane: its 3 ms per frame, and not much more (it only burns)
+    let burned = lane("burn");
+    assert!((3_000_000 * FRAMES as i64..6_000_000 * FRAMES as i64).contains(&burned), "{burned} ns");
+    // the helper: its 40 ms, by its name, among the other threads; nothing is counted twice
+    let helper = cpu.others.get("burner-helper").copied().unwrap_or(0);
+    assert!((40_000_000..80_000_000).contains(&helper), "{:?}", cpu.others);
+    let lanes: i64 = cpu.lanes.iter().map(|l| l.1).sum();
+    let others: i64 = cpu.others.values().sum();
+    assert!(cpu.process_ns >= lanes + helper, "{} < {lanes} + {helper}", cpu.process_ns);
+    assert!(others <= cpu.process_ns - lanes + 5_000_000, "others {others} beyond the rest");
+    // per frame in the JSON and in the table
+    let elapsed = stats.extra["elapsed_s"].as_f64().unwrap();
+    let j = stats.json(elapsed);
+    let per = j["cpu"]["lanes_ms_per_frame"]["burn"].as_f64().unwrap();
+    assert!((3.0..6.0).contains(&per), "{per}");
+    assert_eq!(j["cpu"]["frames"], serde_json::json!(FRAMES));
+    let table = stats.table(elapsed);
+    assert!(
+        table.contains("CPU per frame: ") && table.contains("burn ") && table.contains("burner-helper "),
+        "{table}"
+    );
+}

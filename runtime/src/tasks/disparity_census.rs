@@ -48,7 +48,7 @@ pub struct CensusRefineEngine {
     base: Vec<i32>,
     /// The rows of the aggregation window, streamed down the image (the upper half's).
     rows: RowWindow,
-    /// The second thread: the right image's census while the network runs, the lower half's refinement.
+    /// The second thread: both images' census while the network runs, the lower half's refinement.
     helper: Helper,
 }
 
@@ -56,8 +56,8 @@ pub struct CensusRefineEngine {
 /// answer before it touches them again or returns, so they outlive the job and nobody else writes them.
 #[derive(Clone, Copy)]
 enum Job {
-    /// The census of `img` (w x h) into `out`.
-    Census { img: *const u8, out: *mut u32, w: usize, h: usize },
+    /// The census of each image (w x h) into its output.
+    Census { imgs: [*const u8; 2], outs: [*mut u32; 2], w: usize, h: usize },
     /// Rows `y0..h` of the refinement into `out` (those rows).
     Refine {
         cl: *const u32,
@@ -94,12 +94,16 @@ impl Helper {
                     // SAFETY: see Job: the buffers are the engine's, untouched until it receives `done`.
                     unsafe {
                         match job {
-                            Job::Census { img, out, w, h } => census(
-                                std::slice::from_raw_parts(img, w * h),
-                                w,
-                                h,
-                                std::slice::from_raw_parts_mut(out, w * h),
-                            ),
+                            Job::Census { imgs, outs, w, h } => {
+                                for (img, out) in imgs.into_iter().zip(outs) {
+                                    census(
+                                        std::slice::from_raw_parts(img, w * h),
+                                        w,
+                                        h,
+                                        std::slice::from_raw_parts_mut(out, w * h),
+                                    )
+                                }
+                            }
                             Job::Refine { cl, cr, base, guess, out, w, h, y0 } => {
                                 let n = w * h;
                                 refine(
@@ -123,8 +127,14 @@ impl Helper {
             .map_err(|e| RuntimeError::Invalid(format!("census-refine: helper thread: {e}")))?;
         let helper = Helper { jobs: Some(jobs), done, thread: Some(thread) };
         // a round trip now, so the channels' waiter lists exist before the first frame
-        let (img, mut out) = ([0u8; 64], [0u32; 64]);
-        helper.run(Job::Census { img: img.as_ptr(), out: out.as_mut_ptr(), w: 8, h: 8 })?;
+        let (img, mut out) = ([0u8; 64], [[0u32; 64]; 2]);
+        let [a, b] = &mut out;
+        helper.run(Job::Census {
+            imgs: [img.as_ptr(), img.as_ptr()],
+            outs: [a.as_mut_ptr(), b.as_mut_ptr()],
+            w: 8,
+            h: 8,
+        })?;
         helper.wait()?;
         Ok(helper)
     }
@@ -226,10 +236,15 @@ impl DisparityEngine for CensusRefineEngine {
                 out.len()
             )));
         }
-        // the right census on the helper thread while the network runs (it does not need the network)
-        self.helper.run(Job::Census { img: right.as_ptr(), out: self.census_r.as_mut_ptr(), w, h })?;
+        // both censuses on the helper thread while the network runs (they do not need the network): the
+        // lane's own time per frame is the network's and half the refinement
+        self.helper.run(Job::Census {
+            imgs: [left.as_ptr(), right.as_ptr()],
+            outs: [self.census_l.as_mut_ptr(), self.census_r.as_mut_ptr()],
+            w,
+            h,
+        })?;
         let net = self.network(left, right);
-        census(left, w, h, &mut self.census_l);
         self.helper.wait()?;
         net?;
         for (b, g) in self.base.iter_mut().zip(&self.guess) {
