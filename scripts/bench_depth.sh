@@ -6,7 +6,7 @@
 # Prints, per run, the medians over rounds of the achieved fps, the end-to-end latency p50 and p99 (frame
 # exists, its last row exposed -> cloud published), the frames dropped (all rounds), the frames the truth scored, the
 # disparity stage's p50, and the median of the paired ratio disparity(default) / disparity(SGBM_3WAY) of the
-# same round.
+# same round; and CPU time per frame (all of it, and without the idle-priority side lanes).
 #   cargo build --release -p abvs && scripts/bench_depth.sh [ROUNDS=5] [FRAMES=125] [run flags]
 set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
@@ -41,6 +41,16 @@ for e, vs in runs.items():
           f"of {sum(l.get('frames_in', 0) for l in lane)}, "
           f"disparity stage p50 {med(lambda v: v['stages']['disparity']['p50']):.1f} ms, "
           f"abs_rel {med(lambda v: v.get('depth_error', {}).get('abs_rel', float('nan'))):.4f}")
+# CPU per frame (the work, whatever queueing did to latency): all of it, and without the side lanes that run
+# at idle priority on CPU time the pipeline leaves (the truth's scoring, the self-check)
+side = lambda v: sum(v["cpu"]["other_threads_by_name_ms_per_frame"].get(n, 0.0) for n in ("abvs-truth", "self-check"))
+for e, vs in runs.items():
+    med = lambda f: st.median(f(v) for v in vs)
+    print(f"{e:8} CPU per frame {med(lambda v: v['cpu']['ms_per_frame']):.1f} ms, without the idle-priority side "
+          f"lanes {med(lambda v: v['cpu']['ms_per_frame'] - side(v)):.1f} ms; disparity lane "
+          f"{med(lambda v: v['cpu']['lanes_ms_per_frame']['disparity']):.1f} ms, cores busy "
+          f"{med(lambda v: v['cpu']['cores_busy']):.2f} of {vs[0]['cpu']['cores']} "
+          f"(at 25 fps {vs[0]['cpu']['cores']} cores have {vs[0]['cpu']['cores'] * 40} ms per frame)")
 r = [a["stages"]["disparity"]["p50"] / b["stages"]["disparity"]["p50"] for a, b in zip(runs["default"], runs["sgbm"])]
 print(f"disparity stage default / SGBM_3WAY, paired by round: median {st.median(r):.3f} (min {min(r):.3f}, max {max(r):.3f})")
 PY

@@ -178,6 +178,12 @@ fn check(p: Pair) {
         100.0 * removed
     );
     assert!(ours <= 0.8 * sgbm, "{}: default bad-2 {ours} % vs SGBM {sgbm} %", p.name);
+    // the runtime's engine at the input's resolution, larger than its network's (Aloe 1282x1110, Motorcycle
+    // 741x500; the network at 640x480): refined first at the network's resolution, it stays ahead of SGBM
+    // (without that pass Aloe's was 0.96x; the pass was made on Aloe, Motorcycle held out)
+    let refined = row("census-refine")["bad2_pct"].as_f64().unwrap();
+    eprintln!("{}: census-refine at the input's resolution {refined:.2} % (ratio {:.3})", p.name, refined / sgbm);
+    assert!(refined <= 0.9 * sgbm, "{}: census-refine bad-2 {refined} % vs SGBM {sgbm} %", p.name);
     assert!(density >= 0.849, "{}: the confidence keeps only {density} of the pixels", p.name);
     assert!(removed >= 0.5, "{}: keeping 85 % removes {removed} of the bad-2 pixels", p.name);
 }

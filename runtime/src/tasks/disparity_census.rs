@@ -40,6 +40,8 @@ pub struct CensusRefineEngine {
     net_left: Vec<u8>,
     net_right: Vec<u8>,
     net_disp: Vec<f32>,
+    /// A first refinement at the network's resolution, when the engine's is larger (see [`Coarse`]).
+    coarse: Option<Coarse>,
     /// The network's disparity at the engine's resolution (engine pixels).
     guess: Vec<f32>,
     census_l: Vec<u32>,
@@ -50,6 +52,19 @@ pub struct CensusRefineEngine {
     rows: RowWindow,
     /// The second thread: both images' census while the network runs, the lower half's refinement.
     helper: Helper,
+}
+
+/// The refinement at the network's own resolution, before its answer is upsampled to a larger engine's: the
+/// search of +-[`SEARCH_PX`] at the engine's resolution spans fewer of the network's pixels (+-1.5 of them at
+/// twice its size), too few to correct the network's errors of a few of its pixels. Refined where it answered,
+/// the upsampled guess is within the full-resolution search. (Aloe at its own 1282x1110, the network at
+/// 640x480: bad-2 28.8 % without this pass, against SGBM_3WAY's 30.0 %; see models/hitnet/README.md.)
+struct Coarse {
+    census_l: Vec<u32>,
+    census_r: Vec<u32>,
+    base: Vec<i32>,
+    refined: Vec<f32>,
+    rows: RowWindow,
 }
 
 /// What the helper thread is asked to do. Raw parts of the engine's buffers: the engine waits for the
@@ -200,6 +215,13 @@ impl CensusRefineEngine {
             net_left: vec![0; if resized { m } else { 0 }],
             net_right: vec![0; if resized { m } else { 0 }],
             net_disp: vec![f32::NAN; if resized { m } else { 0 }],
+            coarse: (width > mw && mw as usize >= WINDOW && mh as usize >= WINDOW).then(|| Coarse {
+                census_l: vec![0; m],
+                census_r: vec![0; m],
+                base: vec![0; m],
+                refined: vec![f32::NAN; m],
+                rows: RowWindow::new(mw as usize),
+            }),
             guess: vec![f32::NAN; n],
             census_l: vec![0; n],
             census_r: vec![0; n],
@@ -247,10 +269,7 @@ impl DisparityEngine for CensusRefineEngine {
         let net = self.network(left, right);
         self.helper.wait()?;
         net?;
-        for (b, g) in self.base.iter_mut().zip(&self.guess) {
-            // round half away from zero without a libm call (NaN: a search around 0, never used)
-            *b = if g.is_finite() { (g.abs() + 0.5) as i32 * if *g < 0.0 { -1 } else { 1 } } else { 0 };
-        }
+        round_into(&self.guess, &mut self.base);
         // the lower half on the helper, the upper here
         let mid = h / 2;
         let (top, bottom) = out.split_at_mut(mid * w);
@@ -280,9 +299,28 @@ impl CensusRefineEngine {
             resize_gray(left, self.size, &mut self.net_left, msize)?;
             resize_gray(right, self.size, &mut self.net_right, msize)?;
             self.net.compute(&self.net_left, &self.net_right, &mut self.net_disp)?;
-            upsample_disparity(&self.net_disp, (msize.0 as usize, msize.1 as usize), &mut self.guess, (w, h));
+            let (mw, mh) = (msize.0 as usize, msize.1 as usize);
+            let answer = match &mut self.coarse {
+                Some(c) => {
+                    census(&self.net_left, mw, mh, &mut c.census_l);
+                    census(&self.net_right, mw, mh, &mut c.census_r);
+                    round_into(&self.net_disp, &mut c.base);
+                    refine(&c.census_l, &c.census_r, &c.base, &self.net_disp, mh, 0..mh, &mut c.rows, &mut c.refined);
+                    &c.refined
+                }
+                None => &self.net_disp,
+            };
+            upsample_disparity(answer, (mw, mh), &mut self.guess, (w, h));
             Ok(())
         }
+    }
+}
+
+/// The centre of each pixel's search: its disparity rounded half away from zero, without a libm call (NaN: a
+/// search around 0, whose answer is never used).
+fn round_into(d: &[f32], base: &mut [i32]) {
+    for (b, g) in base.iter_mut().zip(d) {
+        *b = if g.is_finite() { (g.abs() + 0.5) as i32 * if *g < 0.0 { -1 } else { 1 } } else { 0 };
     }
 }
 
