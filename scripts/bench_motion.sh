@@ -3,6 +3,7 @@
 # (readout 30 ms, exposure 4 ms, pursuit up to 90 deg/s, saccades), replayed with the per-row correction
 # on and off, and the same motion rendered with a global shutter and no blur. Lossless replays at the
 # runtime's defaults (640x480, default engine, calibrated FK); prints a markdown table.
+# READOUT_MS, EXPOSURE_MS and PURSUIT_DEG_S (defaults 30, 4, 90) render other timings.
 #   cargo build --release -p abvs && scripts/bench_motion.sh [SEED=11] [run flags]
 set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
@@ -10,23 +11,27 @@ SEED=${1:-11}
 shift $(( $# < 1 ? $# : 1 ))
 BIN=${ABVS:-target/release/abvs}
 OUT=${BENCH_MOTION_DIR:-$(mktemp -d)}
+READOUT=${READOUT_MS:-30}
+EXPOSURE=${EXPOSURE_MS:-4}
+PURSUIT=${PURSUIT_DEG_S:-90}
 mkdir -p "$OUT"
 for s in rolling global; do
   if [ ! -f "$OUT/$s/session.toml" ]; then
-    if [ "$s" = rolling ]; then timing=(--readout-ms 30 --exposure-ms 4); else timing=(--readout-ms 0 --exposure-ms 0); fi
+    if [ "$s" = rolling ]; then timing=(--readout-ms "$READOUT" --exposure-ms "$EXPOSURE"); else timing=(--readout-ms 0 --exposure-ms 0); fi
     echo "rendering $OUT/$s (seed $SEED)..." >&2
-    "$BIN" sim session --out "$OUT/$s" --seed "$SEED" --pursuit-deg-s 90 "${timing[@]}" >/dev/null
+    "$BIN" sim session --out "$OUT/$s" --seed "$SEED" --pursuit-deg-s "$PURSUIT" "${timing[@]}" >/dev/null
   fi
 done
 run() { "$BIN" run --quiet --no-publish --lossless --session "$OUT/$1" --rolling-shutter "$2" "${@:3}" --stats-json "$OUT/$1-$2.json"; }
 run rolling on "$@"
 run rolling off "$@"
 run global on "$@"
-python3 - "$OUT" <<'PY'
+python3 - "$OUT" "$READOUT" "$EXPOSURE" <<'PY'
 import json, sys
 out = sys.argv[1]
-runs = [("rolling shutter 30 ms, exposure 4 ms, correction on", "rolling-on"),
-        ("rolling shutter 30 ms, exposure 4 ms, correction off", "rolling-off"),
+timing = f"rolling shutter {sys.argv[2]} ms, exposure {sys.argv[3]} ms"
+runs = [(f"{timing}, correction on", "rolling-on"),
+        (f"{timing}, correction off", "rolling-off"),
         ("global shutter, no blur", "global-on")]
 data = {k: json.load(open(f"{out}/{k}.json")) for _, k in runs}
 first = data["rolling-on"]
