@@ -37,16 +37,32 @@ fn thread_clock(tid: i32) -> libc::clockid_t {
     ((!tid) << 3) | 6
 }
 
-/// CPU time (ns) of every thread of this process now, by thread id, with its name (`comm`). Threads that
-/// end while this reads are left out.
-pub fn threads() -> BTreeMap<i32, (String, i64)> {
+/// One thread of this process, read by [`threads`].
+#[derive(Debug, Clone)]
+pub struct ThreadCpu {
+    /// Its name (`comm`; unnamed threads carry the process's).
+    pub name: String,
+    /// CPU time it has used (ns).
+    pub ns: i64,
+    /// Whether it runs at idle priority (SCHED_IDLE, or nice 19 where that was refused): it only takes CPU
+    /// time nothing else wants, as the side lanes do.
+    pub idle: bool,
+}
+
+/// Every thread of this process now, by thread id. Threads that end while this reads are left out.
+pub fn threads() -> BTreeMap<i32, ThreadCpu> {
     let mut out = BTreeMap::new();
     let Ok(dir) = std::fs::read_dir("/proc/self/task") else { return out };
     for e in dir.flatten() {
         let Some(tid) = e.file_name().to_str().and_then(|s| s.parse::<i32>().ok()) else { continue };
         let Some(ns) = clock_ns(thread_clock(tid)) else { continue };
         let name = std::fs::read_to_string(e.path().join("comm")).unwrap_or_default().trim().to_string();
-        out.insert(tid, (name, ns));
+        // SAFETY: plain system calls about a thread of this process (a thread gone meanwhile gives -1).
+        let idle = unsafe {
+            libc::sched_getscheduler(tid) == libc::SCHED_IDLE
+                || libc::getpriority(libc::PRIO_PROCESS, tid as libc::id_t) == 19
+        };
+        out.insert(tid, ThreadCpu { name, ns, idle });
     }
     out
 }
@@ -60,30 +76,36 @@ pub struct RunCpu {
     pub process_ns: i64,
     /// Threads other than the lanes that ran during the run, grouped by name, ns.
     pub others: BTreeMap<String, i64>,
+    /// The part of `others` that ran at idle priority (the side lanes), ns.
+    pub idle_ns: i64,
 }
 
 impl RunCpu {
     /// The threads that are not lanes (`lane_tids`): CPU used between two [`threads`] readings, by name
-    /// (unnamed threads, which take the process's name, are reported as `workers`).
+    /// (unnamed threads, which take the process's name, are reported as `workers`), and the part of it
+    /// used by threads at idle priority.
     pub fn others_between(
-        before: &BTreeMap<i32, (String, i64)>,
-        after: &BTreeMap<i32, (String, i64)>,
+        before: &BTreeMap<i32, ThreadCpu>,
+        after: &BTreeMap<i32, ThreadCpu>,
         lane_tids: &[i32],
         process_name: &str,
-    ) -> BTreeMap<String, i64> {
-        let mut out = BTreeMap::new();
-        for (tid, (name, ns)) in after {
+    ) -> (BTreeMap<String, i64>, i64) {
+        let (mut out, mut idle) = (BTreeMap::new(), 0);
+        for (tid, t) in after {
             if lane_tids.contains(tid) {
                 continue;
             }
-            let used = ns - before.get(tid).map_or(0, |b| b.1);
+            let used = t.ns - before.get(tid).map_or(0, |b| b.ns);
             if used <= 0 {
                 continue;
             }
-            let key = if name.is_empty() || name == process_name { "workers".to_string() } else { name.clone() };
+            let key = if t.name.is_empty() || t.name == process_name { "workers".to_string() } else { t.name.clone() };
             *out.entry(key).or_default() += used;
+            if t.idle {
+                idle += used;
+            }
         }
-        out
+        (out, idle)
     }
 }
 
@@ -107,6 +129,14 @@ mod tests {
         let busy = std::thread::Builder::new()
             .name("cpu-test-busy".into())
             .spawn(move || {
+                // at idle priority, as the side lanes run (nice 19 where SCHED_IDLE is refused)
+                // SAFETY: plain system calls on the calling thread.
+                unsafe {
+                    let param = libc::sched_param { sched_priority: 0 };
+                    if libc::sched_setscheduler(0, libc::SCHED_IDLE, &param) != 0 {
+                        libc::setpriority(libc::PRIO_PROCESS, 0, 19);
+                    }
+                }
                 tx.send(thread_id()).unwrap();
                 go_rx.recv().unwrap();
                 spin(60);
@@ -115,21 +145,25 @@ mod tests {
             .unwrap();
         let tid = rx.recv().unwrap();
         let before = threads();
-        assert_eq!(before[&tid].0, "cpu-test-busy");
+        assert_eq!(before[&tid].name, "cpu-test-busy");
+        assert!(before[&tid].idle, "the thread runs at idle priority");
+        assert!(!before[&thread_id()].idle, "this one does not");
         go_tx.send(()).unwrap();
         let mut after = threads();
-        while after[&tid].1 - before[&tid].1 < 55_000_000 {
+        while after[&tid].ns - before[&tid].ns < 55_000_000 {
             std::thread::sleep(std::time::Duration::from_millis(10));
             after = threads();
         }
         let me = thread_id();
-        let others = RunCpu::others_between(&before, &after, &[me], "never-this");
+        let (others, idle) = RunCpu::others_between(&before, &after, &[me], "never-this");
         let used = others["cpu-test-busy"];
         assert!((55_000_000..2_000_000_000).contains(&used), "{used} ns");
+        // the idle-priority part holds that thread's work (and whatever else of this test binary idles)
+        assert!(idle >= used, "{idle} < {used}");
         go_tx.send(()).unwrap();
         busy.join().unwrap();
         // the excluded thread (a lane's) is not among the others; a thread's own clock is the one read by id
-        assert!(!others.contains_key(&after[&me].0));
+        assert!(!others.contains_key(&after[&me].name));
         let (own, by_id) = (thread_cpu_ns(), clock_ns(thread_clock(me)).unwrap());
         assert!((by_id - own).abs() < 50_000_000, "{own} vs {by_id}");
         assert!(process_cpu_ns() >= own);

@@ -506,10 +506,12 @@ pub fn run<S: PairSource>(graph: Graph<S>, cfg: &RunConfig) -> Result<RunStats> 
         stats.stage_mut("source").merge(&src_lat);
         let process_name = std::fs::read_to_string("/proc/self/comm").unwrap_or_default();
         let tids: Vec<i32> = lane_cpu.iter().map(|(_, c)| c.tid).collect();
+        let (others, idle_ns) = RunCpu::others_between(&cpu_before, &crate::cpu::threads(), &tids, process_name.trim());
         stats.cpu = Some(RunCpu {
             lanes: lane_cpu.iter().map(|(n, c)| (*n, c.ns)).collect(),
             process_ns: crate::cpu::process_cpu_ns() - process_cpu0,
-            others: RunCpu::others_between(&cpu_before, &crate::cpu::threads(), &tids, process_name.trim()),
+            others,
+            idle_ns,
         });
         Ok(())
     });

@@ -302,7 +302,9 @@ impl RunStats {
             "lanes_ms_per_frame": lanes,
             "other_threads_ms_per_frame": per(c.process_ns - lane_sum),
             "other_threads_by_name_ms_per_frame": others,
+            "idle_priority_ms_per_frame": per(c.idle_ns),
             "cores_busy": round3(c.process_ns as f64 * 1e-9 / elapsed_s.max(1e-9)),
+            "cores_busy_without_idle_priority": round3((c.process_ns - c.idle_ns) as f64 * 1e-9 / elapsed_s.max(1e-9)),
             "cores": std::thread::available_parallelism().map_or(1, |n| n.get()),
         }))
     }
@@ -393,13 +395,15 @@ impl RunStats {
                 })
             };
             s += &format!(
-                "CPU per frame: {:.1} ms ({:.2} of {} cores busy); lanes: {}; other threads {:.1} ({})\n",
+                "CPU per frame: {:.1} ms ({:.2} of {} cores busy); lanes: {}; other threads {:.1} ({}; {:.1} of it \
+                 at idle priority)\n",
                 f(&c["ms_per_frame"]),
                 f(&c["cores_busy"]),
                 c["cores"],
                 list(&c["lanes_ms_per_frame"]),
                 f(&c["other_threads_ms_per_frame"]),
-                list(&c["other_threads_by_name_ms_per_frame"])
+                list(&c["other_threads_by_name_ms_per_frame"]),
+                f(&c["idle_priority_ms_per_frame"])
             );
         }
         if let Some(e) = self.depth_error.filter(|e| e.points == 0) {
