@@ -41,9 +41,9 @@ for e, vs in runs.items():
           f"of {sum(l.get('frames_in', 0) for l in lane)}, "
           f"disparity stage p50 {med(lambda v: v['stages']['disparity']['p50']):.1f} ms, "
           f"abs_rel {med(lambda v: v.get('depth_error', {}).get('abs_rel', float('nan'))):.4f}")
-# CPU per frame (the work, whatever queueing did to latency): all of it, and without the side lanes that run
-# at idle priority on CPU time the pipeline leaves (the truth's scoring, the self-check)
-side = lambda v: sum(v["cpu"]["other_threads_by_name_ms_per_frame"].get(n, 0.0) for n in ("abvs-truth", "self-check"))
+# CPU per frame (the work, whatever queueing did to latency): all of it, and without the threads that run at
+# idle priority on CPU time the pipeline leaves (the side lanes: the truth's scoring, the self-check)
+side = lambda v: v["cpu"]["idle_priority_ms_per_frame"]
 for e, vs in runs.items():
     med = lambda f: st.median(f(v) for v in vs)
     print(f"{e:8} CPU per frame {med(lambda v: v['cpu']['ms_per_frame']):.1f} ms, without the idle-priority side "

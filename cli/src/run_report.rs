@@ -86,7 +86,7 @@ pub fn print(c: &RuntimeConfig, r: &Report) {
 
 /// Share of the cores a run kept busy (idle priority aside) above which dropped frames mean the computer is
 /// short of CPU, not that a frame met a passing hiccup. Lanes that hand frames to each other cannot use
-/// every cycle: the default at 640x480 dropped 11-22 of 125 frames at 1.75-1.8 of 2 cores on this project's
+/// every cycle: the default at 640x480 dropped 11-22 of 125 frames at 1.73-1.8 of 2 cores on this project's
 /// 2-core VM (2026-11-26), census-refine on hitnet-s none at 1.2.
 const SATURATED: f64 = 0.8;
 
