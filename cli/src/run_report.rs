@@ -99,7 +99,7 @@ fn overload_hint(cpu: &serde_json::Value, dropped: u64, engine: &str) -> Option<
     if dropped == 0 || busy < SATURATED * cores {
         return None;
     }
-    let lighter = if engine.starts_with("census-refine") && !engine.ends_with(":hitnet-s") {
+    let lighter = if engine.starts_with("census-refine") && !engine.starts_with("census-refine:hitnet-s") {
         "`--model models/hitnet/hitnet-s` (census-refine on the smaller network: about half the disparity \
          stage's CPU, less accurate) or `--resolution 320x240`"
     } else {
@@ -126,7 +126,7 @@ mod tests {
         assert!(hint.contains("12 frames dropped") && hint.contains("1.95 of 2 cores") && hint.contains("78.0 ms"));
         assert!(hint.contains("models/hitnet/hitnet-s"), "{hint}");
         // already the light network: only the resolution is left
-        let light = overload_hint(&cpu(1.95), 3, "census-refine:hitnet-s").unwrap();
+        let light = overload_hint(&cpu(1.95), 3, "census-refine:hitnet-s+sgbm").unwrap();
         assert!(!light.contains("models/hitnet/hitnet-s") && light.contains("320x240"), "{light}");
         // nothing dropped, or frames dropped with CPU to spare (a hiccup, not a shortage): no hint
         assert_eq!(overload_hint(&cpu(1.95), 0, "census-refine:hitnet-m4"), None);

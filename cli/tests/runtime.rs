@@ -71,28 +71,30 @@ fn calibrated_fk_gives_far_better_depth_than_nominal_and_replays_are_identical()
     }
 }
 
-/// The default engine and resolution (the shipped network hitnet-m refined by a census search at 640x480:
-/// the best depth this machine sustains at 25 fps, runtime/BENCHMARKS.md) end to end, as `abvs run` runs
-/// without flags: its
-/// depth error is bounded, and it beats SGBM on the fixture in the same run (abs_rel 0.021 vs 0.036, valid
-/// 0.80 vs 0.69 when written), and it is better than the 320x240 default of before (0.037).
+/// The default engine and resolution (census-refine at 640x480: hitnet-s and SGBM at 320x240, refined by a
+/// census search there: the depth this machine sustains at 25 fps, runtime/BENCHMARKS.md) end to end, as
+/// `abvs run` runs without flags: its depth error is bounded and it answers more of the image than SGBM_3WAY
+/// at 640x480 (valid 0.81 vs 0.73 when written). On this rendered fixture SGBM_3WAY's fewer answers are
+/// closer (abs_rel 0.025 vs 0.030, rmse 0.10 vs 0.12 m): the runtime gave up hitnet-m4 at 640x480 (0.024)
+/// for real time; on real photographs the default is far ahead of SGBM_3WAY (cli/tests/disparity_real.rs).
+/// At 320x240 the default engine is hitnet-s refined alone (abs_rel 0.034).
 #[test]
-fn the_default_engine_end_to_end_bounds_its_depth_error_and_beats_sgbm() {
+fn the_default_engine_end_to_end_bounds_its_depth_error_and_answers_more_than_sgbm() {
     let s = fixture();
     let net = run_with(&s, &["--lossless"]).unwrap();
     let sgbm = run_with(&s, &["--lossless", "--engine", "sgbm"]).unwrap();
     let small = run(&s, &["--lossless"]).unwrap();
     assert_eq!(net["frames_published"], 50, "{net:#}");
-    assert_eq!(net["engine"], "census-refine:hitnet-m4");
+    assert_eq!(net["engine"], "census-refine:hitnet-s+sgbm");
     // every published frame scored, beside the pipeline
     let lane = &net["truth_side_lane"];
     assert_eq!(lane["frames_consumed"], net["frames_published"], "{lane}");
     assert_eq!(net["resolution"], serde_json::json!([640, 480]));
     let (n, g, q) = (depth_err(&net), depth_err(&sgbm), depth_err(&small));
     eprintln!("abs_rel / rmse / valid: default {n:?} sgbm {g:?}, at 320x240 {q:?}");
-    assert!(n.0 < 0.03 && n.2 > 0.75, "default engine: {n:?}");
-    assert!(n.0 < q.0 && n.1 < q.1, "640x480 {n:?} vs 320x240 {q:?}");
-    assert!(n.0 < g.0 && n.1 < g.1 && n.2 > g.2, "default {n:?} vs sgbm {g:?}");
+    assert!(n.0 < 0.034 && n.2 > 0.75, "default engine: {n:?}");
+    assert!(n.0 < q.0, "640x480 {n:?} vs 320x240 {q:?}");
+    assert!(n.2 > g.2 && n.0 < 1.3 * g.0, "default {n:?} vs sgbm {g:?}");
     // the same frames, by seq: lossless replays of one session
     assert_eq!(net["frames_published"], sgbm["frames_published"]);
 }

@@ -186,11 +186,15 @@ fn a_disparity_manifest_naming_a_file_outside_its_directory_is_refused() {
 fn census_refine_runs_the_refine_base_a_manifest_names_and_refuses_one_outside_its_siblings() {
     use abvs_runtime::tasks::disparity::{engine, refine_base};
     let models = Path::new(env!("CARGO_MANIFEST_DIR")).join("../models/hitnet");
-    // the shipped hitnet-m names hitnet-m4, which exists and loads; census-refine reports it by name
+    // the shipped hitnet-m names hitnet-s, which exists and loads; census-refine reports it by name, with
+    // the SGBM prior it runs at the network's 320x240 (below the engine's 640x480)
     let base = refine_base(&models.join("hitnet-m")).unwrap();
-    assert_eq!(base.file_name().unwrap(), "hitnet-m4");
+    assert_eq!(base.file_name().unwrap(), "hitnet-s");
     assert!(base.join("manifest.json").is_file(), "{}", base.display());
     let e = engine("census-refine", Some(&models.join("hitnet-m")), (640, 480), 64.0, 1).unwrap();
+    assert_eq!(e.name(), "census-refine:hitnet-s+sgbm");
+    // hitnet-m4 names none: at its own 640x480 it runs alone, refined at the engine's resolution
+    let e = engine("census-refine", Some(&models.join("hitnet-m4")), (640, 480), 64.0, 1).unwrap();
     assert_eq!(e.name(), "census-refine:hitnet-m4");
     // a model without one is its own base; an .onnx file too
     assert_eq!(refine_base(&models.join("hitnet-s")).unwrap(), models.join("hitnet-s"));

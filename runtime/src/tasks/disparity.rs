@@ -55,9 +55,9 @@ pub struct DisparityManifest {
     /// Hex SHA-256 of the model file, checked on load (a damaged model would silently change the depth).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub onnx_sha256: Option<String>,
-    /// The network census-refine runs in this one's place (a sibling directory's name): the same weights
-    /// without the finest propagation level, whose job the census search does at full resolution. The
-    /// shipped hitnet-m names `hitnet-m4`: the same bad-2 after refinement at 0.79x the network's time (disparity-eval).
+    /// The network census-refine runs in this one's place (a sibling directory's name). The shipped hitnet-m
+    /// names `hitnet-s`: at 640x480, hitnet-s and SGBM at its 320x240, refined there, beat hitnet-m's weights
+    /// refined at 640x480 on real pairs at half the CPU (models/hitnet/README.md).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub refine_base: Option<String>,
 }
@@ -353,9 +353,13 @@ pub struct SgbmEngine {
 impl SgbmEngine {
     /// `max_disparity` is rounded up to OpenCV's multiple of 16.
     pub fn new(width: u32, height: u32, max_disparity: f64) -> Result<SgbmEngine> {
+        Self::with_block(width, height, max_disparity, 5)
+    }
+
+    /// With a `block` x `block` matching window (P1 and P2 scale with its area, as OpenCV recommends).
+    pub fn with_block(width: u32, height: u32, max_disparity: f64, block: i32) -> Result<SgbmEngine> {
         let cv = |e: opencv::Error| RuntimeError::Invalid(format!("sgbm: {}", e.message));
         let num = ((max_disparity.ceil() as i32 + 15) / 16 * 16).max(16);
-        let block = 5;
         let sgbm = opencv::calib3d::StereoSGBM::create(
             0,
             num,

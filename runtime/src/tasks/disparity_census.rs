@@ -10,7 +10,7 @@
 //! signs of local intensity differences, so the gain and offset differences of real camera pairs do not move
 //! it. The parameters were chosen on Aloe (Middlebury, opencv-doc); Motorcycle is held out
 //! (models/hitnet/README.md). Every buffer is allocated at construction: nothing per frame.
-use super::disparity::{DisparityEngine, OnnxEngine};
+use super::disparity::{DisparityEngine, OnnxEngine, SgbmEngine};
 use super::disparity_fused::{resize_gray, upsample_disparity};
 use std::ops::Range;
 
@@ -25,6 +25,10 @@ pub const WINDOW: usize = 7;
 /// (whose depth error the unchecked refinement doubled: abs_rel 0.045 vs the network's 0.021; 10 %: 0.035;
 /// 30 %: 0.025, Aloe bad-2 17.7 % -> 19.4 %).
 pub const UNIQUENESS_PCT: u32 = 30;
+/// Matching window of the SGBM prior (px at the network's resolution; block 3 there is block 6 at twice it).
+/// Chosen on Aloe and the rendered fixture against OpenCV's usual 5: bad-2 16.9 vs 17.7 %, abs_rel 0.032 vs
+/// 0.033 (7: 18.5 %).
+pub const PRIOR_BLOCK: i32 = 3;
 /// Radius of the census window (5x5: 24 bits).
 const CENSUS_R: usize = 2;
 /// Cost of a match outside the right image: every census bit differs.
@@ -40,39 +44,96 @@ pub struct CensusRefineEngine {
     net_left: Vec<u8>,
     net_right: Vec<u8>,
     net_disp: Vec<f32>,
-    /// A first refinement at the network's resolution, when the engine's is larger (see [`Coarse`]).
-    coarse: Option<Coarse>,
-    /// The network's disparity at the engine's resolution (engine pixels).
+    /// SGBM's accepted matches at the network's resolution, when the engine's is larger (see [`Prior`]).
+    prior: Option<Prior>,
+    /// The refinement at the network's own resolution, when the engine's is larger, and its answer. Why: a
+    /// search of +-[`SEARCH_PX`] at the engine's resolution spans fewer of the network's pixels (+-1.5 of them
+    /// at twice its size), too few to correct its errors of a few of its pixels. (Aloe at its own 1282x1110,
+    /// the network at 640x480: bad-2 28.8 % with a pass at the engine's resolution alone, against SGBM_3WAY's
+    /// 30.0 %; see models/hitnet/README.md.)
+    coarse: Option<(Pass, Vec<f32>)>,
+    /// The refinement at the engine's resolution: where the network runs at it (or above it), or at less than
+    /// 1 / [`FINE_ABOVE`] of its width.
+    fine: Option<Pass>,
+    /// The guess of the pass at the engine's resolution (engine pixels).
     guess: Vec<f32>,
-    census_l: Vec<u32>,
-    census_r: Vec<u32>,
-    /// The network's disparity rounded to whole pixels, the centre of each pixel's search.
-    base: Vec<i32>,
-    /// The rows of the aggregation window, streamed down the image (the upper half's).
-    rows: RowWindow,
-    /// The second thread: both images' census while the network runs, the lower half's refinement.
+    /// The second thread: what does not need the network while it runs, half of each refinement.
     helper: Helper,
 }
 
-/// The refinement at the network's own resolution, before its answer is upsampled to a larger engine's: the
-/// search of +-[`SEARCH_PX`] at the engine's resolution spans fewer of the network's pixels (+-1.5 of them at
-/// twice its size), too few to correct the network's errors of a few of its pixels. Refined where it answered,
-/// the upsampled guess is within the full-resolution search. (Aloe at its own 1282x1110, the network at
-/// 640x480: bad-2 28.8 % without this pass, against SGBM_3WAY's 30.0 %; see models/hitnet/README.md.)
-struct Coarse {
+/// A second refinement at the engine's resolution runs only where the engine is more than this many times the
+/// network's width. At twice it, the pass at the network's resolution upsampled was as good (Aloe at 640x480,
+/// hitnet-s with the prior: bad-2 17.3 vs 16.9 %; the rendered fixture: abs_rel 0.030 vs 0.032) and the
+/// second pass cost 8 ms of CPU per frame; at four times it (Aloe at its 1282x1110, hitnet-s) it took bad-2
+/// from 25.0 to 22.4 %.
+pub const FINE_ABOVE: f64 = 2.0;
+
+/// One refinement's buffers at one resolution: both census images, the search centres, the row window.
+struct Pass {
+    w: usize,
+    h: usize,
     census_l: Vec<u32>,
     census_r: Vec<u32>,
     base: Vec<i32>,
-    refined: Vec<f32>,
     rows: RowWindow,
+}
+
+impl Pass {
+    fn new(w: usize, h: usize) -> Pass {
+        Pass { w, h, census_l: vec![0; w * h], census_r: vec![0; w * h], base: vec![0; w * h], rows: RowWindow::new(w) }
+    }
+
+    /// The census of `left` and `right` (this pass's size), as a job for the helper.
+    fn census_job(&mut self, left: &[u8], right: &[u8]) -> CensusJob {
+        CensusJob {
+            imgs: [left.as_ptr(), right.as_ptr()],
+            outs: [self.census_l.as_mut_ptr(), self.census_r.as_mut_ptr()],
+            w: self.w,
+            h: self.h,
+        }
+    }
+
+    /// The refinement of `guess` into `out`: the lower half on the helper, the upper here.
+    fn refine(&mut self, helper: &Helper, guess: &[f32], out: &mut [f32]) -> Result<()> {
+        let (w, h) = (self.w, self.h);
+        round_into(guess, &mut self.base);
+        let mid = h / 2;
+        let (top, bottom) = out.split_at_mut(mid * w);
+        helper.run(Job::Refine {
+            cl: self.census_l.as_ptr(),
+            cr: self.census_r.as_ptr(),
+            base: self.base.as_ptr(),
+            guess: guess.as_ptr(),
+            out: bottom.as_mut_ptr(),
+            w,
+            h,
+            y0: mid,
+        })?;
+        refine(&self.census_l, &self.census_r, &self.base, guess, h, 0..mid, &mut self.rows, top);
+        helper.wait()
+    }
+}
+
+/// SGBM at the network's resolution (OpenCV's checks: uniqueness 10 %, left-right within 1 px, speckles), its
+/// accepted matches in place of the network's answer before the first refinement. Why: the network (slanted
+/// planes on 8x8 px tiles, trained on rendered scenes) misses thin structures and is off by more than the
+/// searches reach on real photographs; where SGBM passes its own checks it is right to a fraction of a pixel
+/// (models/hitnet/README.md). At the network's quarter of the pixels it costs a quarter of SGBM at the
+/// engine's resolution, and it runs on the helper thread, one thread (MODE_SGBM), while the network runs.
+/// Its range is the network's plus 8 px; the band at the left edge it cannot search keeps the network.
+struct Prior {
+    disp: Vec<f32>,
+    /// Pixels the last prior answered (for the statistics of tests and tools).
+    answered: usize,
 }
 
 /// What the helper thread is asked to do. Raw parts of the engine's buffers: the engine waits for the
 /// answer before it touches them again or returns, so they outlive the job and nobody else writes them.
 #[derive(Clone, Copy)]
 enum Job {
-    /// The census of each image (w x h) into its output.
-    Census { imgs: [*const u8; 2], outs: [*mut u32; 2], w: usize, h: usize },
+    /// What does not need the network: each census (images of w x h into their outputs), then, when given,
+    /// the helper's SGBM on the pair at the network's resolution into `sgbm.1`.
+    Prepare { census: [Option<CensusJob>; 2], sgbm: Option<([*const u8; 2], *mut f32)> },
     /// Rows `y0..h` of the refinement into `out` (those rows).
     Refine {
         cl: *const u32,
@@ -86,6 +147,15 @@ enum Job {
     },
 }
 
+/// Both images' census codes.
+#[derive(Clone, Copy)]
+struct CensusJob {
+    imgs: [*const u8; 2],
+    outs: [*mut u32; 2],
+    w: usize,
+    h: usize,
+}
+
 // SAFETY: the pointers are only dereferenced on the helper thread while the sending thread waits (see Job).
 unsafe impl Send for Job {}
 
@@ -93,34 +163,51 @@ unsafe impl Send for Job {}
 /// which allocate nothing per message once warmed up at construction.
 struct Helper {
     jobs: Option<crossbeam_channel::Sender<Job>>,
-    done: crossbeam_channel::Receiver<()>,
+    done: crossbeam_channel::Receiver<Result<()>>,
     thread: Option<std::thread::JoinHandle<()>>,
 }
 
 impl Helper {
-    fn new(w: usize) -> Result<Helper> {
+    /// The thread, with a row window for each refinement's width, owning the prior's SGBM if any.
+    fn new(widths: &[usize], mut sgbm: Option<SgbmEngine>) -> Result<Helper> {
+        let mut wins: Vec<RowWindow> = widths.iter().map(|&w| RowWindow::new(w)).collect();
         let (jobs, jobs_rx) = crossbeam_channel::bounded::<Job>(1);
-        let (done_tx, done) = crossbeam_channel::bounded::<()>(1);
+        let (done_tx, done) = crossbeam_channel::bounded::<Result<()>>(1);
         let thread = std::thread::Builder::new()
             .name("abvs-census".into())
             .spawn(move || {
-                let mut win = RowWindow::new(w);
                 for job in jobs_rx.iter() {
+                    let mut answer = Ok(());
                     // SAFETY: see Job: the buffers are the engine's, untouched until it receives `done`.
                     unsafe {
                         match job {
-                            Job::Census { imgs, outs, w, h } => {
-                                for (img, out) in imgs.into_iter().zip(outs) {
-                                    census(
-                                        std::slice::from_raw_parts(img, w * h),
-                                        w,
-                                        h,
-                                        std::slice::from_raw_parts_mut(out, w * h),
-                                    )
+                            Job::Prepare { census: jobs, sgbm: pair } => {
+                                for CensusJob { imgs, outs, w, h } in jobs.into_iter().flatten() {
+                                    for (img, out) in imgs.into_iter().zip(outs) {
+                                        census(
+                                            std::slice::from_raw_parts(img, w * h),
+                                            w,
+                                            h,
+                                            std::slice::from_raw_parts_mut(out, w * h),
+                                        )
+                                    }
+                                }
+                                if let (Some(([l, r], out)), Some(sg)) = (pair, sgbm.as_mut()) {
+                                    let n = (sg.size().0 * sg.size().1) as usize;
+                                    answer = sg.compute(
+                                        std::slice::from_raw_parts(l, n),
+                                        std::slice::from_raw_parts(r, n),
+                                        std::slice::from_raw_parts_mut(out, n),
+                                    );
                                 }
                             }
                             Job::Refine { cl, cr, base, guess, out, w, h, y0 } => {
                                 let n = w * h;
+                                let Some(win) = wins.iter_mut().find(|r| r.w == w) else {
+                                    let e = format!("census-refine: no row window for width {w}");
+                                    let _ = done_tx.send(Err(RuntimeError::Invalid(e)));
+                                    continue;
+                                };
                                 refine(
                                     std::slice::from_raw_parts(cl, n),
                                     std::slice::from_raw_parts(cr, n),
@@ -128,13 +215,13 @@ impl Helper {
                                     std::slice::from_raw_parts(guess, n),
                                     h,
                                     y0..h,
-                                    &mut win,
+                                    win,
                                     std::slice::from_raw_parts_mut(out, (h - y0) * w),
                                 )
                             }
                         }
                     }
-                    if done_tx.send(()).is_err() {
+                    if done_tx.send(answer).is_err() {
                         break;
                     }
                 }
@@ -144,11 +231,17 @@ impl Helper {
         // a round trip now, so the channels' waiter lists exist before the first frame
         let (img, mut out) = ([0u8; 64], [[0u32; 64]; 2]);
         let [a, b] = &mut out;
-        helper.run(Job::Census {
-            imgs: [img.as_ptr(), img.as_ptr()],
-            outs: [a.as_mut_ptr(), b.as_mut_ptr()],
-            w: 8,
-            h: 8,
+        helper.run(Job::Prepare {
+            census: [
+                Some(CensusJob {
+                    imgs: [img.as_ptr(), img.as_ptr()],
+                    outs: [a.as_mut_ptr(), b.as_mut_ptr()],
+                    w: 8,
+                    h: 8,
+                }),
+                None,
+            ],
+            sgbm: None,
         })?;
         helper.wait()?;
         Ok(helper)
@@ -160,8 +253,9 @@ impl Helper {
         self.jobs.as_ref().ok_or_else(gone)?.send(job).map_err(|_| gone())
     }
 
+    /// The job's answer (the prior's SGBM can fail).
     fn wait(&self) -> Result<()> {
-        self.done.recv().map_err(|_| RuntimeError::Invalid("census-refine: the helper thread ended".into()))
+        self.done.recv().map_err(|_| RuntimeError::Invalid("census-refine: the helper thread ended".into()))?
     }
 }
 
@@ -208,32 +302,38 @@ impl CensusRefineEngine {
         let (mw, mh) = net.size();
         let (n, m) = ((width * height) as usize, (mw * mh) as usize);
         let resized = (mw, mh) != (width, height);
+        let coarse = width > mw && mw as usize >= WINDOW && mh as usize >= WINDOW;
+        let fine = !coarse || width as f64 > FINE_ABOVE * mw as f64;
+        // the prior's range: the network's and 8 px, in OpenCV's steps of 16, below the network's width
+        let range = ((net.max_disparity().ceil() as i32 + 8 + 15) / 16) * 16;
+        let sgbm = (coarse && range + 16 <= mw as i32)
+            .then(|| SgbmEngine::with_block(mw, mh, range as f64, PRIOR_BLOCK))
+            .transpose()?;
+        let widths: Vec<usize> =
+            [(coarse, mw as usize), (fine, width as usize)].iter().filter(|(on, _)| *on).map(|(_, w)| *w).collect();
         Ok(CensusRefineEngine {
-            name: format!("census-refine:{}", net.manifest.variant),
+            name: format!("census-refine:{}{}", net.manifest.variant, if sgbm.is_some() { "+sgbm" } else { "" }),
             net,
             size: (width, height),
             net_left: vec![0; if resized { m } else { 0 }],
             net_right: vec![0; if resized { m } else { 0 }],
             net_disp: vec![f32::NAN; if resized { m } else { 0 }],
-            coarse: (width > mw && mw as usize >= WINDOW && mh as usize >= WINDOW).then(|| Coarse {
-                census_l: vec![0; m],
-                census_r: vec![0; m],
-                base: vec![0; m],
-                refined: vec![f32::NAN; m],
-                rows: RowWindow::new(mw as usize),
-            }),
-            guess: vec![f32::NAN; n],
-            census_l: vec![0; n],
-            census_r: vec![0; n],
-            base: vec![0; n],
-            rows: RowWindow::new(width as usize),
-            helper: Helper::new(width as usize)?,
+            prior: sgbm.is_some().then(|| Prior { disp: vec![f32::NAN; m], answered: 0 }),
+            coarse: coarse.then(|| (Pass::new(mw as usize, mh as usize), vec![f32::NAN; m])),
+            fine: fine.then(|| Pass::new(width as usize, height as usize)),
+            guess: vec![f32::NAN; if fine { n } else { 0 }],
+            helper: Helper::new(&widths, sgbm)?,
         })
     }
 
-    /// The network's disparity of the last pair at the engine's resolution, before refinement.
-    pub fn network_disparity(&self) -> &[f32] {
-        &self.guess
+    /// The fraction of the network's pixels the SGBM prior answered in the last pair (None: no prior).
+    pub fn prior_fraction(&self) -> Option<f64> {
+        self.prior.as_ref().map(|p| p.answered as f64 / p.disp.len().max(1) as f64)
+    }
+
+    /// The passes at work: (width, height) of each refinement, the first first.
+    pub fn passes(&self) -> Vec<(usize, usize)> {
+        self.coarse.iter().map(|(p, _)| (p.w, p.h)).chain(self.fine.iter().map(|p| (p.w, p.h))).collect()
     }
 }
 
@@ -258,60 +358,63 @@ impl DisparityEngine for CensusRefineEngine {
                 out.len()
             )));
         }
-        // both censuses on the helper thread while the network runs (they do not need the network): the
-        // lane's own time per frame is the network's and half the refinement
-        self.helper.run(Job::Census {
-            imgs: [left.as_ptr(), right.as_ptr()],
-            outs: [self.census_l.as_mut_ptr(), self.census_r.as_mut_ptr()],
-            w,
-            h,
-        })?;
-        let net = self.network(left, right);
+        let msize = self.net.size();
+        let (mw, mh) = (msize.0 as usize, msize.1 as usize);
+        if msize == self.size {
+            // one pass at the engine's resolution: both censuses on the helper while the network runs
+            let fine = self.fine.as_mut().ok_or_else(|| RuntimeError::Invalid("census-refine: no pass".into()))?;
+            self.helper.run(Job::Prepare { census: [Some(fine.census_job(left, right)), None], sgbm: None })?;
+            let net = self.net.compute(left, right, &mut self.guess);
+            self.helper.wait()?;
+            net?;
+            return fine.refine(&self.helper, &self.guess, out);
+        }
+        resize_gray(left, self.size, &mut self.net_left, msize)?;
+        resize_gray(right, self.size, &mut self.net_right, msize)?;
+        // everything that does not need the network on the helper while it runs: the censuses at the
+        // network's resolution and the prior's SGBM; the engine's own census, if a second pass needs it,
+        // here after the network when the prior keeps the helper busy
+        let coarse = self.coarse.as_mut().map(|(p, _)| p.census_job(&self.net_left, &self.net_right));
+        let sgbm =
+            self.prior.as_mut().map(|p| ([self.net_left.as_ptr(), self.net_right.as_ptr()], p.disp.as_mut_ptr()));
+        let fine_here = sgbm.is_some();
+        let fine = match &mut self.fine {
+            Some(f) if !fine_here => Some(f.census_job(left, right)),
+            _ => None,
+        };
+        self.helper.run(Job::Prepare { census: [fine, coarse], sgbm })?;
+        let net = self.net.compute(&self.net_left, &self.net_right, &mut self.net_disp);
+        if let (Ok(()), true, Some(f)) = (&net, fine_here, &mut self.fine) {
+            census(left, w, h, &mut f.census_l);
+            census(right, w, h, &mut f.census_r);
+        }
         self.helper.wait()?;
         net?;
-        round_into(&self.guess, &mut self.base);
-        // the lower half on the helper, the upper here
-        let mid = h / 2;
-        let (top, bottom) = out.split_at_mut(mid * w);
-        self.helper.run(Job::Refine {
-            cl: self.census_l.as_ptr(),
-            cr: self.census_r.as_ptr(),
-            base: self.base.as_ptr(),
-            guess: self.guess.as_ptr(),
-            out: bottom.as_mut_ptr(),
-            w,
-            h,
-            y0: mid,
-        })?;
-        refine(&self.census_l, &self.census_r, &self.base, &self.guess, h, 0..mid, &mut self.rows, top);
-        self.helper.wait()
-    }
-}
-
-impl CensusRefineEngine {
-    /// The network's disparity at the engine's resolution into `guess`.
-    fn network(&mut self, left: &[u8], right: &[u8]) -> Result<()> {
-        let (w, h) = (self.size.0 as usize, self.size.1 as usize);
-        let msize = self.net.size();
-        if msize == self.size {
-            self.net.compute(left, right, &mut self.guess)
-        } else {
-            resize_gray(left, self.size, &mut self.net_left, msize)?;
-            resize_gray(right, self.size, &mut self.net_right, msize)?;
-            self.net.compute(&self.net_left, &self.net_right, &mut self.net_disp)?;
-            let (mw, mh) = (msize.0 as usize, msize.1 as usize);
-            let answer = match &mut self.coarse {
-                Some(c) => {
-                    census(&self.net_left, mw, mh, &mut c.census_l);
-                    census(&self.net_right, mw, mh, &mut c.census_r);
-                    round_into(&self.net_disp, &mut c.base);
-                    refine(&c.census_l, &c.census_r, &c.base, &self.net_disp, mh, 0..mh, &mut c.rows, &mut c.refined);
-                    &c.refined
+        if let Some(p) = &mut self.prior {
+            p.answered = 0;
+            for (n, &s) in self.net_disp.iter_mut().zip(&p.disp) {
+                if s.is_finite() {
+                    *n = s;
+                    p.answered += 1;
                 }
-                None => &self.net_disp,
-            };
-            upsample_disparity(answer, (mw, mh), &mut self.guess, (w, h));
-            Ok(())
+            }
+        }
+        let answer = match &mut self.coarse {
+            Some((pass, refined)) => {
+                pass.refine(&self.helper, &self.net_disp, refined)?;
+                &*refined
+            }
+            None => &self.net_disp,
+        };
+        match &mut self.fine {
+            Some(fine) => {
+                upsample_disparity(answer, (mw, mh), &mut self.guess, (w, h));
+                fine.refine(&self.helper, &self.guess, out)
+            }
+            None => {
+                upsample_disparity(answer, (mw, mh), out, (w, h));
+                Ok(())
+            }
         }
     }
 }

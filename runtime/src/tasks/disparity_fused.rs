@@ -72,23 +72,27 @@ pub(crate) fn resize_gray(src: &[u8], (sw, sh): (u32, u32), dst: &mut [u8], (dw,
 pub fn upsample_disparity(src: &[f32], (sw, sh): (usize, usize), dst: &mut [f32], (dw, dh): (usize, usize)) {
     let scale = dw as f32 / sw as f32;
     let (fx, fy) = (sw as f32 / dw as f32, sh as f32 / dh as f32);
-    for y in 0..dh {
+    // the coordinates are clamped to >= 0, so a cast is the floor: no libm call per pixel (the baseline
+    // x86-64 target has no rounding instruction), which made this a tenth of the refinement's frame
+    for (y, row) in dst.chunks_exact_mut(dw).enumerate().take(dh) {
         let syf = ((y as f32 + 0.5) * fy - 0.5).clamp(0.0, (sh - 1) as f32);
-        let (y0, ty) = (syf.floor() as usize, syf.fract());
+        let y0 = syf as usize;
+        let ty = syf - y0 as f32;
         let y1 = (y0 + 1).min(sh - 1);
-        for x in 0..dw {
+        let (r0, r1) = (&src[y0 * sw..(y0 + 1) * sw], &src[y1 * sw..(y1 + 1) * sw]);
+        let yn = if ty < 0.5 { r0 } else { r1 };
+        for (x, o) in row.iter_mut().enumerate() {
             let sxf = ((x as f32 + 0.5) * fx - 0.5).clamp(0.0, (sw - 1) as f32);
-            let (x0, tx) = (sxf.floor() as usize, sxf.fract());
+            let x0 = sxf as usize;
+            let tx = sxf - x0 as f32;
             let x1 = (x0 + 1).min(sw - 1);
-            let (a, b, c, d) = (src[y0 * sw + x0], src[y0 * sw + x1], src[y1 * sw + x0], src[y1 * sw + x1]);
+            let (a, b, c, d) = (r0[x0], r0[x1], r1[x0], r1[x1]);
             let v = if a.is_finite() && b.is_finite() && c.is_finite() && d.is_finite() {
                 (a * (1.0 - tx) + b * tx) * (1.0 - ty) + (c * (1.0 - tx) + d * tx) * ty
             } else {
-                let xn = if tx < 0.5 { x0 } else { x1 };
-                let yn = if ty < 0.5 { y0 } else { y1 };
-                src[yn * sw + xn]
+                yn[if tx < 0.5 { x0 } else { x1 }]
             };
-            dst[y * dw + x] = v * scale;
+            *o = v * scale;
         }
     }
 }
