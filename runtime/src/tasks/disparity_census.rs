@@ -6,10 +6,14 @@
 //! Hamming distances of 5x5 census codes, aggregated per offset over a [`WINDOW`] x [`WINDOW`] box (each
 //! pixel's offset is relative to its own network disparity, so slanted surfaces stay matched), winner take
 //! all, then a parabola through the best cost and its neighbours for the sub-pixel part; a winner that is not
-//! unique ([`UNIQUENESS_PCT`]) leaves the network's answer. Census compares
+//! unique ([`UNIQUENESS_PCT`]) leaves the network's answer. Where the engine's resolution is larger than the
+//! network's, SGBM_3WAY's checked matches at the network's resolution replace its answer first (`Prior`),
+//! the search runs there and the answer is upsampled (again searched at the engine's resolution only beyond
+//! [`FINE_ABOVE`] times the network's width). Census compares
 //! signs of local intensity differences, so the gain and offset differences of real camera pairs do not move
 //! it. The parameters were chosen on Aloe (Middlebury, opencv-doc); Motorcycle is held out
-//! (models/hitnet/README.md). Every buffer is allocated at construction: nothing per frame.
+//! (models/hitnet/README.md). Every buffer of its own is allocated at construction: nothing per frame (OpenCV's SGBM
+//! keeps its working buffers inside the call).
 use super::disparity::{DisparityEngine, OnnxEngine, SgbmEngine};
 use super::disparity_fused::{resize_gray, upsample_disparity};
 use std::ops::Range;
@@ -118,9 +122,9 @@ impl Pass {
 /// accepted matches in place of the network's answer before the first refinement. Why: the network (slanted
 /// planes on 8x8 px tiles, trained on rendered scenes) misses thin structures and is off by more than the
 /// searches reach on real photographs; where SGBM passes its own checks it is right to a fraction of a pixel
-/// (models/hitnet/README.md). At the network's quarter of the pixels it costs a quarter of SGBM at the
-/// engine's resolution, and it runs on the helper thread, one thread (MODE_SGBM), while the network runs.
-/// Its range is the network's plus 8 px; the band at the left edge it cannot search keeps the network.
+/// (models/hitnet/README.md). At a quarter of the pixels and the network's range plus 8 px it costs a tenth
+/// of SGBM at 640x480, and it runs from the helper thread (SGBM_3WAY, on OpenCV's pool) while the network
+/// runs. The band at the left edge it cannot search keeps the network's answer.
 struct Prior {
     disp: Vec<f32>,
     /// Pixels the last prior answered (for the statistics of tests and tools).
