@@ -6,8 +6,8 @@
 //! (INTER_AREA; anisotropic resizes keep rows epipolar) and disparities resampled back (bilinear) and
 //! scaled by the width ratio. The fused engine runs SGBM at the input resolution and the network at its
 //! own (`abvs_runtime::tasks::disparity_fused`); census-refine refines the network's answer, with SGBM's
-//! checked matches at the network's resolution when the input is larger (`abvs_runtime::tasks::disparity_census`). The output is PFM at the input resolution,
-//! invalid = inf.
+//! checked matches at the network's resolution when the input is larger
+//! (`abvs_runtime::tasks::disparity_census`). The output is PFM at the input resolution, invalid = inf.
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
@@ -44,7 +44,8 @@ pub struct DisparityArgs {
     model: Option<PathBuf>,
     /// fused: SGBM where its own checks accept a match, the network elsewhere (the best on real images);
     /// census-refine: the network, SGBM's checked matches at its resolution in its place, refined by a census
-    /// search within 3 px (the runtime's default; output at the input resolution); onnx: the network alone; sgbm: SGBM_3WAY alone (both at the model's resolution).
+    /// search within 3 px (the runtime's default; output at the input resolution); onnx: the network alone;
+    /// sgbm: SGBM_3WAY alone (both at the model's resolution).
     #[arg(long, value_enum, default_value_t = EngineKind::Fused)]
     engine: EngineKind,
     /// Threads of the ONNX engine (1 to 256).

@@ -46,8 +46,9 @@ pub struct RunArgs {
     #[arg(long)]
     pub stats_json: Option<PathBuf>,
     /// Disparity engine: census-refine (the shipped network and SGBM's checked matches at its resolution,
-    /// refined by a census search: better than SGBM on real images, at a third of its time), onnx (the network alone), sgbm (OpenCV SGBM_3WAY), fused (SGBM where
-    /// its checks accept a match, the network elsewhere; costs both).
+    /// refined by a census search: better than SGBM on real images, at about a third of its time in the
+    /// runtime), onnx (the network alone), sgbm (OpenCV SGBM_3WAY), fused (SGBM where its checks accept a
+    /// match, the network elsewhere; costs both).
     #[arg(long, value_enum, default_value = "census-refine")]
     pub engine: EngineKind,
     /// Disparity model directory or .onnx (default: models/hitnet/hitnet-s at 320x240, hitnet-m at 640x480).

@@ -100,8 +100,8 @@ fn overload_hint(cpu: &serde_json::Value, dropped: u64, engine: &str) -> Option<
         return None;
     }
     let lighter = if engine.starts_with("census-refine") && !engine.starts_with("census-refine:hitnet-s") {
-        "`--model models/hitnet/hitnet-s` (census-refine on the smaller network: about half the disparity \
-         stage's CPU, less accurate) or `--resolution 320x240`"
+        "no `--model` (the default: hitnet-s and SGBM at 320x240, about half the disparity stage's CPU) or \
+         `--resolution 320x240`"
     } else {
         "`--resolution 320x240`"
     };
@@ -124,10 +124,10 @@ mod tests {
             |busy: f64| serde_json::json!({"cores_busy_without_idle_priority": busy, "cores": 2, "ms_per_frame": 78.0});
         let hint = overload_hint(&cpu(1.95), 12, "census-refine:hitnet-m4").expect("saturated and dropping");
         assert!(hint.contains("12 frames dropped") && hint.contains("1.95 of 2 cores") && hint.contains("78.0 ms"));
-        assert!(hint.contains("models/hitnet/hitnet-s"), "{hint}");
+        assert!(hint.contains("no `--model`") && hint.contains("320x240"), "{hint}");
         // already the light network: only the resolution is left
         let light = overload_hint(&cpu(1.95), 3, "census-refine:hitnet-s+sgbm").unwrap();
-        assert!(!light.contains("models/hitnet/hitnet-s") && light.contains("320x240"), "{light}");
+        assert!(!light.contains("--model") && light.contains("320x240"), "{light}");
         // nothing dropped, or frames dropped with CPU to spare (a hiccup, not a shortage): no hint
         assert_eq!(overload_hint(&cpu(1.95), 0, "census-refine:hitnet-m4"), None);
         assert_eq!(overload_hint(&cpu(1.2), 5, "census-refine:hitnet-m4"), None);

@@ -12,8 +12,8 @@
 //! [`FINE_ABOVE`] times the network's width). Census compares
 //! signs of local intensity differences, so the gain and offset differences of real camera pairs do not move
 //! it. The parameters were chosen on Aloe (Middlebury, opencv-doc); Motorcycle is held out
-//! (models/hitnet/README.md). Every buffer of its own is allocated at construction: nothing per frame (OpenCV's SGBM
-//! keeps its working buffers inside the call).
+//! (models/hitnet/README.md). Every buffer of its own is allocated at construction: nothing per frame
+//! (OpenCV's SGBM keeps its working buffers inside the call).
 use super::disparity::{DisparityEngine, OnnxEngine, SgbmEngine};
 use super::disparity_fused::{resize_gray, upsample_disparity};
 use std::ops::Range;
@@ -30,8 +30,8 @@ pub const WINDOW: usize = 7;
 /// 30 %: 0.025, Aloe bad-2 17.7 % -> 19.4 %).
 pub const UNIQUENESS_PCT: u32 = 30;
 /// Matching window of the SGBM prior (px at the network's resolution; block 3 there is block 6 at twice it).
-/// Chosen on Aloe and the rendered fixture against OpenCV's usual 5: bad-2 16.9 vs 17.7 %, abs_rel 0.032 vs
-/// 0.033 (7: 18.5 %).
+/// Chosen on Aloe and the rendered fixture against OpenCV's usual 5 (with searches at 320x240 and 640x480):
+/// bad-2 16.9 vs 17.7 %, abs_rel 0.032 vs 0.033 (7: 18.5 %).
 pub const PRIOR_BLOCK: i32 = 3;
 /// Radius of the census window (5x5: 24 bits).
 const CENSUS_R: usize = 2;
@@ -122,13 +122,11 @@ impl Pass {
 /// accepted matches in place of the network's answer before the first refinement. Why: the network (slanted
 /// planes on 8x8 px tiles, trained on rendered scenes) misses thin structures and is off by more than the
 /// searches reach on real photographs; where SGBM passes its own checks it is right to a fraction of a pixel
-/// (models/hitnet/README.md). At a quarter of the pixels and the network's range plus 8 px it costs a tenth
-/// of SGBM at 640x480, and it runs from the helper thread (SGBM_3WAY, on OpenCV's pool) while the network
+/// (models/hitnet/README.md). At a quarter of the pixels and the network's range plus 8 px (48 against the
+/// runtime's 96 at 640x480) it searches an eighth of SGBM's cells at 640x480, and it runs from the helper thread (SGBM_3WAY, on OpenCV's pool) while the network
 /// runs. The band at the left edge it cannot search keeps the network's answer.
 struct Prior {
     disp: Vec<f32>,
-    /// Pixels the last prior answered (for the statistics of tests and tools).
-    answered: usize,
 }
 
 /// What the helper thread is asked to do. Raw parts of the engine's buffers: the engine waits for the
@@ -322,22 +320,12 @@ impl CensusRefineEngine {
             net_left: vec![0; if resized { m } else { 0 }],
             net_right: vec![0; if resized { m } else { 0 }],
             net_disp: vec![f32::NAN; if resized { m } else { 0 }],
-            prior: sgbm.is_some().then(|| Prior { disp: vec![f32::NAN; m], answered: 0 }),
+            prior: sgbm.is_some().then(|| Prior { disp: vec![f32::NAN; m] }),
             coarse: coarse.then(|| (Pass::new(mw as usize, mh as usize), vec![f32::NAN; m])),
             fine: fine.then(|| Pass::new(width as usize, height as usize)),
             guess: vec![f32::NAN; if fine { n } else { 0 }],
             helper: Helper::new(&widths, sgbm)?,
         })
-    }
-
-    /// The fraction of the network's pixels the SGBM prior answered in the last pair (None: no prior).
-    pub fn prior_fraction(&self) -> Option<f64> {
-        self.prior.as_ref().map(|p| p.answered as f64 / p.disp.len().max(1) as f64)
-    }
-
-    /// The passes at work: (width, height) of each refinement, the first first.
-    pub fn passes(&self) -> Vec<(usize, usize)> {
-        self.coarse.iter().map(|(p, _)| (p.w, p.h)).chain(self.fine.iter().map(|p| (p.w, p.h))).collect()
     }
 }
 
@@ -394,12 +382,10 @@ impl DisparityEngine for CensusRefineEngine {
         }
         self.helper.wait()?;
         net?;
-        if let Some(p) = &mut self.prior {
-            p.answered = 0;
+        if let Some(p) = &self.prior {
             for (n, &s) in self.net_disp.iter_mut().zip(&p.disp) {
                 if s.is_finite() {
                     *n = s;
-                    p.answered += 1;
                 }
             }
         }
