@@ -86,19 +86,45 @@ fn subscribe_receives_every_published_frame_on_every_topic_from_another_process(
     assert_eq!(num(&fields(&out, "subscriber seq_gaps"), "malformed"), 0, "{out}");
 }
 
-/// The README's "Use it from your own process" shows `custom_sink`: every line of its code block is a line of
-/// the example, so the README cannot show code that no longer builds.
+/// Every Rust block of the README and the guides under docs/ is lines of one of the runtime's examples (which
+/// the tests above build and run), so no page can show code that no longer builds. The runtime guide's "Use it
+/// from your own process" shows `custom_sink`.
 #[test]
-fn the_readme_shows_code_of_the_example() {
+fn the_guides_show_code_of_the_examples() {
     let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
-    let readme = std::fs::read_to_string(root.join("README.md")).expect("README.md");
-    let example = std::fs::read_to_string(root.join("runtime/examples/custom_sink.rs")).expect("the example");
-    let section = readme.split("## Use it from your own process").nth(1).expect("the README's section");
+    let examples: Vec<(String, Vec<String>)> = std::fs::read_dir(root.join("runtime/examples"))
+        .expect("runtime/examples")
+        .map(|e| e.expect("an entry").path())
+        .filter(|p| p.extension().is_some_and(|x| x == "rs"))
+        .map(|p| {
+            let text = std::fs::read_to_string(&p).expect("an example");
+            (p.display().to_string(), text.lines().map(|l| l.trim().to_string()).collect())
+        })
+        .collect();
+    let mut pages = vec![root.join("README.md")];
+    for e in std::fs::read_dir(root.join("docs")).expect("docs/") {
+        let p = e.expect("an entry").path();
+        if p.extension().is_some_and(|x| x == "md") {
+            pages.push(p);
+        }
+    }
+    let mut blocks = 0;
+    for page in &pages {
+        let text = std::fs::read_to_string(page).expect("a page");
+        for block in text.split("```rust\n").skip(1) {
+            let block = block.split("```").next().expect("its end");
+            let shown: Vec<&str> = block.lines().map(str::trim).filter(|l| !l.is_empty()).collect();
+            let ok = examples.iter().any(|(_, lines)| shown.iter().all(|l| lines.iter().any(|x| x == l)));
+            assert!(ok, "{}: a Rust block is not lines of one example of runtime/examples/:\n{block}", page.display());
+            blocks += 1;
+        }
+    }
+    let runtime = std::fs::read_to_string(root.join("docs/runtime.md")).expect("docs/runtime.md");
+    let section = runtime.split("## Use it from your own process").nth(1).expect("the runtime guide's section");
     let block = section.split("```rust\n").nth(1).and_then(|b| b.split("```").next()).expect("its code block");
-    let lines: Vec<&str> = example.lines().map(str::trim).collect();
+    let custom = &examples.iter().find(|(p, _)| p.ends_with("custom_sink.rs")).expect("custom_sink.rs").1;
     let shown: Vec<&str> = block.lines().map(str::trim).filter(|l| !l.is_empty()).collect();
     assert!(shown.len() > 10, "{block}");
-    for l in shown {
-        assert!(lines.contains(&l), "README line `{l}` is not in runtime/examples/custom_sink.rs");
-    }
+    assert!(shown.iter().all(|l| custom.iter().any(|x| x == l)), "{block}");
+    assert!(blocks >= 1);
 }
