@@ -363,7 +363,7 @@ def cmd_rmw(endpoint):
             (tokens if sample.kind == zenoh.SampleKind.PUT else gone).append(str(sample.key_expr))
 
     subs = [session.declare_subscriber(k, on_sample) for k in keys]
-    lv = session.liveliness().declare_subscriber("@ros2_lv/0/**", on_token)
+    lv = session.liveliness().declare_subscriber("@ros2_lv/0/**", on_token, history=True)
     print("ready", flush=True)
     while not done.wait(0.1):
         peers.update(str(z) for z in session.info.peers_zid())
