@@ -293,7 +293,7 @@ fn print_config_carries_the_ros2_outputs_and_bad_input_is_refused() {
         (printed.replace("queue = 16", "queue = 0"), "sinks.mcap.queue"),
         (printed.replace("node = \"abvs\"", "node = \"2abvs\""), "bridges.zenoh.node: `2abvs`"),
         (printed.replace("namespace = \"/\"", "namespace = \"robot\""), "bridges.zenoh.namespace: `robot`"),
-        (printed.replace("distro = \"humble\"", "distro = \"iron\""), "distro"),
+        (printed.replace("distro = \"humble\"", "distro = \"iron\""), "`iron`, expected one of `humble`"),
     ];
     for (text, says) in bad {
         std::fs::write(&f, text).unwrap();
