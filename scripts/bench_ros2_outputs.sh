@@ -1,9 +1,13 @@
 #!/usr/bin/env bash
 # The ROS 2 outputs' cost on the critical path: paced replays of the fixture (25 fps, default ONNX engine,
 # iceoryx2 publishing on as in the default run) without them, with --zenoh (connected to a Python listener
-# on loopback that receives every key), with --mcap, and with both, interleaved in rotating order ROUNDS
-# times; prints each configuration's median end-to-end latency p50, the median of its ratio to the paired
-# run without, the stage p50s and what the outputs counted (frames written / dropped, write ms a frame).
+# on loopback that receives every key), with --zenoh --ros2-keys rmw-zenoh (the same listener, rmw_zenoh's
+# keys), with --mcap, and with both, interleaved in rotating order ROUNDS times; prints each configuration's
+# median end-to-end latency p50, the median of its ratio to the paired run without, the stage p50s, what
+# the outputs counted (frames written / dropped, write ms a frame) and the runtime's own CPU accounting:
+# the process's CPU ms a frame, the paired difference to the run without (median) as a share of the run
+# without, and the Zenoh threads' CPU (the sink's `abvs-zenoh` thread + Zenoh's own) as a share of the
+# process's.
 #   cargo build --release -p abvs && scripts/setup.sh && scripts/bench_ros2_outputs.sh [ROUNDS=8] [FRAMES=125] [flags]
 set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
@@ -24,19 +28,20 @@ c.insert_json5("scouting/multicast/enabled", "false")
 s = zenoh.open(c)
 n = {}
 subs = [s.declare_subscriber(k, lambda x: n.__setitem__(str(x.key_expr), n.get(str(x.key_expr), 0) + 1))
-        for k in ["abvs/depth", "abvs/camera_info", "abvs/points", "tf", "abvs/joint_states"]]
+        for k in ["abvs/depth", "abvs/camera_info", "abvs/points", "tf", "abvs/joint_states", "0/abvs/**", "0/tf/**"]]
 threading.Event().wait()
 PY
 LISTENER=$!
 trap 'kill $LISTENER 2>/dev/null; rm -rf "$OUT"' EXIT
 sleep 2
-cfgs=(off zenoh mcap both)
+cfgs=(off zenoh rmw mcap both)
 for i in $(seq 1 "$ROUNDS"); do
-  for j in 0 1 2 3; do
-    m=${cfgs[$(( (i + j) % 4 ))]}
+  for j in 0 1 2 3 4; do
+    m=${cfgs[$(( (i + j) % 5 ))]}
     case $m in
       off) extra=() ;;
       zenoh) extra=(--zenoh-connect "tcp/127.0.0.1:$PORT") ;;
+      rmw) extra=(--zenoh-connect "tcp/127.0.0.1:$PORT" --ros2-keys rmw-zenoh) ;;
       mcap) extra=(--mcap "$OUT/run.mcap") ;;
       both) extra=(--zenoh-connect "tcp/127.0.0.1:$PORT" --mcap "$OUT/run.mcap") ;;
     esac
@@ -50,12 +55,21 @@ import json, statistics as st, sys
 out, n = sys.argv[1], int(sys.argv[2])
 load = lambda m: [json.load(open(f"{out}/{m}-{i}.json")) for i in range(1, n + 1)]
 off = load("off")
-for m in ["off", "zenoh", "mcap", "both"]:
+# Zenoh's own threads (its runtime's pools) by name, and the sink's thread
+ZENOH_THREADS = ("abvs-zenoh", "app-", "acc-", "net-", "rx-", "tx-")
+for m in ["off", "zenoh", "rmw", "mcap", "both"]:
     vs = load(m)
     e = [v["latency_ms"]["p50"] for v in vs]
     r = [v["latency_ms"]["p50"] / o["latency_ms"]["p50"] for v, o in zip(vs, off)]
     line = (f"{m:6} end-to-end p50 median {st.median(e):6.2f} ms, paired ratio median {st.median(r):.3f}; stage p50 "
             + " ".join(f"{k} {st.median([v['stages'][k]['p50'] for v in vs]):.2f}" for k in ["rectify", "disparity", "output"]))
+    cpu = [v["cpu"]["ms_per_frame"] for v in vs]
+    d = [v["cpu"]["ms_per_frame"] - o["cpu"]["ms_per_frame"] for v, o in zip(vs, off)]
+    z = [sum(ms for n, ms in v["cpu"]["other_threads_by_name_ms_per_frame"].items() if n.startswith(ZENOH_THREADS))
+         / v["cpu"]["ms_per_frame"] for v in vs]
+    line += (f"; CPU {st.median(cpu):.2f} ms a frame, paired difference to off {st.median(d):+.2f} ms"
+             f" ({100 * st.median(d) / st.median([o['cpu']['ms_per_frame'] for o in off]):+.1f} %),"
+             f" Zenoh threads {100 * st.median(z):.2f} % of it")
     for k in ["zenoh", "mcap"]:
         if k in vs[0]:
             line += (f"; {k} written {sum(v[k]['frames_written'] for v in vs)} dropped {sum(v[k]['frames_dropped'] for v in vs)}"

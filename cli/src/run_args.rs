@@ -98,8 +98,8 @@ pub struct RunArgs {
     /// (profile ros2, readable by Foxglove and `ros2 bag`).
     #[arg(long)]
     pub mcap: Option<PathBuf>,
-    /// Publish the ROS 2 messages over Zenoh (keys abvs/depth, abvs/camera_info, abvs/points, tf,
-    /// abvs/joint_states).
+    /// Publish the ROS 2 messages over Zenoh (topics /abvs/depth, /abvs/camera_info, /abvs/points, /tf,
+    /// /abvs/joint_states; key names: --ros2-keys).
     #[arg(long)]
     pub zenoh: bool,
     /// Zenoh endpoint to connect to, e.g. tcp/192.168.1.20:7447 (repeatable; implies --zenoh).
@@ -108,6 +108,13 @@ pub struct RunArgs {
     /// A standard Zenoh configuration file (JSON5; implies --zenoh).
     #[arg(long, value_name = "FILE")]
     pub zenoh_config: Option<PathBuf>,
+    /// Zenoh key names: `bridge` (zenoh-bridge-ros2dds's) or `rmw-zenoh` (a ROS 2 node that rmw_zenoh
+    /// systems see directly; implies --zenoh).
+    #[arg(long, value_enum)]
+    pub ros2_keys: Option<abvs_runtime::config::Ros2Keys>,
+    /// The ROS 2 distribution whose type hashes the rmw-zenoh keys carry.
+    #[arg(long, value_enum)]
+    pub ros_distro: Option<abvs_runtime::config::RosDistro>,
     /// Do not publish over iceoryx2.
     #[arg(long)]
     pub no_publish: bool,
@@ -337,6 +344,10 @@ pub fn effective_config(a: &RunArgs, m: &ArgMatches) -> anyhow::Result<RuntimeCo
     if given("zenoh_config") {
         z.config = a.zenoh_config.as_ref().map(abs);
     }
+    if let Some(k) = a.ros2_keys {
+        (z.enabled, z.keys) = (true, k);
+    }
+    z.distro = a.ros_distro.unwrap_or(z.distro);
     if a.no_publish {
         c.bridges.iceoryx.enabled = false;
     }

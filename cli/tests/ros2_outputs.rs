@@ -155,6 +155,60 @@ fn zenoh_messages_reach_a_python_listener() {
 }
 
 #[test]
+fn rmw_zenoh_node_is_seen_by_a_python_client() {
+    let _one = one_run();
+    let d = tempfile::tempdir().unwrap();
+    let p = prefix("rmw");
+    let port = std::net::TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port();
+    let endpoint = format!("tcp/127.0.0.1:{port}");
+    let (child, out) = start_check(&["rmw", &endpoint]);
+    let args = ["--zenoh-connect", &endpoint, "--ros2-keys", "rmw-zenoh", "--ros-distro", "jazzy"];
+    let s = run(d.path(), &p, &[&args[..], &["--frames", "12", "--truth-stride", "0", "--no-self-check"]].concat());
+    let r = finish_check(child, out);
+    let z = &s["zenoh"];
+    println!("zenoh stats {z}; python {r}");
+    let written = z["frames_written"].as_u64().unwrap();
+    assert!(written >= 6 && z["frames_failed"].as_u64() == Some(0), "{z}");
+    assert_eq!(r["decode_errors"], serde_json::json!([]));
+    assert_eq!(r["attachment_errors"], serde_json::json!([]));
+    assert_eq!(r["token_errors"], serde_json::json!([]));
+    // the node: zid of the session that connected, node id 0 = entity id 0, root enclave and namespace
+    assert_eq!(
+        r["node"],
+        serde_json::json!({"zid_is_peer": true, "ids": ["0", "0"], "enclave_ns_name": ["%", "%", "abvs"]})
+    );
+    let mut ids = Vec::new();
+    for topic in ["/abvs/depth", "/abvs/camera_info", "/abvs/points", "/tf", "/abvs/joint_states"] {
+        // every message under the Jazzy key decodes as its type; the subscriber may miss the first few
+        // (before its subscription reached the runtime), none after: sequence numbers step by one up to
+        // the frames written (one sample a frame, numbered from 1)
+        let got = r["received"][topic].as_u64().unwrap();
+        assert!(got >= written / 2 && r["decoded"][topic].as_u64() == Some(got), "{topic}: {got} of {written}: {r}");
+        assert_eq!(r["seq_steps_ok"][topic], Value::Bool(true), "{topic}: {r}");
+        assert_eq!(r["seq_first"][topic].as_u64().unwrap() + got - 1, written, "{topic}: {r}");
+        assert_eq!(r["gids"][topic].as_array().map(|a| a.len()), Some(1), "one GID a publisher: {r}");
+        let pb = &r["publishers"][topic];
+        assert_eq!(pb["zid_is_peer"], Value::Bool(true), "{topic}: {pb}");
+        assert_eq!(pb["type_ok"], Value::Bool(true), "{topic}: {pb}");
+        assert_eq!(pb["gid_matches_samples"], Value::Bool(true), "{topic}: {pb}");
+        assert_eq!(pb["node"], serde_json::json!(["%", "%", "abvs"]), "{topic}: {pb}");
+        // sensor data QoS: best effort (2), volatile (2), keep last (1) 5
+        assert_eq!(pb["qos"], "2:2:1,5:,:,:,,", "{topic}: {pb}");
+        assert_eq!(pb["ids"][0], "0", "{topic}: {pb}");
+        ids.push(pb["ids"][1].as_str().unwrap().to_string());
+    }
+    ids.sort();
+    ids.dedup();
+    assert_eq!(ids.len(), 5, "one entity id a publisher: {ids:?}");
+    let gids: std::collections::BTreeSet<String> =
+        r["gids"].as_object().unwrap().values().map(|g| g[0].as_str().unwrap_or("").to_string()).collect();
+    assert_eq!(gids.len(), 5, "one GID a publisher: {r}");
+    // the run's end takes the node out of the ROS 2 graph: every token is withdrawn
+    assert_eq!(r["tokens"].as_array().map(|a| a.len()), Some(6), "{r}");
+    assert_eq!(r["tokens_gone"], r["tokens"], "{r}");
+}
+
+#[test]
 fn mcap_recording_decodes_in_python() {
     let _one = one_run();
     let d = tempfile::tempdir().unwrap();
@@ -200,12 +254,21 @@ fn print_config_carries_the_ros2_outputs_and_bad_input_is_refused() {
         "tcp/10.0.0.3:7447",
         "--mcap",
         "/tmp/x.mcap",
+        "--ros2-keys",
+        "rmw-zenoh",
+        "--ros-distro",
+        "humble",
     ]);
     assert!(o.status.success());
     let c: toml::Value = toml::from_str(&String::from_utf8_lossy(&o.stdout)).unwrap();
     let z = &c["bridges"]["zenoh"];
     assert_eq!(z["enabled"].as_bool(), Some(true));
     assert_eq!(z["connect"].as_array().unwrap().len(), 2);
+    assert_eq!((z["keys"].as_str(), z["distro"].as_str()), (Some("rmw-zenoh"), Some("humble")));
+    assert_eq!(
+        (z["node"].as_str(), z["namespace"].as_str(), z["domain"].as_integer()),
+        (Some("abvs"), Some("/"), Some(0))
+    );
     assert_eq!(c["sinks"]["mcap"]["file"].as_str(), Some("/tmp/x.mcap"));
     // the printed configuration runs as it says (round trip through a file)
     let d = tempfile::tempdir().unwrap();
@@ -225,8 +288,17 @@ fn print_config_carries_the_ros2_outputs_and_bad_input_is_refused() {
         assert_eq!(o.status.code(), Some(1), "{args:?}: {e}");
         assert!(e.contains(says) && !e.contains("panicked"), "{args:?}: {e}");
     }
-    let bad = String::from_utf8_lossy(&o.stdout).replace("queue = 16", "queue = 0");
-    std::fs::write(&f, bad).unwrap();
-    let o = abvs(&["run", "--config", f.to_str().unwrap()]);
-    assert!(String::from_utf8_lossy(&o.stderr).contains("sinks.mcap.queue"));
+    let printed = String::from_utf8_lossy(&o.stdout).to_string();
+    let bad = [
+        (printed.replace("queue = 16", "queue = 0"), "sinks.mcap.queue"),
+        (printed.replace("node = \"abvs\"", "node = \"2abvs\""), "bridges.zenoh.node: `2abvs`"),
+        (printed.replace("namespace = \"/\"", "namespace = \"robot\""), "bridges.zenoh.namespace: `robot`"),
+        (printed.replace("distro = \"humble\"", "distro = \"iron\""), "`iron`, expected one of `humble`"),
+    ];
+    for (text, says) in bad {
+        std::fs::write(&f, text).unwrap();
+        let o = abvs(&["run", "--config", f.to_str().unwrap()]);
+        let e = String::from_utf8_lossy(&o.stderr);
+        assert!(o.status.code() == Some(1) && e.contains(says) && !e.contains("panicked"), "{says}: {e}");
+    }
 }

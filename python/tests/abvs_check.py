@@ -9,6 +9,8 @@ mcap-ros2-support, iceoryx2, numpy.
   zenoh ENDPOINT PREFIX        listen on ENDPOINT for the five keys, and the iceoryx2 clouds, until
                                stdin closes; decode every message, compare clouds by stamp
   mcap FILE PREFIX             receive the iceoryx2 headers until stdin closes, then decode FILE
+  rmw ENDPOINT                 listen on ENDPOINT as an rmw_zenoh (Jazzy) subscriber would: the five typed
+                               keys with the hashes rosbags computes, the liveliness tokens, the attachments
 """
 import json
 import os
@@ -317,11 +319,116 @@ def cmd_mcap(path, prefix):
     }))
 
 
+TOPICS = {
+    "/abvs/depth": "sensor_msgs/msg/Image",
+    "/abvs/camera_info": "sensor_msgs/msg/CameraInfo",
+    "/abvs/points": "sensor_msgs/msg/PointCloud2",
+    "/tf": "tf2_msgs/msg/TFMessage",
+    "/abvs/joint_states": "sensor_msgs/msg/JointState",
+}
+
+
+def cmd_rmw(endpoint):
+    """What a ROS 2 Jazzy node on rmw_zenoh needs of a publisher, checked without ROS 2: keys
+    <domain>/<topic>/<pkg>::msg::dds_::<Type>_/<RIHS01 hash> (hashes from rosbags' Jazzy type store), a
+    liveliness token per publisher and for the node, a 33-byte attachment on every sample."""
+    import hashlib
+    import struct
+
+    import zenoh
+    from rosbags.typesys import Stores, get_typestore
+
+    ts = get_typestore(Stores.ROS2_JAZZY)
+    done = stdin_closed()
+    conf = zenoh.Config()
+    conf.insert_json5("mode", '"peer"')
+    conf.insert_json5("listen/endpoints", json.dumps([endpoint]))
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    session = zenoh.open(conf)
+    keys = {}
+    for topic, ty in TOPICS.items():
+        pkg, _, name = ty.split("/")
+        keys[f"0/{topic[1:]}/{pkg}::msg::dds_::{name}_/{ts.hash_rihs01(ty)}"] = topic
+    raw = {t: [] for t in TOPICS}
+    tokens, gone, peers = [], [], set()
+    lock = threading.Lock()
+
+    def on_sample(sample):
+        a = sample.attachment.to_bytes() if sample.attachment is not None else b""
+        with lock:
+            raw[keys[str(sample.key_expr)]].append((sample.payload.to_bytes(), a, time.time_ns()))
+
+    def on_token(sample):
+        with lock:
+            (tokens if sample.kind == zenoh.SampleKind.PUT else gone).append(str(sample.key_expr))
+
+    subs = [session.declare_subscriber(k, on_sample) for k in keys]
+    lv = session.liveliness().declare_subscriber("@ros2_lv/0/**", on_token, history=True)
+    print("ready", flush=True)
+    while not done.wait(0.1):
+        peers.update(str(z) for z in session.info.peers_zid())
+    time.sleep(1.0)
+    for s in subs:
+        s.undeclare()
+    lv.undeclare()
+    session.close()
+
+    out = {"received": {}, "decoded": {}, "decode_errors": [], "attachment_errors": [], "seq_first": {},
+           "seq_steps_ok": {}, "gids": {}, "tokens": sorted(set(tokens)), "tokens_gone": sorted(set(gone)),
+           "peers": sorted(peers), "token_errors": []}
+    for topic, samples in raw.items():
+        out["received"][topic] = len(samples)
+        seqs, gids, n = [], set(), 0
+        for payload, a, t_rx in samples:
+            try:
+                ts.deserialize_cdr(payload, TOPICS[topic])
+                n += 1
+            except Exception as e:  # noqa: BLE001 - every failure is reported to the test
+                out["decode_errors"].append(f"{topic}: {e}")
+            if len(a) != 33 or a[16] != 0x10:
+                out["attachment_errors"].append(f"{topic}: {len(a)} bytes {a[:17].hex()}")
+                continue
+            seq, t_src = struct.unpack_from("<qq", a)
+            seqs.append(seq)
+            gids.add(a[17:].hex())
+            # the source time is the wall clock at sending: before the arrival, not long before
+            if not 0 <= t_rx - t_src < 30_000_000_000:
+                out["attachment_errors"].append(f"{topic}: source time {t_src} vs received {t_rx}")
+        out["decoded"][topic] = n
+        out["seq_first"][topic] = seqs[0] if seqs else None
+        out["seq_steps_ok"][topic] = all(b - a == 1 for a, b in zip(seqs, seqs[1:]))
+        out["gids"][topic] = sorted(gids)
+    # every publisher's token: @ros2_lv/0/<zid>/<node id>/<id>/MP/%/%/abvs/<topic>/<type>/<hash>/<qos>, its
+    # zid a peer's, and its GID the first 16 bytes of the token's SHA-256 (the runtime's rule)
+    out["publishers"] = {}
+    for tok in out["tokens"]:
+        p = tok.split("/")
+        if len(p) == 9 and p[5] == "NN":
+            out["node"] = {"zid_is_peer": p[2] in peers, "ids": p[3:5], "enclave_ns_name": p[6:9]}
+            continue
+        if len(p) != 13 or p[5] != "MP":
+            out["token_errors"].append(tok)
+            continue
+        topic = p[9].replace("%", "/")
+        ty = TOPICS.get(topic, "")
+        pkg, _, name = ty.partition("/msg/")
+        gid = hashlib.sha256(tok.encode()).digest()[:16].hex()
+        out["publishers"][topic] = {
+            "zid_is_peer": p[2] in peers,
+            "node": p[6:9],
+            "type_ok": p[10] == f"{pkg}::msg::dds_::{name}_" and p[11] == ts.hash_rihs01(ty),
+            "qos": p[12],
+            "gid_matches_samples": out["gids"].get(topic) == [gid],
+            "ids": p[3:5],
+        }
+    print(json.dumps(out))
+
+
 def main(argv):
     if not argv:
         sys.exit(__doc__)
     cmd, args = argv[0], argv[1:]
-    {"layout": cmd_layout, "iox": cmd_iox, "zenoh": cmd_zenoh, "mcap": cmd_mcap}[cmd](*args)
+    {"layout": cmd_layout, "iox": cmd_iox, "zenoh": cmd_zenoh, "mcap": cmd_mcap, "rmw": cmd_rmw}[cmd](*args)
 
 
 if __name__ == "__main__":

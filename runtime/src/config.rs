@@ -4,6 +4,7 @@
 //! configuration. Unknown fields are refused with the file and line. Relative paths in a file
 //! are relative to the file's directory. Field-by-field documentation: `config/fixture.toml`
 //! and `config/live.toml` (shipped examples).
+pub use crate::bridges::rmw_zenoh::{Ros2Keys, RosDistro};
 use crate::error::{Result, RuntimeError};
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
@@ -353,11 +354,31 @@ pub struct ZenohSettings {
     pub config: Option<PathBuf>,
     /// Frames the publisher may fall behind by before the oldest is dropped.
     pub queue: usize,
+    /// Key names: `bridge` (zenoh-bridge-ros2dds's) or `rmw-zenoh` (a ROS 2 node on rmw_zenoh).
+    pub keys: Ros2Keys,
+    /// `rmw-zenoh`: the ROS 2 distribution whose type hashes the keys carry (humble, jazzy, kilted).
+    pub distro: RosDistro,
+    /// `rmw-zenoh`: the ROS domain id (`ROS_DOMAIN_ID` of the ROS 2 side).
+    pub domain: u32,
+    /// `rmw-zenoh`: the node's name.
+    pub node: String,
+    /// `rmw-zenoh`: the node's namespace (the topics are absolute: it names the node only).
+    pub namespace: String,
 }
 
 impl Default for ZenohSettings {
     fn default() -> Self {
-        ZenohSettings { enabled: false, connect: Vec::new(), config: None, queue: crate::bridges::zenoh::DEFAULT_QUEUE }
+        ZenohSettings {
+            enabled: false,
+            connect: Vec::new(),
+            config: None,
+            queue: crate::bridges::zenoh::DEFAULT_QUEUE,
+            keys: Ros2Keys::default(),
+            distro: RosDistro::default(),
+            domain: 0,
+            node: "abvs".into(),
+            namespace: "/".into(),
+        }
     }
 }
 
@@ -560,6 +581,11 @@ impl RuntimeConfig {
             if !(1..=1024).contains(&q) {
                 return Err(format!("{what}: {q} must be in 1..=1024"));
             }
+        }
+        let z = &self.bridges.zenoh;
+        crate::bridges::rmw_zenoh::check_node(&z.node, &z.namespace).map_err(|m| format!("bridges.zenoh.{m}"))?;
+        if z.domain > 232 {
+            return Err(format!("bridges.zenoh.domain: {} must be in 0..=232 (ROS 2 domain ids)", z.domain));
         }
         self.motion.check()?;
         let w = self.sinks.stats_window_s;

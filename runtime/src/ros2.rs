@@ -22,6 +22,8 @@ use serde::Serialize;
 
 use crate::pipeline::Published;
 
+pub mod type_hash;
+
 /// The head frame: the left eye's camera at home, where the cloud's points are.
 pub const HEAD_FRAME: &str = "left_home_camera";
 /// The left eye's camera as the eye turns.
@@ -45,24 +47,54 @@ pub struct Topic {
     pub type_name: &'static str,
     /// ros2msg schema text: the definition, then each dependency after a `MSG:` separator.
     pub schema: &'static str,
+    /// The type's RIHS01 hash in Jazzy and Kilted (REP-2011; computed and checked in [`type_hash`]).
+    pub rihs01: &'static str,
+}
+
+impl Topic {
+    /// The type as DDS and rmw_zenoh name it: `sensor_msgs/msg/Image` -> `sensor_msgs::msg::dds_::Image_`.
+    pub fn dds_type(&self) -> String {
+        let (pkg, name) = self.type_name.split_once("/msg/").unwrap_or(("", self.type_name));
+        format!("{pkg}::msg::dds_::{name}_")
+    }
 }
 
 /// The five topics, in the order [`Encoded::messages`] returns them.
 pub const TOPICS: [Topic; 5] = [
-    Topic { topic: "/abvs/depth", key: "abvs/depth", type_name: "sensor_msgs/msg/Image", schema: SCHEMAS[0] },
+    Topic {
+        topic: "/abvs/depth",
+        key: "abvs/depth",
+        type_name: "sensor_msgs/msg/Image",
+        schema: SCHEMAS[0],
+        rihs01: "RIHS01_d31d41a9a4c4bc8eae9be757b0beed306564f7526c88ea6a4588fb9582527d47",
+    },
     Topic {
         topic: "/abvs/camera_info",
         key: "abvs/camera_info",
         type_name: "sensor_msgs/msg/CameraInfo",
         schema: SCHEMAS[1],
+        rihs01: "RIHS01_b3dfd68ff46c9d56c80fd3bd4ed22c7a4ddce8c8348f2f59c299e73118e7e275",
     },
-    Topic { topic: "/abvs/points", key: "abvs/points", type_name: "sensor_msgs/msg/PointCloud2", schema: SCHEMAS[2] },
-    Topic { topic: "/tf", key: "tf", type_name: "tf2_msgs/msg/TFMessage", schema: SCHEMAS[3] },
+    Topic {
+        topic: "/abvs/points",
+        key: "abvs/points",
+        type_name: "sensor_msgs/msg/PointCloud2",
+        schema: SCHEMAS[2],
+        rihs01: "RIHS01_9198cabf7da3796ae6fe19c4cb3bdd3525492988c70522628af5daa124bae2b5",
+    },
+    Topic {
+        topic: "/tf",
+        key: "tf",
+        type_name: "tf2_msgs/msg/TFMessage",
+        schema: SCHEMAS[3],
+        rihs01: "RIHS01_e369d0f05a23ae52508854b66f6aa0437f3449d652e8cbf22d5abe85d020f087",
+    },
     Topic {
         topic: "/abvs/joint_states",
         key: "abvs/joint_states",
         type_name: "sensor_msgs/msg/JointState",
         schema: SCHEMAS[4],
+        rihs01: "RIHS01_a13ee3a330e346c9d87b5aa18d24e11690752bd33a0350f11c5882bc9179260e",
     },
 ];
 
@@ -493,6 +525,7 @@ mod tests {
         for t in TOPICS {
             assert!(t.schema.starts_with(|c: char| c.is_ascii_lowercase()), "{}", t.type_name);
             assert_eq!(t.key, &t.topic[1..]);
+            assert!(t.dds_type().contains("::msg::dds_::") && t.dds_type().ends_with('_'), "{}", t.dds_type());
         }
     }
 }

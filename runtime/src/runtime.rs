@@ -359,7 +359,7 @@ fn sinks(c: &RuntimeConfig, out: &RectifiedCamera, timing: Option<TimingContext>
     }
     let z = &c.bridges.zenoh;
     if z.enabled {
-        sinks.push(Box::new(crate::bridges::zenoh::sink(z.config.as_deref(), &z.connect, z.queue, c.source.lossless)?));
+        sinks.push(Box::new(crate::bridges::zenoh::sink(z, c.source.lossless)?));
     }
     if let Some(p) = &c.sinks.rerun {
         sinks.push(rerun_sink(p)?);

@@ -2,4 +2,5 @@
 //! over Zenoh to others).
 pub mod iceoryx;
 pub mod publish;
+pub mod rmw_zenoh;
 pub mod zenoh;

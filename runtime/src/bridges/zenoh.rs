@@ -1,6 +1,10 @@
-//! `abvs run --zenoh`: the ROS 2 messages of [`crate::ros2`] published over Zenoh on the keys
-//! zenoh-bridge-ros2dds maps to ROS 2 topics (the topic without its leading slash: `abvs/depth`,
-//! `abvs/camera_info`, `abvs/points`, `tf`, `abvs/joint_states`), CDR payloads as ROS 2 sends them.
+//! `abvs run --zenoh`: the ROS 2 messages of [`crate::ros2`] published over Zenoh, CDR payloads as ROS 2
+//! sends them, under one of two key layouts (`--ros2-keys`, [`Ros2Keys`]):
+//! - `bridge` (the default): the keys zenoh-bridge-ros2dds maps to ROS 2 topics (the topic without its
+//!   leading slash: `abvs/depth`, `abvs/camera_info`, `abvs/points`, `tf`, `abvs/joint_states`);
+//! - `rmw-zenoh`: rmw_zenoh's wire format ([`super::rmw_zenoh`]): typed keys with the `--ros-distro`'s type
+//!   hashes, the runtime declared as a ROS 2 node with a liveliness token per publisher, and the 33-byte
+//!   attachment (sequence number, source time, publisher GID) on every sample.
 //!
 //! The session is opened with a standard Zenoh configuration (`--zenoh-config FILE`, JSON5; default: a
 //! peer with Zenoh's defaults) plus the endpoints of `--zenoh-connect` (peers retry an endpoint that is
@@ -9,11 +13,15 @@
 //! so a large cloud is never half-dropped), never the pipeline, whose frames wait in a bounded queue
 //! that drops the oldest (counted in the stats under `zenoh`).
 use std::path::Path;
+use std::time::{SystemTime, UNIX_EPOCH};
 
+use ::zenoh::liveliness::LivelinessToken;
 use ::zenoh::pubsub::Publisher;
 use ::zenoh::qos::CongestionControl;
 use ::zenoh::{Config, Session, Wait};
 
+use super::rmw_zenoh::{self, EntityKind, Qos, Ros2Keys};
+use crate::config::ZenohSettings;
 use crate::error::RuntimeError;
 use crate::ros2::{Topic, TOPICS};
 use crate::sinks::ros2_out::{OutputError, Ros2OutSink, Ros2Writer};
@@ -21,9 +29,18 @@ use crate::sinks::ros2_out::{OutputError, Ros2OutSink, Ros2Writer};
 /// Frames the publisher may fall behind by before the oldest is dropped: the newest matter on a network.
 pub const DEFAULT_QUEUE: usize = 4;
 
+/// One publisher per topic, and in the rmw_zenoh format what its samples carry.
+struct Output {
+    publisher: Publisher<'static>,
+    /// rmw_zenoh: the publisher's GID and its next sequence number (from 1).
+    rmw: Option<([u8; 16], i64)>,
+}
+
 /// The ROS 2 messages published over Zenoh, one publisher per key.
 pub struct ZenohWriter {
-    publishers: Vec<Publisher<'static>>,
+    outputs: Vec<Output>,
+    /// rmw_zenoh: the node's and the publishers' liveliness tokens (dropping one undeclares it).
+    tokens: Vec<LivelinessToken>,
     session: Session,
 }
 
@@ -45,43 +62,72 @@ pub fn config(config_file: Option<&Path>, connect: &[String]) -> crate::Result<C
 }
 
 impl ZenohWriter {
-    /// Opens the session and declares the five publishers.
-    pub fn open(config: Config) -> crate::Result<ZenohWriter> {
+    /// Opens the session and declares the five publishers with the key layout of `settings` (in the
+    /// rmw_zenoh format also the node's and the publishers' liveliness tokens).
+    pub fn open(config: Config, settings: &ZenohSettings) -> crate::Result<ZenohWriter> {
         let session = ::zenoh::open(config).wait().map_err(|e| err("opening the session", e))?;
-        let mut publishers = Vec::with_capacity(TOPICS.len());
+        let mut node =
+            rmw_zenoh::Node::new(settings.domain, session.zid().to_string(), &settings.namespace, &settings.node);
+        let mut tokens = Vec::new();
+        if settings.keys == Ros2Keys::RmwZenoh {
+            let t = session.liveliness().declare_token(node.token()).wait();
+            tokens.push(t.map_err(|e| err(&format!("declaring the node's token {}", node.token()), e))?);
+        }
+        let mut outputs = Vec::with_capacity(TOPICS.len());
         for t in &TOPICS {
-            let p = session
-                .declare_publisher(t.key)
+            let (key, rmw) = match settings.keys {
+                Ros2Keys::Bridge => (t.key.to_string(), None),
+                Ros2Keys::RmwZenoh => {
+                    let (e, token) = node
+                        .declare(&session, EntityKind::Publisher, t, settings.distro, Qos::SENSOR_DATA)
+                        .map_err(|e| err(&format!("declaring the liveliness token of {}", t.topic), e))?;
+                    tokens.push(token);
+                    (e.key, Some((e.gid, 1)))
+                }
+            };
+            let publisher = session
+                .declare_publisher(key.clone())
                 .congestion_control(CongestionControl::Block)
                 .wait()
-                .map_err(|e| err(&format!("declaring the publisher of {}", t.key), e))?;
-            publishers.push(p);
+                .map_err(|e| err(&format!("declaring the publisher of {key}"), e))?;
+            outputs.push(Output { publisher, rmw });
         }
-        Ok(ZenohWriter { publishers, session })
+        Ok(ZenohWriter { outputs, tokens, session })
     }
 }
 
 impl Ros2Writer for ZenohWriter {
     fn write(&mut self, topic: &'static Topic, _seq: u64, _stamp_ns: i64, cdr: &[u8]) -> Result<(), OutputError> {
         let i = TOPICS.iter().position(|t| t == topic).ok_or(OutputError::UnknownTopic(topic.topic))?;
-        self.publishers[i].put(cdr).wait().map_err(|source| OutputError::Zenoh { key: topic.key, source })
+        let out = &mut self.outputs[i];
+        let put = out.publisher.put(cdr);
+        let r = match &mut out.rmw {
+            None => put.wait(),
+            Some((gid, seq)) => {
+                // rmw_zenoh's source timestamp: the wall clock when the sample is sent
+                let now = SystemTime::now().duration_since(UNIX_EPOCH).map_or(0, |d| d.as_nanos() as i64);
+                let a = rmw_zenoh::attachment(*seq, now, gid);
+                *seq += 1;
+                put.attachment(a.to_vec()).wait()
+            }
+        };
+        r.map_err(|source| OutputError::Zenoh { key: topic.key, source })
     }
 
     fn finish(&mut self) -> Result<serde_json::Value, OutputError> {
-        for p in self.publishers.drain(..) {
-            let _ = p.undeclare().wait();
+        for t in self.tokens.drain(..) {
+            let _ = t.undeclare().wait();
+        }
+        for o in self.outputs.drain(..) {
+            let _ = o.publisher.undeclare().wait();
         }
         self.session.close().wait().map_err(|source| OutputError::Zenoh { key: "(closing the session)", source })?;
         Ok(serde_json::Value::Null)
     }
 }
 
-/// The Zenoh publisher as a pipeline sink (stats key `zenoh`).
-pub fn sink(
-    config_file: Option<&Path>,
-    connect: &[String],
-    queue: usize,
-    blocking: bool,
-) -> crate::Result<Ros2OutSink> {
-    Ros2OutSink::new("zenoh", ZenohWriter::open(config(config_file, connect)?)?, queue, blocking)
+/// The Zenoh publisher of `settings` as a pipeline sink (stats key `zenoh`); `blocking`: lossless runs.
+pub fn sink(settings: &ZenohSettings, blocking: bool) -> crate::Result<Ros2OutSink> {
+    let c = config(settings.config.as_deref(), &settings.connect)?;
+    Ros2OutSink::new("zenoh", ZenohWriter::open(c, settings)?, settings.queue, blocking)
 }
