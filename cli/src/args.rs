@@ -32,6 +32,12 @@ pub fn finite_in(lo: f64, hi: f64) -> impl Fn(&str) -> Result<f64, String> + Clo
     }
 }
 
+/// [`finite_in`] as f32.
+pub fn finite_in_f32(lo: f32, hi: f32) -> impl Fn(&str) -> Result<f32, String> + Clone + Send + Sync + 'static {
+    let f = finite_in(lo as f64, hi as f64);
+    move |s| f(s).map(|v| v as f32)
+}
+
 /// A finite number in (0, hi].
 pub fn positive_up_to(hi: f64) -> impl Fn(&str) -> Result<f64, String> + Clone + Send + Sync + 'static {
     move |s| {

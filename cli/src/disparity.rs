@@ -70,6 +70,13 @@ pub struct DisparityArgs {
     /// check failed (occlusion or mismatch). Implies the left-right check.
     #[arg(long)]
     invalid_reason: Option<PathBuf>,
+    /// census-refine's validity mask: pixels whose confidence (the engine's own, computed as it matches:
+    /// `--confidence` writes it without a left-right check) is below C, in [0, 1], are invalid (reason 4 low
+    /// texture, 5 ambiguous, 6 out of the search's range, 7 occluded or a depth edge); 0 keeps every pixel.
+    /// Other engines ignore it.
+    #[arg(long, value_name = "C", default_value_t = abvs_runtime::tasks::census_confidence::DEFAULT_MIN_CONFIDENCE,
+          value_parser = crate::args::finite_in_f32(0.0, 1.0))]
+    min_confidence: f32,
 }
 
 /// The fused engine's confidence scale for network pixels: below every accepted SGBM match, which is right
@@ -171,6 +178,8 @@ pub struct Estimate {
     pub disparity: Vec<f32>,
     /// With the left-right check: confidence in [0, 1] and the invalid reason per pixel.
     pub checked: Option<(Vec<f32>, Vec<u8>)>,
+    /// The engine's own confidence and reasons (census-refine's, no second run), of the dense `disparity`.
+    pub own: Option<(Vec<f32>, Vec<u8>)>,
 }
 
 /// The right view's disparity of a pair at an engine's resolution: the mirrored right image is a left view
@@ -205,6 +214,7 @@ pub fn estimate(
         let mut e = CensusRefineEngine::new(onnx, iw, ih)?;
         let (lb, rb) = (l.data_bytes()?.to_vec(), r.data_bytes()?.to_vec());
         let mut d = compute(&mut e, &lb, &rb)?;
+        let own = e.confidence().map(|(c, why)| (c.to_vec(), why.to_vec()));
         let checked = match lr_max_diff {
             None => None,
             Some(max_diff) => {
@@ -218,7 +228,7 @@ pub fn estimate(
                 Some((conf, reason))
             }
         };
-        return Ok(Estimate { engine: e.name().to_string(), model_size: (mw, mh), disparity: d, checked });
+        return Ok(Estimate { engine: e.name().to_string(), model_size: (mw, mh), disparity: d, checked, own });
     }
     if kind == EngineKind::Fused {
         let mut e = FusedEngine::new(onnx, iw, ih)?;
@@ -260,7 +270,7 @@ pub fn estimate(
                 Some((c, reason))
             }
         };
-        return Ok(Estimate { engine: e.name().to_string(), model_size: (mw, mh), disparity: d, checked });
+        return Ok(Estimate { engine: e.name().to_string(), model_size: (mw, mh), disparity: d, checked, own: None });
     }
     let max = onnx.manifest.max_disparity;
     let mut engine: Box<dyn DisparityEngine> = match kind {
@@ -286,15 +296,21 @@ pub fn estimate(
     // back to the input resolution, values scaled by the width ratio
     let mut out = vec![f32::NAN; isize.0 * isize.1];
     upsample_disparity(&d, msize, &mut out, isize);
-    Ok(Estimate { engine: engine.name().to_string(), model_size: (mw, mh), disparity: out, checked })
+    Ok(Estimate { engine: engine.name().to_string(), model_size: (mw, mh), disparity: out, checked, own: None })
 }
 
 pub fn run_disparity(a: DisparityArgs) -> anyhow::Result<ExitCode> {
     let (l, r) = (gray(&a.left)?, gray(&a.right)?);
     let model = a.model.clone().unwrap_or_else(|| default_model_for(l.cols() as u32, l.rows() as u32));
-    let check = a.lr_check || a.confidence.is_some() || a.invalid_reason.is_some();
-    let est = estimate(&l, &r, a.engine, &model, a.threads, check.then_some(a.lr_max_diff))?;
+    // census-refine scores its own pixels: its confidence and reasons need no left-right check
+    let own = a.engine.scores_pixels() && !a.lr_check;
+    let check = a.lr_check || (!own && (a.confidence.is_some() || a.invalid_reason.is_some()));
+    let mut est = estimate(&l, &r, a.engine, &model, a.threads, check.then_some(a.lr_max_diff))?;
     let (iw, ih) = (l.cols() as usize, l.rows() as usize);
+    if let (true, Some((conf, why))) = (own, &mut est.own) {
+        abvs_runtime::tasks::census_confidence::mask(conf, a.min_confidence, &mut est.disparity, why);
+        est.checked = est.own.take();
+    }
     if let Some((conf, reason)) = &est.checked {
         if let Some(p) = &a.confidence {
             write_pfm(p, iw, ih, conf)?;

@@ -172,12 +172,12 @@ fn print_rows(rows: &[serde_json::Value], json: bool) -> anyhow::Result<ExitCode
         println!("{}", serde_json::to_string_pretty(rows)?);
     } else {
         println!(
-            "{:<18} {:>9} {:>8} {:>8} {:>8} {:>8} {:>7} {:>9}",
-            "engine", "res", "EPE px", "bad-1 %", "bad-2 %", "bad-3 %", "valid", "ms"
+            "{:<18} {:>9} {:>8} {:>8} {:>8} {:>8} {:>7} {:>9} {:>8} {:>11}",
+            "engine", "res", "EPE px", "bad-1 %", "bad-2 %", "bad-3 %", "valid", "ms", "density", "bad-2 valid"
         );
         for s in rows {
             println!(
-                "{:<18} {:>9} {:>8.3} {:>8.2} {:>8.2} {:>8.2} {:>7.3} {:>9.2}",
+                "{:<18} {:>9} {:>8.3} {:>8.2} {:>8.2} {:>8.2} {:>7.3} {:>9.2} {:>8.3} {:>11.2}",
                 s["engine"].as_str().unwrap_or(""),
                 s["resolution"].as_str().unwrap_or(""),
                 s["epe_px"].as_f64().unwrap_or(f64::NAN),
@@ -185,7 +185,9 @@ fn print_rows(rows: &[serde_json::Value], json: bool) -> anyhow::Result<ExitCode
                 s["bad2_pct"].as_f64().unwrap_or(f64::NAN),
                 s["bad3_pct"].as_f64().unwrap_or(f64::NAN),
                 s["valid_fraction"].as_f64().unwrap_or(f64::NAN),
-                s["ms_median"].as_f64().unwrap_or(f64::NAN)
+                s["ms_median"].as_f64().unwrap_or(f64::NAN),
+                s["published"]["density"].as_f64().unwrap_or(f64::NAN),
+                s["published"]["bad2_pct_of_valid"].as_f64().unwrap_or(f64::NAN)
             );
         }
     }
@@ -231,6 +233,40 @@ pub fn density_curve(d: &[f32], conf: &[f32], gt: &[f32], max_disp: f64) -> Vec<
     out
 }
 
+/// Density (fraction of the ground-truth pixels with a published disparity) and bad-2 (%) among the
+/// published ones: what a robot acts on.
+pub fn published_score(d: &[f32], gt: &[f32], max_disp: f64) -> (f64, f64) {
+    let (mut n, mut kept, mut bad) = (0usize, 0usize, 0usize);
+    for (p, g) in d.iter().zip(gt) {
+        if !(g.is_finite() && (*g as f64) < max_disp) {
+            continue;
+        }
+        n += 1;
+        if p.is_finite() {
+            kept += 1;
+            bad += ((p - g).abs() > 2.0) as usize;
+        }
+    }
+    (kept as f64 / n.max(1) as f64, 100.0 * bad as f64 / kept.max(1) as f64)
+}
+
+/// The validity mask at each threshold of `thresholds`: (threshold, density, bad-2 % among the kept).
+fn mask_curve(d: &[f32], conf: &[f32], gt: &[f32], max_disp: f64, thresholds: &[f32]) -> Vec<[f64; 3]> {
+    thresholds
+        .iter()
+        .map(|&t| {
+            let m: Vec<f32> = d.iter().zip(conf).map(|(v, c)| if *c >= t { *v } else { f32::NAN }).collect();
+            let (dn, b) = published_score(&m, gt, max_disp);
+            [t as f64, dn, b]
+        })
+        .collect()
+}
+
+/// bad-2 among the kept at `density` on a density curve (the last point at or below it).
+fn bad2_at(curve: &[(f64, f64)], density: f64) -> Option<f64> {
+    curve.iter().rev().find(|(dn, _)| *dn <= density).map(|(_, b)| *b)
+}
+
 /// The engines at the input's resolution (the default mode).
 fn run_native(a: &EvalArgs, l: &Mat, r: &Mat) -> anyhow::Result<Vec<serde_json::Value>> {
     let (iw, ih) = (l.cols() as u32, l.rows() as u32);
@@ -244,6 +280,11 @@ fn run_native(a: &EvalArgs, l: &Mat, r: &Mat) -> anyhow::Result<Vec<serde_json::
     let (lb, rb) = (l.data_bytes()?.to_vec(), r.data_bytes()?.to_vec());
     let mut rows = Vec::new();
     let mut curves = Vec::new();
+    // SGBM as users run it: SGBM_3WAY at the input resolution, the ground truth's range (first: its density
+    // is where the others' curves are read)
+    let mut sgbm = disparity::SgbmEngine::new(iw, ih, gt_max + 1.0)?;
+    let sgbm_d = compute(&mut sgbm, &lb, &rb)?;
+    let (sgbm_density, sgbm_bad) = published_score(&sgbm_d, &gt, max);
     let default_model = default_model_for(iw, ih);
     let mut nets: Vec<PathBuf> = if a.model.is_empty() { default_models() } else { a.model.clone() };
     nets.retain(|m| m != &default_model);
@@ -259,6 +300,22 @@ fn run_native(a: &EvalArgs, l: &Mat, r: &Mat) -> anyhow::Result<Vec<serde_json::
     for (kind, model, default) in cases {
         let est = estimate(l, r, kind, &model, a.threads, None)?;
         let mut s = score(&est.disparity, &gt, max);
+        // what is published: the validity mask at its default where the engine scores its pixels
+        let mut published = est.disparity.clone();
+        if let Some((conf, why)) = &est.own {
+            let min = abvs_runtime::tasks::census_confidence::DEFAULT_MIN_CONFIDENCE;
+            abvs_runtime::tasks::census_confidence::mask(conf, min, &mut published, &mut why.clone());
+            let curve = density_curve(&est.disparity, conf, &gt, max);
+            let ts: Vec<f32> = (0..=20).map(|i| i as f32 * 0.05).collect();
+            s["own_confidence"] = serde_json::json!({
+                "min_confidence": min,
+                "bad2_pct_of_valid_at_sgbm_density": bad2_at(&curve, sgbm_density),
+                "mask_curve": mask_curve(&est.disparity, conf, &gt, max, &ts),
+            });
+            curves.push((format!("{} (own confidence)", est.engine), curve));
+        }
+        let (dn, b) = published_score(&published, &gt, max);
+        s["published"] = serde_json::json!({ "density": dn, "bad2_pct_of_valid": b });
         // time: the engine on the pair, resizing and resampling included, model loading not
         let ms = {
             let net = if kind == EngineKind::CensusRefine { disparity::refine_base(&model)? } else { model.clone() };
@@ -318,11 +375,9 @@ fn run_native(a: &EvalArgs, l: &Mat, r: &Mat) -> anyhow::Result<Vec<serde_json::
         s["ms_median"] = serde_json::json!(ms);
         rows.push(s);
     }
-    // SGBM as users run it: SGBM_3WAY at the input resolution, the ground truth's range
-    let mut sgbm = disparity::SgbmEngine::new(iw, ih, gt_max + 1.0)?;
-    let d = compute(&mut sgbm, &lb, &rb)?;
-    let mut s = score(&d, &gt, max);
-    let mut buf = d.clone();
+    let mut s = score(&sgbm_d, &gt, max);
+    s["published"] = serde_json::json!({ "density": sgbm_density, "bad2_pct_of_valid": sgbm_bad });
+    let mut buf = sgbm_d.clone();
     s["ms_median"] = serde_json::json!(median_ms(a.runs, || Ok(sgbm.compute(&lb, &rb, &mut buf)?))?);
     s["engine"] = serde_json::json!(format!("sgbm (range {})", sgbm.max_disparity()));
     s["default"] = serde_json::json!(false);
@@ -331,7 +386,9 @@ fn run_native(a: &EvalArgs, l: &Mat, r: &Mat) -> anyhow::Result<Vec<serde_json::
     s["network_resolution"] = serde_json::json!("-");
     rows.push(s);
     if let Some(p) = &a.curve {
-        let series = curves
+        let sgbm_name = rows.last().and_then(|r| r["engine"].as_str()).unwrap_or("sgbm");
+        let sgbm_label = format!("{sgbm_name} (its own checks)");
+        let mut series: Vec<abvs_plot::Series> = curves
             .iter()
             .map(|(name, c)| abvs_plot::Series {
                 label: name,
@@ -339,10 +396,15 @@ fn run_native(a: &EvalArgs, l: &Mat, r: &Mat) -> anyhow::Result<Vec<serde_json::
                 style: abvs_plot::SeriesStyle::Line,
             })
             .collect();
+        series.push(abvs_plot::Series {
+            label: &sgbm_label,
+            points: vec![(100.0 * sgbm_density, sgbm_bad)],
+            style: abvs_plot::SeriesStyle::Points,
+        });
         abvs_plot::xy_plot(
             p,
             &abvs_plot::XyPlot {
-                title: "bad-2 of the pixels kept by confidence (left-right check)",
+                title: "bad-2 of the pixels kept by confidence (left-right check; census-refine's own)",
                 x_label: "density (% of ground-truth pixels kept)",
                 y_label: "bad-2 (%)",
                 series,

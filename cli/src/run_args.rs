@@ -84,6 +84,11 @@ pub struct RunArgs {
     /// [disparity] lr_max_diff px, 1 by default, or leaves the right image) from depth and cloud.
     #[arg(long)]
     pub lr_check: bool,
+    /// The validity mask: depth and cloud points dropped where the engine's own confidence (census-refine's,
+    /// computed as it matches: no second run) is below C, in [0, 1]; 0 publishes every pixel (the dense map,
+    /// bit for bit). Default: [disparity] min_confidence, 0.4.
+    #[arg(long, value_name = "C", value_parser = crate::args::finite_in(0.0, 1.0))]
+    pub min_confidence: Option<f64>,
     /// Score depth against the session's ground truth every N-th point (synthetic sessions; 0: off).
     #[arg(long, default_value_t = 8, value_parser = crate::args::count(0usize, 1_000_000))]
     pub truth_stride: usize,
@@ -299,6 +304,9 @@ pub fn effective_config(a: &RunArgs, m: &ArgMatches) -> anyhow::Result<RuntimeCo
     }
     if a.lr_check {
         c.disparity.lr_check = true;
+    }
+    if let Some(m) = a.min_confidence {
+        c.disparity.min_confidence = m;
     }
     if given("fk") {
         c.calibration.fk = a.fk;

@@ -81,9 +81,10 @@ fn calibrated_fk_gives_far_better_depth_than_nominal_and_replays_are_identical()
 #[test]
 fn the_default_engine_end_to_end_bounds_its_depth_error_and_answers_more_than_sgbm() {
     let s = fixture();
-    let net = run_with(&s, &["--lossless"]).unwrap();
+    // the dense map (no validity mask): what these bars were set on
+    let net = run_with(&s, &["--lossless", "--min-confidence", "0"]).unwrap();
     let sgbm = run_with(&s, &["--lossless", "--engine", "sgbm"]).unwrap();
-    let small = run(&s, &["--lossless"]).unwrap();
+    let small = run(&s, &["--lossless", "--min-confidence", "0"]).unwrap();
     assert_eq!(net["frames_published"], 50, "{net:#}");
     assert_eq!(net["engine"], "census-refine:hitnet-s+sgbm");
     // every published frame scored, beside the pipeline
@@ -97,7 +98,18 @@ fn the_default_engine_end_to_end_bounds_its_depth_error_and_answers_more_than_sg
     assert!(n.2 > g.2 && n.0 < 1.3 * g.0, "default {n:?} vs sgbm {g:?}");
     // the same frames, by seq: lossless replays of one session
     assert_eq!(net["frames_published"], sgbm["frames_published"]);
+    // issue 41: `--min-confidence 0` is the dense map of before the validity mask, bit for bit (the digest of
+    // `abvs run --lossless` on main at f7d504f, this machine); the default mask drops points and error
+    assert_eq!(net["output_digest"], DENSE_DIGEST, "{net:#}");
+    let masked = run_with(&s, &["--lossless"]).unwrap();
+    let m = depth_err(&masked);
+    eprintln!("validity mask: default {m:?}, --min-confidence 0 {n:?}");
+    assert_ne!(masked["output_digest"], DENSE_DIGEST);
+    assert!(m.2 < n.2 && m.0 < n.0, "mask {m:?} vs dense {n:?}");
 }
+
+/// `output_digest` of `abvs run --lossless` (the default engine, dense) before the validity mask existed.
+const DENSE_DIGEST: &str = "1a079f37f46710fa";
 
 #[test]
 fn the_session_loops_with_increasing_timestamps() {

@@ -5,8 +5,10 @@ use std::path::Path;
 
 use abvs_camera::Camera;
 use abvs_eye::{Fick, Pose};
+use abvs_runtime::tasks::census_confidence::{mask, DEFAULT_MIN_CONFIDENCE};
 use abvs_runtime::tasks::depth::{DepthConfig, DepthFrame};
 use abvs_runtime::tasks::disparity::{DisparityEngine, OnnxEngine, SgbmEngine};
+use abvs_runtime::tasks::disparity_census::CensusRefineEngine;
 use abvs_runtime::tasks::rectify::{rectify, RectifiedCamera, StereoRectifier};
 use criterion::{criterion_group, criterion_main, Criterion};
 use nalgebra::Vector3;
@@ -43,6 +45,34 @@ fn bench(c: &mut Criterion) {
             let mut onnx = OnnxEngine::load(&models.join(variant), 2).unwrap();
             g.bench_function(format!("disparity_onnx_{variant}_2threads"), |b| {
                 b.iter(|| onnx.compute(&l, &r, &mut disp).unwrap())
+            });
+        }
+        // the runtime's default engine, with and without its confidence and validity mask (issue 41: at most
+        // +10 %), on the rectified noise pair
+        let base = abvs_runtime::tasks::disparity::refine_base(&models.join(variant)).unwrap();
+        if base.join("manifest.json").exists() {
+            let census = |scored: bool| {
+                let e = CensusRefineEngine::new(OnnxEngine::load(&base, 2).unwrap(), w, h).unwrap();
+                if scored {
+                    e
+                } else {
+                    e.without_confidence()
+                }
+            };
+            let mut plain = census(false);
+            g.bench_function("disparity_census_refine_baseline", |b| {
+                b.iter(|| plain.compute(&l, &r, &mut disp).unwrap())
+            });
+            let mut scored = census(true);
+            let (mut conf, mut why) = (vec![0f32; (w * h) as usize], vec![0u8; (w * h) as usize]);
+            g.bench_function("disparity_census_refine_confidence_and_mask", |b| {
+                b.iter(|| {
+                    scored.compute(&l, &r, &mut disp).unwrap();
+                    let (c, y) = scored.confidence().unwrap();
+                    conf.copy_from_slice(c);
+                    why.copy_from_slice(y);
+                    mask(&conf, DEFAULT_MIN_CONFIDENCE, &mut disp, &mut why);
+                })
             });
         }
         let d: Vec<f32> = (0..(w * h) as usize).map(|i| 5.0 + (i % 30) as f32).collect();

@@ -64,6 +64,12 @@ impl EngineKind {
             EngineKind::CensusRefine => "census-refine",
         }
     }
+
+    /// Whether the engine scores its own pixels as it matches them (`DisparityEngine::confidence`): the
+    /// validity mask and the published confidence need no second run.
+    pub fn scores_pixels(self) -> bool {
+        self == EngineKind::CensusRefine
+    }
 }
 
 impl FkSource {
@@ -225,6 +231,15 @@ pub struct DisparityConfig {
     /// Largest left/right disparity disagreement (px) of a consistent match.
     #[serde(default = "default_lr_max_diff")]
     pub lr_max_diff: f64,
+    /// The validity mask: depth (and cloud points) dropped where the engine's own confidence is below this,
+    /// in [0, 1] (census-refine: `tasks::census_confidence`; other engines publish every pixel they match).
+    /// 0 publishes every pixel, as dense as before the mask.
+    #[serde(default = "default_min_confidence")]
+    pub min_confidence: f64,
+}
+
+fn default_min_confidence() -> f64 {
+    crate::tasks::census_confidence::DEFAULT_MIN_CONFIDENCE as f64
 }
 
 fn default_lr_max_diff() -> f64 {
@@ -498,6 +513,7 @@ impl RuntimeConfig {
                 confidence: false,
                 lr_check: false,
                 lr_max_diff: default_lr_max_diff(),
+                min_confidence: default_min_confidence(),
             },
             motion: MotionSettings::default(),
             sinks: SinksConfig::default(),
@@ -565,6 +581,9 @@ impl RuntimeConfig {
         let limit = crate::tasks::confidence::MAX_DIFF_LIMIT as f64;
         if !(d.lr_max_diff > 0.0 && d.lr_max_diff <= limit) {
             return Err(format!("disparity.lr_max_diff: {} must be in (0, {limit}] px", d.lr_max_diff));
+        }
+        if !(0.0..=1.0).contains(&d.min_confidence) {
+            return Err(format!("disparity.min_confidence: {} must be in [0, 1]", d.min_confidence));
         }
         if let Some(t) = self.source.seconds {
             if !(t > 0.0 && t <= 1e7) {
@@ -668,6 +687,20 @@ mod tests {
         .unwrap_err()
         .to_string();
         assert!(e.contains("lr_max_diff"), "{e}");
+        // the validity mask: absent takes the documented default, out of [0, 1] is refused
+        let d = crate::tasks::census_confidence::DEFAULT_MIN_CONFIDENCE as f64;
+        assert_eq!(c.disparity.min_confidence, d);
+        let line = format!("min_confidence = {d}\n");
+        assert!(c.to_toml_string().contains(&line));
+        let old = c.to_toml_string().replace(&line, "");
+        assert_eq!(RuntimeConfig::from_toml_str(&old, Path::new("r.toml")).unwrap(), c);
+        let e = RuntimeConfig::from_toml_str(
+            &c.to_toml_string().replace(&line, "min_confidence = 1.5\n"),
+            Path::new("r.toml"),
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(e.contains("min_confidence"), "{e}");
         // Relative paths are the file's.
         let rel = c.to_toml_string().replace("/data/s", "sessions/a");
         let r = RuntimeConfig::from_toml_str(&rel, Path::new("/etc/abvs/r.toml")).unwrap();

@@ -338,6 +338,9 @@ pub struct Work {
     /// Per-pixel confidence of the disparity in [0, 1] (0 = invalid; `tasks::confidence`), at the output
     /// resolution. Empty unless the disparity stage computes it (it sizes the pooled frames then).
     pub confidence: Vec<f32>,
+    /// Why each pixel is not published (`tasks::confidence::reason`; 0 = published), when the engine scores
+    /// its pixels (the validity mask). Empty otherwise, sized like `confidence`.
+    pub reason: Vec<u8>,
     /// Depth and cloud. Filled and published on the output lane, which lends its one buffer to the frame
     /// it is working on: a buffer per pooled frame would double the pool's memory (1.6 MB a frame at
     /// 320x240) for a message that never crosses a queue. Empty everywhere else.
@@ -362,6 +365,7 @@ impl Work {
             rectified: RectifiedPair::new(out.0, out.1),
             disparity: vec![f32::NAN; no],
             confidence: Vec::new(),
+            reason: Vec::new(),
             depth: DepthFrame::empty(),
         })
     }

@@ -53,6 +53,10 @@ pub struct PipelineConfig {
     /// The disparity's left-right check: confidence per frame, inconsistent pixels invalidated (default:
     /// neither, the check does not run).
     pub check: CheckConfig,
+    /// The validity mask's threshold on the engine's own confidence (census-refine): depth NaN below it; 0
+    /// keeps every pixel (default here: 0; the deployment's default is
+    /// `tasks::census_confidence::DEFAULT_MIN_CONFIDENCE`).
+    pub min_confidence: f32,
     /// Capacity of each inter-stage queue.
     pub queue: usize,
     /// Block instead of dropping: every frame is processed (offline, reproducible).
@@ -81,6 +85,7 @@ impl Default for PipelineConfig {
             depth: DepthConfig::default(),
             motion: MotionConfig::default(),
             check: CheckConfig::default(),
+            min_confidence: 0.0,
             queue: 2,
             lossless: false,
             paced: true,
@@ -123,7 +128,7 @@ pub fn graph<S: PairSource>(
         Box::new(AlignStage::new(kinematics.encoder_latency_s()).with_motion(cfg.motion)),
         Box::new(kinematics),
         Box::new(RectifyStage::new(cams, cfg.grid_step)),
-        Box::new(DisparityStage::with_check(engine, cfg.check)?),
+        Box::new(DisparityStage::with_check(engine, cfg.check)?.with_min_confidence(cfg.min_confidence)?),
         Box::new(DepthStage::new(cfg.depth)),
     ];
     Graph::from_description(source, cfg.out, STANDARD_GRAPH, stages, sinks)

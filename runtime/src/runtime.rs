@@ -218,6 +218,7 @@ impl Runtime {
             duration: c.source.seconds.map(Duration::from_secs_f64),
             window: Duration::from_secs_f64(c.sinks.stats_window_s),
             check: c.disparity.check_config(),
+            min_confidence: c.disparity.min_confidence as f32,
             stop,
             progress,
             ..Default::default()
@@ -347,7 +348,7 @@ fn sinks(c: &RuntimeConfig, out: &RectifiedCamera, timing: Option<TimingContext>
     let mut sinks: Vec<Box<dyn Sink>> = Vec::new();
     if c.bridges.iceoryx.enabled {
         let cfg = c.bridge_config();
-        sinks.push(Box::new(if c.disparity.confidence {
+        sinks.push(Box::new(if c.disparity.confidence || c.disparity.engine.scores_pixels() {
             PublishSink::with_confidence(cfg)?
         } else {
             PublishSink::new(cfg)?

@@ -82,6 +82,16 @@ pub mod reason {
     pub const OUTSIDE_RIGHT: u8 = 2;
     /// The right view's disparity there disagrees (occlusion or mismatch).
     pub const LR_FAILED: u8 = 3;
+    /// The engine's own confidence is below the threshold, weakest for low texture (a flat area the
+    /// network filled: `super::census_confidence`).
+    pub const LOW_TEXTURE: u8 = 4;
+    /// ... for an ambiguous census search (its winner barely better than other offsets).
+    pub const AMBIGUOUS: u8 = 5;
+    /// ... for the search's winner at its window's end (the match may lie beyond the range searched).
+    pub const OUT_OF_RANGE: u8 = 6;
+    /// ... for SGBM's checks rejecting the pixel (left-right: occlusion) or a depth edge, the network's
+    /// answer not confirmed.
+    pub const OCCLUDED: u8 = 7;
 }
 
 /// The left-right check of a left-view disparity `left` against the right view's `right` (both

@@ -104,6 +104,12 @@ pub trait DisparityEngine: Send {
     fn max_disparity(&self) -> f64;
     /// Left-view disparity (px) into `out` (width*height); NaN where there is none.
     fn compute(&mut self, left: &[u8], right: &[u8], out: &mut [f32]) -> Result<()>;
+    /// The last [`DisparityEngine::compute`]'s per-pixel confidence in [0, 1] and the reason code of each
+    /// (`super::confidence::reason`), when the engine computes them as it goes (census-refine:
+    /// [`super::census_confidence`]); width*height each.
+    fn confidence(&self) -> Option<(&[f32], &[u8])> {
+        None
+    }
 }
 
 fn check_sizes(name: &str, (w, h): (u32, u32), left: &[u8], right: &[u8], out: &[f32]) -> Result<()> {
@@ -459,25 +465,38 @@ pub fn engine(
     }
 }
 
-/// The disparity stage: left-view disparity ([`Work::disparity`]) of the rectified pair, by any engine; with
-/// a left-right check ([`super::confidence`]) also its confidence ([`Work::confidence`]) and, if asked, the
-/// inconsistent pixels invalidated.
+/// The disparity stage: left-view disparity ([`Work::disparity`]) of the rectified pair, by any engine. With
+/// an engine that scores its own pixels ([`DisparityEngine::confidence`]: census-refine) the confidence and
+/// reasons go into [`Work::confidence`] / [`Work::reason`] and the validity mask drops (NaN) every pixel
+/// below `min_confidence` (0: none, the dense map bit for bit). With a left-right check
+/// ([`super::confidence`]) its confidence replaces the engine's and, if asked, the inconsistent pixels are
+/// invalidated too.
 pub struct DisparityStage {
     /// The engine.
     pub engine: Box<dyn DisparityEngine>,
     check: Option<LrCheck>,
+    min_confidence: f32,
 }
 
 impl DisparityStage {
-    /// The stage with an engine and no left-right check.
+    /// The stage with an engine, no left-right check and no mask.
     pub fn new(engine: Box<dyn DisparityEngine>) -> Self {
-        DisparityStage { engine, check: None }
+        DisparityStage { engine, check: None, min_confidence: 0.0 }
     }
 
-    /// The stage with the left-right check `cfg` (none when `cfg` enables nothing).
+    /// The stage with the left-right check `cfg` (none when `cfg` enables nothing) and no mask.
     pub fn with_check(engine: Box<dyn DisparityEngine>, cfg: CheckConfig) -> Result<Self> {
         let check = if cfg.enabled() { Some(LrCheck::new(cfg)?) } else { None };
-        Ok(DisparityStage { engine, check })
+        Ok(DisparityStage { engine, check, min_confidence: 0.0 })
+    }
+
+    /// The validity mask's threshold in [0, 1] (refused outside it).
+    pub fn with_min_confidence(mut self, c: f32) -> Result<Self> {
+        if !(0.0..=1.0).contains(&c) {
+            return Err(RuntimeError::Invalid(format!("min_confidence {c} must be in [0, 1]")));
+        }
+        self.min_confidence = c;
+        Ok(self)
     }
 }
 
@@ -513,6 +532,10 @@ impl Stage for DisparityStage {
         if let Some(c) = &self.check {
             c.prepare_work(w);
         }
+        if self.engine.confidence().is_some() {
+            w.confidence = vec![0.0; w.disparity.len()];
+            w.reason = vec![0; w.disparity.len()];
+        }
     }
 
     fn process(&mut self, w: &mut Work) -> Result<()> {
@@ -520,10 +543,14 @@ impl Stage for DisparityStage {
             // the motion gate: too blurred to match, so not matched (saves the engine's time during saccades)
             w.disparity.fill(f32::NAN);
             w.confidence.fill(0.0);
+            w.reason.fill(super::confidence::reason::NO_ESTIMATE);
             return Ok(());
         }
-        let Work { rectified, disparity, .. } = w;
+        let Work { rectified, disparity, confidence, reason, .. } = w;
         self.engine.compute(&rectified.left, &rectified.right, disparity)?;
+        if let Some((conf, why)) = self.engine.confidence() {
+            mask(conf, why, &rectified.valid, self.min_confidence, disparity, confidence, reason)?;
+        }
         if let Some(c) = &mut self.check {
             c.process(self.engine.as_mut(), w)?;
         }
@@ -533,4 +560,28 @@ impl Stage for DisparityStage {
     fn failure(&self, _e: &RuntimeError) -> &'static str {
         "disparity engine failed"
     }
+}
+
+/// The engine's confidence `conf` and reasons `why` into the frame's (0 and `NO_ESTIMATE` where the
+/// rectified pixel does not see the raw image), then the validity mask at `min`
+/// ([`super::census_confidence::mask`]).
+fn mask(
+    conf: &[f32],
+    why: &[u8],
+    valid: &[u8],
+    min: f32,
+    disparity: &mut [f32],
+    out_conf: &mut [f32],
+    out_why: &mut [u8],
+) -> Result<()> {
+    let n = disparity.len();
+    if conf.len() != n || why.len() != n || valid.len() != n || out_conf.len() != n || out_why.len() != n {
+        return Err(RuntimeError::Invalid("validity mask: buffers not sized (not started?)".into()));
+    }
+    for i in 0..n {
+        (out_conf[i], out_why[i]) =
+            if valid[i] == 0 { (0.0, super::confidence::reason::NO_ESTIMATE) } else { (conf[i], why[i]) };
+    }
+    super::census_confidence::mask(out_conf, min, disparity, out_why);
+    Ok(())
 }

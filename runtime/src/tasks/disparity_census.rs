@@ -14,6 +14,7 @@
 //! it. The parameters were chosen on Aloe (Middlebury, opencv-doc); Motorcycle is held out
 //! (models/hitnet/README.md). Every buffer of its own is allocated at construction: nothing per frame
 //! (OpenCV's SGBM keeps its working buffers inside the call).
+use super::census_confidence::{nearest, Scorer};
 use super::disparity::{DisparityEngine, OnnxEngine, SgbmEngine};
 use super::disparity_fused::{resize_gray, upsample_disparity};
 use std::ops::Range;
@@ -63,6 +64,18 @@ pub struct CensusRefineEngine {
     guess: Vec<f32>,
     /// The second thread: what does not need the network while it runs, half of each refinement.
     helper: Helper,
+    /// The network's own answer at its resolution, before the prior replaced part of it (with a prior only).
+    net_raw: Vec<f32>,
+    /// The confidence's scoring at the last pass's resolution, and its answer there when that is not the
+    /// engine's (`conf_pass`, `why_pass`).
+    scorer: Scorer,
+    conf_pass: Vec<f32>,
+    why_pass: Vec<u8>,
+    /// The last frame's confidence and reasons at the engine's resolution.
+    conf: Vec<f32>,
+    why: Vec<u8>,
+    /// Whether the confidence is computed (the paired benchmark's baseline turns it off).
+    scoring: bool,
 }
 
 /// A second refinement at the engine's resolution runs only where the engine is more than this many times the
@@ -80,11 +93,21 @@ struct Pass {
     census_r: Vec<u32>,
     base: Vec<i32>,
     rows: RowWindow,
+    /// Each pixel's search outcome ([`winner`]'s margin byte and window-edge bit), for the confidence.
+    stat: Vec<u8>,
 }
 
 impl Pass {
     fn new(w: usize, h: usize) -> Pass {
-        Pass { w, h, census_l: vec![0; w * h], census_r: vec![0; w * h], base: vec![0; w * h], rows: RowWindow::new(w) }
+        Pass {
+            w,
+            h,
+            census_l: vec![0; w * h],
+            census_r: vec![0; w * h],
+            base: vec![0; w * h],
+            rows: RowWindow::new(w),
+            stat: vec![0; w * h],
+        }
     }
 
     /// The census of `left` and `right` (this pass's size), as a job for the helper.
@@ -103,17 +126,19 @@ impl Pass {
         round_into(guess, &mut self.base);
         let mid = h / 2;
         let (top, bottom) = out.split_at_mut(mid * w);
+        let (stat_top, stat_bottom) = self.stat.split_at_mut(mid * w);
         helper.run(Job::Refine {
             cl: self.census_l.as_ptr(),
             cr: self.census_r.as_ptr(),
             base: self.base.as_ptr(),
             guess: guess.as_ptr(),
             out: bottom.as_mut_ptr(),
+            stat: stat_bottom.as_mut_ptr(),
             w,
             h,
             y0: mid,
         })?;
-        refine(&self.census_l, &self.census_r, &self.base, guess, h, 0..mid, &mut self.rows, top);
+        refine(&self.census_l, &self.census_r, &self.base, guess, h, 0..mid, &mut self.rows, top, stat_top);
         helper.wait()
     }
 }
@@ -143,6 +168,7 @@ enum Job {
         base: *const i32,
         guess: *const f32,
         out: *mut f32,
+        stat: *mut u8,
         w: usize,
         h: usize,
         y0: usize,
@@ -203,7 +229,7 @@ impl Helper {
                                     );
                                 }
                             }
-                            Job::Refine { cl, cr, base, guess, out, w, h, y0 } => {
+                            Job::Refine { cl, cr, base, guess, out, stat, w, h, y0 } => {
                                 let n = w * h;
                                 let Some(win) = wins.iter_mut().find(|r| r.w == w) else {
                                     let e = format!("census-refine: no row window for width {w}");
@@ -219,6 +245,7 @@ impl Helper {
                                     y0..h,
                                     win,
                                     std::slice::from_raw_parts_mut(out, (h - y0) * w),
+                                    std::slice::from_raw_parts_mut(stat, (h - y0) * w),
                                 )
                             }
                         }
@@ -311,8 +338,12 @@ impl CensusRefineEngine {
         let sgbm = (coarse && range + 16 <= mw as i32)
             .then(|| SgbmEngine::with_block(mw, mh, range as f64, PRIOR_BLOCK))
             .transpose()?;
+        // the confidence comes from the last pass: the coarse one unless a pass at the engine's resolution runs
+        let scored = if fine { (width as usize, height as usize) } else { (mw as usize, mh as usize) };
+        let scored_here = scored != (width as usize, height as usize);
         let widths: Vec<usize> =
             [(coarse, mw as usize), (fine, width as usize)].iter().filter(|(on, _)| *on).map(|(_, w)| *w).collect();
+        let prior = sgbm.is_some();
         Ok(CensusRefineEngine {
             name: format!("census-refine:{}{}", net.manifest.variant, if sgbm.is_some() { "+sgbm" } else { "" }),
             net,
@@ -320,12 +351,26 @@ impl CensusRefineEngine {
             net_left: vec![0; if resized { m } else { 0 }],
             net_right: vec![0; if resized { m } else { 0 }],
             net_disp: vec![f32::NAN; if resized { m } else { 0 }],
-            prior: sgbm.is_some().then(|| Prior { disp: vec![f32::NAN; m] }),
+            prior: prior.then(|| Prior { disp: vec![f32::NAN; m] }),
             coarse: coarse.then(|| (Pass::new(mw as usize, mh as usize), vec![f32::NAN; m])),
             fine: fine.then(|| Pass::new(width as usize, height as usize)),
             guess: vec![f32::NAN; if fine { n } else { 0 }],
             helper: Helper::new(&widths, sgbm)?,
+            net_raw: vec![f32::NAN; if prior { m } else { 0 }],
+            scorer: Scorer::new(scored.0, scored.1),
+            conf_pass: vec![0.0; if scored_here { scored.0 * scored.1 } else { 0 }],
+            why_pass: vec![0; if scored_here { scored.0 * scored.1 } else { 0 }],
+            conf: vec![0.0; n],
+            why: vec![0; n],
+            scoring: true,
         })
+    }
+
+    /// The engine without its confidence ([`DisparityEngine::confidence`] gives none): the baseline of the
+    /// confidence's cost (runtime/benches/pipeline.rs).
+    pub fn without_confidence(mut self) -> Self {
+        self.scoring = false;
+        self
     }
 }
 
@@ -359,7 +404,11 @@ impl DisparityEngine for CensusRefineEngine {
             let net = self.net.compute(left, right, &mut self.guess);
             self.helper.wait()?;
             net?;
-            return fine.refine(&self.helper, &self.guess, out);
+            fine.refine(&self.helper, &self.guess, out)?;
+            if self.scoring {
+                self.scorer.score(left, &fine.stat, out, &self.guess, None, &mut self.conf, &mut self.why);
+            }
+            return Ok(());
         }
         resize_gray(left, self.size, &mut self.net_left, msize)?;
         resize_gray(right, self.size, &mut self.net_right, msize)?;
@@ -383,29 +432,65 @@ impl DisparityEngine for CensusRefineEngine {
         self.helper.wait()?;
         net?;
         if let Some(p) = &self.prior {
+            self.net_raw.copy_from_slice(&self.net_disp);
             for (n, &s) in self.net_disp.iter_mut().zip(&p.disp) {
                 if s.is_finite() {
                     *n = s;
                 }
             }
         }
-        let answer = match &mut self.coarse {
-            Some((pass, refined)) => {
-                pass.refine(&self.helper, &self.net_disp, refined)?;
-                &*refined
-            }
+        if let Some((pass, refined)) = &mut self.coarse {
+            pass.refine(&self.helper, &self.net_disp, refined)?;
+        }
+        let answer: &[f32] = match &self.coarse {
+            Some((_, refined)) => refined,
             None => &self.net_disp,
         };
+        let net_raw = if self.prior.is_some() { &self.net_raw } else { &self.net_disp };
         match &mut self.fine {
             Some(fine) => {
                 upsample_disparity(answer, (mw, mh), &mut self.guess, (w, h));
-                fine.refine(&self.helper, &self.guess, out)
+                fine.refine(&self.helper, &self.guess, out)?;
+                if !self.scoring {
+                    return Ok(());
+                }
+                // the network's own answer at this resolution is the guess only without a prior: with one,
+                // the agreement is the coarse answer's (the guess) with the refined one
+                self.scorer.score(left, &fine.stat, out, &self.guess, None, &mut self.conf, &mut self.why);
             }
             None => {
                 upsample_disparity(answer, (mw, mh), out, (w, h));
-                Ok(())
+                if !self.scoring {
+                    return Ok(());
+                }
+                let stat: &[u8] = match &self.coarse {
+                    Some((pass, _)) => &pass.stat[..],
+                    None => &[],
+                };
+                if stat.is_empty() {
+                    // no search ran (the network alone, resized): no evidence beyond its answer
+                    self.conf.fill(0.0);
+                    self.why.fill(super::confidence::reason::AMBIGUOUS);
+                    return Ok(());
+                }
+                let prior = self.prior.as_ref().map(|p| &p.disp[..]);
+                self.scorer.score(
+                    &self.net_left,
+                    stat,
+                    answer,
+                    net_raw,
+                    prior,
+                    &mut self.conf_pass,
+                    &mut self.why_pass,
+                );
+                nearest(&self.conf_pass, (mw, mh), &mut self.conf, (w, h));
+                nearest(&self.why_pass, (mw, mh), &mut self.why, (w, h));
             }
         }
+        Ok(())
+    }
+    fn confidence(&self) -> Option<(&[f32], &[u8])> {
+        self.scoring.then_some((&self.conf[..], &self.why[..]))
     }
 }
 
@@ -433,14 +518,15 @@ fn refine(
     ys: Range<usize>,
     win: &mut RowWindow,
     out: &mut [f32],
+    stat: &mut [u8],
 ) {
     #[cfg(target_arch = "x86_64")]
     if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("popcnt") {
         // SAFETY: the CPU has the instruction sets the function is compiled for (checked just above).
-        unsafe { refine_avx2(cl, cr, base, guess, h, ys, win, out) };
+        unsafe { refine_avx2(cl, cr, base, guess, h, ys, win, out, stat) };
         return;
     }
-    refine_generic(cl, cr, base, guess, h, ys, win, out)
+    refine_generic(cl, cr, base, guess, h, ys, win, out, stat)
 }
 
 /// [`refine`] compiled for AVX2 (16 costs per instruction instead of SSE2's 8; the baseline x86-64 target
@@ -457,8 +543,9 @@ unsafe fn refine_avx2(
     ys: Range<usize>,
     win: &mut RowWindow,
     out: &mut [f32],
+    stat: &mut [u8],
 ) {
-    refine_generic(cl, cr, base, guess, h, ys, win, out)
+    refine_generic(cl, cr, base, guess, h, ys, win, out, stat)
 }
 
 #[inline(always)]
@@ -472,6 +559,7 @@ fn refine_generic(
     ys: Range<usize>,
     win: &mut RowWindow,
     out: &mut [f32],
+    stat: &mut [u8],
 ) {
     let (w, r) = (win.w, WINDOW / 2);
     let cw = w + 2 * r;
@@ -500,9 +588,24 @@ fn refine_generic(
         }
         let row = y * w..(y + 1) * w;
         let o = (y - ys.start) * w;
-        winner(&win.sum, &base[row.clone()], &guess[row], &mut out[o..o + w]);
+        winner(&win.sum, &base[row.clone()], &guess[row], &mut out[o..o + w], &mut stat[o..o + w]);
     }
 }
+
+/// A pixel's search outcome in a byte: the winner's margin over the best offset beyond its neighbours,
+/// `(second - best) / second` in 1/[`MARGIN_ONE`] steps (0 ..= 127), and [`AT_EDGE`] when the winner is an
+/// end of the search window (the true match may lie beyond it).
+#[inline(always)]
+fn search_stat(best: i16, second: i16, arg: i16) -> u8 {
+    let (b, s) = (best.max(0) as u32, second.max(1) as u32);
+    let m = (s.saturating_sub(b) * MARGIN_ONE / s).min(MARGIN_ONE) as u8;
+    m | if arg == 0 || arg as usize == OFFSETS - 1 { AT_EDGE } else { 0 }
+}
+
+/// The margin of a search outcome byte that stands for 1 (the second best infinitely worse).
+pub const MARGIN_ONE: u32 = 127;
+/// The window-edge bit of a search outcome byte.
+pub const AT_EDGE: u8 = 0x80;
 
 /// 5x5 census code of every pixel (bit set where the neighbour is darker than the centre), the image's
 /// border replicated.
@@ -605,7 +708,7 @@ fn costs(cl: &[u32], cr: &[u32], base: &[i32], raw: &mut [u8]) {
 /// The best offset per pixel of a row (`agg`: OFFSETS planes of the row's box sums), with a parabola
 /// through its neighbours' costs for the sub-pixel part.
 #[inline(always)]
-fn winner(agg: &[i16], base: &[i32], guess: &[f32], out: &mut [f32]) {
+fn winner(agg: &[i16], base: &[i32], guess: &[f32], out: &mut [f32], stat: &mut [u8]) {
     let n = out.len();
     let planes: [&[i16]; OFFSETS] = std::array::from_fn(|k| &agg[k * n..(k + 1) * n]);
     // in chunks, one offset plane at a time: the minimum searches run across pixels (vectorised), not
@@ -637,8 +740,10 @@ fn winner(agg: &[i16], base: &[i32], guess: &[f32], out: &mut [f32]) {
             let o = &mut out[i];
             if !guess[i].is_finite() {
                 *o = f32::NAN;
+                stat[i] = 0;
                 continue;
             }
+            stat[i] = search_stat(best[j], second[j], arg[j]);
             // a winner not clearly better than every offset beyond its neighbours is no evidence against
             // the network (flat or repetitive texture): the network's answer stays
             if (second[j] as u32) * 100 <= best[j] as u32 * (100 + UNIQUENESS_PCT) {
@@ -687,7 +792,7 @@ mod tests {
             let g = vec![guess; w * h];
             let base: Vec<i32> = g.iter().map(|v| v.round() as i32).collect();
             let mut out = vec![0f32; w * h];
-            refine(&cl, &cr, &base, &g, h, 0..h, &mut RowWindow::new(w), &mut out);
+            refine(&cl, &cr, &base, &g, h, 0..h, &mut RowWindow::new(w), &mut out, &mut vec![0; w * h]);
             // away from the left band where the match leaves the right image
             let inner: Vec<f32> = (0..w * h).filter(|i| i % w >= 16 && i % w < w - 8).map(|i| out[i]).collect();
             let within = inner.iter().filter(|v| (**v - d).abs() <= 0.5).count() as f64 / inner.len() as f64;
@@ -707,13 +812,17 @@ mod tests {
                 (0..w * h).map(|i| if i % 29 == 5 { f32::NAN } else { 2.0 + (i % 7) as f32 * 0.4 }).collect();
             let base: Vec<i32> = guess.iter().map(|g| if g.is_finite() { g.round() as i32 } else { 0 }).collect();
             let mut out = vec![0f32; w * h];
-            refine(&cl, &cr, &base, &guess, h, 0..h, &mut RowWindow::new(w), &mut out);
+            let mut stat = vec![0u8; w * h];
+            refine(&cl, &cr, &base, &guess, h, 0..h, &mut RowWindow::new(w), &mut out, &mut stat);
             // the same rows refined in two parts (as the engine's two threads do)
             let mid = h / 2 + 1;
             let mut parts = vec![0f32; w * h];
             let (top, bottom) = parts.split_at_mut(mid * w);
-            refine(&cl, &cr, &base, &guess, h, 0..mid, &mut RowWindow::new(w), top);
-            refine(&cl, &cr, &base, &guess, h, mid..h, &mut RowWindow::new(w), bottom);
+            let mut stat2 = vec![0u8; w * h];
+            let (st, sb) = stat2.split_at_mut(mid * w);
+            refine(&cl, &cr, &base, &guess, h, 0..mid, &mut RowWindow::new(w), top, st);
+            refine(&cl, &cr, &base, &guess, h, mid..h, &mut RowWindow::new(w), bottom, sb);
+            assert_eq!(stat, stat2, "{w}x{h}: split search outcomes differ");
             for (a, b) in out.iter().zip(&parts) {
                 assert!(a == b || (a.is_nan() && b.is_nan()), "{w}x{h}: split refinement differs");
             }
@@ -762,6 +871,10 @@ mod tests {
                         "{w}x{h} ({x}, {y}): {} vs {want}",
                         out[i]
                     );
+                    // the search's outcome byte, of the same sums
+                    let want_stat =
+                        if guess[i].is_finite() { search_stat(agg[a] as i16, second as i16, a as i16) } else { 0 };
+                    assert_eq!(stat[i], want_stat, "{w}x{h} ({x}, {y})");
                 }
             }
         }

@@ -6,11 +6,12 @@
 //! | service | payload | user header | event service |
 //! | --- | --- | --- | --- |
 //! | `{prefix}/depth` | `[f32]`: row-major depth (m), `width * height` values, NaN = invalid | [`FrameHeader`] | `{prefix}/depth/event` |
-//! | `{prefix}/confidence` | `[f32]`: row-major confidence of each depth pixel in [0, 1], `width * height` values, 0 = invalid; only when the run computes it (`[disparity] confidence`) | [`FrameHeader`] (the depth sample's, same `seq`) | `{prefix}/confidence/event` |
+//! | `{prefix}/confidence` | `[f32]`: row-major confidence of each depth pixel in [0, 1], `width * height` values, 0 = invalid; whenever the run computes it: by default with census-refine (its own confidence, `crate::tasks::census_confidence`), or `[disparity] confidence` (the left-right check) | [`FrameHeader`] (the depth sample's, same `seq`) | `{prefix}/confidence/event` |
 //! | `{prefix}/cloud` | `[CloudPoint]`: valid points only (m, left home camera frame) | [`FrameHeader`] | `{prefix}/cloud/event` |
 //!
-//! The confidence (`crate::tasks::confidence`: exp(-|left-right disparity disagreement|), 0 where the
-//! left-right check fails) is published before the cloud of the same frame; match it to its depth map by
+//! The confidence (census-refine's own by default, the validity mask's; with `[disparity] confidence`
+//! `crate::tasks::confidence`: exp(-|left-right disparity disagreement|), 0 where the left-right check
+//! fails) is published before the cloud of the same frame; match it to its depth map by
 //! `seq`, never by arrival order (either subscriber may have dropped a sample).
 //!
 //! `prefix` is `abvs` unless [`BridgeConfig::prefix`] says otherwise (tests use a unique one). After every
