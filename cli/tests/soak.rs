@@ -97,7 +97,8 @@ fn a_looped_replay_keeps_resident_memory_flat_and_latency_bounded() {
     let slope = v["rss"]["steady_slope_mb_per_min"].as_f64().unwrap_or(f64::NAN);
     eprintln!("resident memory over the judged windows: {lo:.3} .. {hi:.3} MB, steady slope {slope:.4} MB/min");
     // In 30 s a one-time step still reads as a slope: the release build at 320x240 takes on 0.63 MB once,
-    // 7.5-10 s into the run (not yet found; flat after), 1.3 MB/min over 30 s. So the CI run bounds what the
+    // 7.5-10 s into the run, flat after (the default engine's, census-refine / ONNX Runtime: not with
+    // --engine sgbm), 1.3 MB/min over 30 s. So the CI run bounds what the
     // windows after the first take on (before the fix: 3.4 and 12.7 MB in two debug runs; after: 0.66 MB),
     // and a run of 10 minutes or more (ABVS_SOAK_SECONDS) the slope itself.
     let first = windows[0]["rss_mb"].as_f64().unwrap();
