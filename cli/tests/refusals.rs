@@ -218,11 +218,13 @@ fn sim_session_refuses_an_existing_directory_and_force_leaves_no_stale_frames() 
     let out = t.path().join("s");
     let render = |frames: &str, extra: &[&str]| {
         let mut a = vec!["sim", "session", "--out", out.to_str().unwrap(), "--frames", frames, "--width", "64"];
-        a.extend(["--height", "48", "--supersample", "1", "--fk-method", "mh", "--calib-step-deg", "30"]);
+        a.extend(["--height", "48", "--supersample", "1", "--fk-method", "mh", "--calib-step-deg", "20"]);
         a.extend(extra);
         a.into_iter().map(String::from).collect::<Vec<_>>()
     };
-    let args = |v: &[String]| v.iter().map(String::as_str).collect::<Vec<_>>().to_vec();
+    fn args(v: &[String]) -> Vec<&str> {
+        v.iter().map(String::as_str).collect()
+    }
     ok(&args(&render("4", &[])));
     let count = || std::fs::read_dir(out.join("frames")).unwrap().count();
     assert_eq!(count(), 8);
