@@ -238,6 +238,7 @@ impl CalibCmd {
         match self {
             CalibCmd::Fit(a) => check_out(&a.c),
             CalibCmd::Finetune(a) => check_out(&a.c),
+            CalibCmd::SelfCheck(a) => a.check(),
             _ => Ok(()),
         }
     }

@@ -81,12 +81,23 @@ enum Cmd {
     ValidateLines,
 }
 
+/// The command tree as every entry point parses it. A number after a space is the value of the flag before
+/// it, a negative one too: `--readout-ms -5` reaches the flag's own range check (which names it) instead of
+/// clap's "unexpected argument '-5'". Only words that read as numbers: `--out -x` still reads `-x` as a flag.
+fn command() -> clap::Command {
+    fn negatives(c: clap::Command) -> clap::Command {
+        c.mut_args(|a| a.allow_negative_numbers(true)).mut_subcommands(negatives)
+    }
+    negatives(Cli::command())
+}
+
 /// Checks that need several flags together or the file system (grid sizes, output paths): after
 /// clap's per-flag checks and before any work.
 fn check(cmd: &Cmd) -> anyhow::Result<()> {
     match cmd {
         Cmd::Kin(kin::KinCmd::Psc(a)) => a.check(),
         Cmd::Sim(sim::SimCmd::Dataset(a)) => a.check(),
+        Cmd::Sim(sim::SimCmd::Session(a)) => a.check(),
         Cmd::Demo(a) => a.check(),
         Cmd::Calib(c) => c.check(),
         Cmd::Run(a) => a.check(),
@@ -98,7 +109,7 @@ fn check(cmd: &Cmd) -> anyhow::Result<()> {
 fn main() -> ExitCode {
     logger::init();
     // The matches tell `abvs run` which flags were given (they override its --config file).
-    let matches = Cli::command().get_matches();
+    let matches = command().get_matches();
     let cli = Cli::from_arg_matches(&matches).unwrap_or_else(|e| e.exit());
     if let Err(e) = check(&cli.cmd) {
         eprintln!("error: {}", message(&e));
@@ -130,7 +141,7 @@ fn main() -> ExitCode {
         Cmd::DisparityEval(a) => disparity_eval::run_eval(a),
         Cmd::Doctor => doctor(),
         Cmd::CliTree => {
-            println!("{}", cli_tree(&Cli::command()));
+            println!("{}", cli_tree(&command()));
             Ok(ExitCode::SUCCESS)
         }
         Cmd::ValidateLines => validate_lines(),
@@ -169,7 +180,7 @@ fn validate_lines() -> anyhow::Result<ExitCode> {
         let argv: Vec<String> = serde_json::from_str(&line?)?;
         let t0 = std::time::Instant::now();
         let r = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
-            let m = Cli::command()
+            let m = command()
                 .try_get_matches_from(std::iter::once("abvs".to_string()).chain(argv))
                 .map_err(|e| (e.exit_code(), e.render().to_string()))?;
             let cli = Cli::from_arg_matches(&m).map_err(|e| (2, e.render().to_string()))?;
@@ -327,7 +338,7 @@ mod tests {
                 walk(s, &format!("{path} {}", s.get_name()), missing);
             }
         }
-        let mut root = Cli::command();
+        let mut root = command();
         root.build();
         let mut missing = Vec::new();
         walk(&root, "abvs", &mut missing);
@@ -346,7 +357,7 @@ mod tests {
 
     #[test]
     fn the_tree_lists_numeric_flags() {
-        let t = cli_tree(&Cli::command()).to_string();
+        let t = cli_tree(&command()).to_string();
         assert!(t.contains(r#""name":"--step-deg""#) && t.contains(r#""kind":"float""#), "{t}");
     }
 }

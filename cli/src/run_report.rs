@@ -58,15 +58,7 @@ pub fn print(c: &RuntimeConfig, r: &Report) {
     if let Some(serde_json::Value::Array(bands)) = stats.extra.get("depth_error_by_speed") {
         println!("depth error vs truth by eye speed (deg/s): frames scored / gated, abs rel, point error p50");
         for b in bands.iter().filter(|b| b["frames"].as_u64().unwrap_or(0) + b["gated"].as_u64().unwrap_or(0) > 0) {
-            let hi = b["deg_s"][1].as_f64().map_or("inf".to_string(), |h| format!("{h:.0}"));
-            println!(
-                "  [{:>3.0}, {hi:>3}): {:>3} / {:>3}  {:>6.2} %  {:>6.1} mm",
-                b["deg_s"][0].as_f64().unwrap_or(0.0),
-                b["frames"].as_u64().unwrap_or(0),
-                b["gated"].as_u64().unwrap_or(0),
-                b["abs_rel"].as_f64().unwrap_or(f64::NAN) * 100.0,
-                b["point_mm_p50"].as_f64().unwrap_or(f64::NAN)
-            );
+            println!("{}", band_line(b));
         }
     }
     for k in ["zenoh", "mcap"] {
@@ -82,6 +74,24 @@ pub fn print(c: &RuntimeConfig, r: &Report) {
             );
         }
     }
+}
+
+/// One speed band of `depth_error_by_speed`: frames scored / gated, abs rel, point error p50; "-" where the
+/// band scored no point (only gated frames): an empty band has no error, not a NaN one.
+fn band_line(b: &serde_json::Value) -> String {
+    let hi = b["deg_s"][1].as_f64().map_or("inf".to_string(), |h| format!("{h:.0}"));
+    let num = |k: &str, scale: f64, unit: &str| match b[k].as_f64().filter(|x| x.is_finite()) {
+        Some(x) => format!("{:>6.prec$} {unit}", x * scale, prec = if unit == "%" { 2 } else { 1 }),
+        None => format!("{:>6} {unit}", "-"),
+    };
+    format!(
+        "  [{:>3.0}, {hi:>3}): {:>3} / {:>3}  {}  {}",
+        b["deg_s"][0].as_f64().unwrap_or(0.0),
+        b["frames"].as_u64().unwrap_or(0),
+        b["gated"].as_u64().unwrap_or(0),
+        num("abs_rel", 100.0, "%"),
+        num("point_mm_p50", 1.0, "mm")
+    )
 }
 
 /// Share of the cores a run kept busy (idle priority aside) above which dropped frames mean the computer is
@@ -117,6 +127,19 @@ fn overload_hint(cpu: &serde_json::Value, dropped: u64, engine: &str) -> Option<
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn an_empty_speed_band_prints_a_dash_not_nan() {
+        // a band with only gated frames: no point scored, so no error (the JSON has nulls)
+        let gated = serde_json::json!({"deg_s": [100.0, 300.0], "frames": 0, "gated": 4, "abs_rel": null,
+                                       "point_mm_p50": null});
+        let line = band_line(&gated);
+        assert!(!line.contains("NaN") && line.contains("- %") && line.contains("- mm"), "{line}");
+        let scored = serde_json::json!({"deg_s": [0.0, 5.0], "frames": 7, "gated": 0, "abs_rel": 0.01234,
+                                        "point_mm_p50": 3.21});
+        let line = band_line(&scored);
+        assert!(line.contains("1.23 %") && line.contains("3.2 mm") && line.contains("  7 /   0"), "{line}");
+    }
 
     #[test]
     fn the_hint_speaks_only_of_runs_that_dropped_frames_with_the_cores_busy() {

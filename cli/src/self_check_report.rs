@@ -55,6 +55,13 @@ pub struct SelfCheckArgs {
     pub rounds: u32,
 }
 
+impl SelfCheckArgs {
+    /// The files it will write or edit, before any work (`main`'s check).
+    pub fn check(&self) -> anyhow::Result<()> {
+        crate::self_check_timing::check_outputs(self)
+    }
+}
+
 /// One logged frame: its gaze per eye (yaw, pitch, torsion; deg) and the measured error (deg).
 struct Row {
     seq: u64,
@@ -175,6 +182,52 @@ fn correlation(a: &[f64], b: &[f64]) -> f64 {
     }
 }
 
+/// The verdict from the error's varying and constant parts (deg) and the fractions of the varying part each
+/// eye's gaze explains (held out). A verdict names what the fractions support: an eye when its gaze explains
+/// most of the error (over half) and leaves at most half of what the other's leaves unexplained; "either
+/// eye" only when both explain most of it. A fraction at or below one half, a negative one included (the
+/// held-out fit predicts worse than the mean), supports nothing: the verdict then says it cannot tell.
+fn verdict(varying: f64, constant: f64, r2: [f64; 2], gaze_corr: [f64; 2]) -> String {
+    let [r2_left, r2_right] = r2;
+    let follows = |a: f64, b: f64| a > 0.5 && 1.0 - a <= 0.5 * (1.0 - b.max(0.0));
+    if varying < 0.02 && constant < 0.02 {
+        "no significant error: both eyes' models and the home extrinsic agree with the images".to_string()
+    } else if varying < 0.5 * constant {
+        "mostly constant: the home stereo extrinsic (stereo.yaml), or an error both eyes share at every pose".into()
+    } else if !(r2_left.is_finite() && r2_right.is_finite()) {
+        "varies with the pose, but the log has too few fixations to tell which eye it follows".into()
+    } else if follows(r2_right, r2_left) {
+        format!(
+            "the right eye's model (its gaze explains {:.0} % of the varying error, the left's {:.0} %)",
+            100.0 * r2_right,
+            100.0 * r2_left
+        )
+    } else if follows(r2_left, r2_right) {
+        format!(
+            "the left eye's model (its gaze explains {:.0} % of the varying error, the right's {:.0} %)",
+            100.0 * r2_left,
+            100.0 * r2_right
+        )
+    } else if r2_left > 0.5 && r2_right > 0.5 {
+        format!(
+            "varies with the pose, but the eyes' gazes moved together (correlation yaw {:.2}, pitch {:.2}): either \
+             eye's model explains it (left {:.0} %, right {:.0} %); a log with the eyes verging independently tells \
+             them apart",
+            gaze_corr[0],
+            gaze_corr[1],
+            100.0 * r2_left,
+            100.0 * r2_right
+        )
+    } else {
+        format!(
+            "varies with the pose, but cannot tell which eye it follows: neither eye's gaze explains most of it \
+             (left {:.0} %, right {:.0} %, held out; below 0 the gaze predicts it worse than its mean does)",
+            100.0 * r2_left,
+            100.0 * r2_right
+        )
+    }
+}
+
 pub fn run(a: SelfCheckArgs) -> anyhow::Result<ExitCode> {
     let rows = read_log(&a.log)?;
     if rows.len() < 3 {
@@ -213,38 +266,7 @@ pub fn run(a: SelfCheckArgs) -> anyhow::Result<ExitCode> {
     let (_, &(sum, cnt, first)) =
         by_fix.iter().max_by(|a, b| (a.1 .0 / a.1 .1 as f64).total_cmp(&(b.1 .0 / b.1 .1 as f64))).expect("rows");
     let worst = &rows[first];
-    // an eye's gaze explains the error when it explains most of it and leaves at most half of what the
-    // other eye's gaze leaves unexplained
-    let follows = |a: f64, b: f64| a > 0.5 && 1.0 - a <= 0.5 * (1.0 - b);
-    let varying = norm(&spread);
-    let constant = norm(&mean);
-    let verdict =
-        if varying < 0.02 && constant < 0.02 {
-            "no significant error: both eyes' models and the home extrinsic agree with the images".to_string()
-        } else if varying < 0.5 * constant {
-            "mostly constant: the home stereo extrinsic (stereo.yaml), or an error both eyes share at every pose".into()
-        } else if !(r2_left.is_finite() && r2_right.is_finite()) {
-            "varies with the pose, but the log has too few fixations to tell which eye it follows".into()
-        } else if follows(r2_right, r2_left) {
-            format!(
-                "the right eye's model (its gaze explains {:.0} % of the varying error, the left's {:.0} %)",
-                100.0 * r2_right,
-                100.0 * r2_left
-            )
-        } else if follows(r2_left, r2_right) {
-            format!(
-                "the left eye's model (its gaze explains {:.0} % of the varying error, the right's {:.0} %)",
-                100.0 * r2_left,
-                100.0 * r2_right
-            )
-        } else {
-            format!(
-            "varies with the pose, but the eyes' gazes moved together (correlation yaw {:.2}, pitch {:.2}): either \
-             eye's model explains it (left {:.0} %, right {:.0} %); a log with the eyes verging independently tells \
-             them apart",
-            gaze_corr[0], gaze_corr[1], 100.0 * r2_left, 100.0 * r2_right
-        )
-        };
+    let verdict = verdict(norm(&spread), norm(&mean), [r2_left, r2_right], gaze_corr);
 
     // figures
     let series = |c: usize, label: &'static str| Series {
@@ -339,6 +361,9 @@ pub fn run(a: SelfCheckArgs) -> anyhow::Result<ExitCode> {
         a.out.display(),
         if timing.plotted { ", error_by_speed.png" } else { "" }
     );
+    if !timing.failed_writes.is_empty() {
+        bail!("{} (the report and summary.json were written to {})", timing.failed_writes.join("; "), a.out.display());
+    }
     Ok(ExitCode::SUCCESS)
 }
 
@@ -348,5 +373,26 @@ fn rows_speed_plot_label(a: &SelfCheckArgs) -> String {
         "this run".into()
     } else {
         "self-check".into()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::verdict;
+
+    #[test]
+    fn a_negative_or_small_explained_fraction_supports_no_verdict() {
+        let corr = [0.99, 0.98];
+        // the fractions the issue saw on the fixture and on rendered sessions: no eye is named, no "explains it"
+        for r2 in [[-0.62, -0.72], [-0.11, -0.09], [-0.18, -0.21], [0.3, -0.5], [0.45, 0.4]] {
+            let v = verdict(0.1, 0.01, r2, corr);
+            assert!(v.contains("cannot tell"), "{r2:?}: {v}");
+            assert!(!v.contains("explains it") && !v.contains("eye's model ("), "{r2:?}: {v}");
+        }
+        // fractions that support a verdict still give it
+        assert!(verdict(0.1, 0.01, [0.9, 0.2], corr).starts_with("the left eye's model"));
+        assert!(verdict(0.1, 0.01, [-0.3, 0.8], corr).starts_with("the right eye's model"));
+        assert!(verdict(0.1, 0.01, [0.8, 0.75], corr).contains("either eye's model explains it"));
+        assert!(verdict(0.01, 0.01, [-0.6, -0.7], corr).starts_with("no significant error"));
     }
 }

@@ -476,6 +476,40 @@ pub struct Analysis {
     pub console: Vec<String>,
     /// error_by_speed.png was written.
     pub plotted: bool,
+    /// The writes of the estimate (--write-config, --write-session) that failed: reported after report.md and
+    /// summary.json are written, so a failure at the end loses no result.
+    pub failed_writes: Vec<String>,
+}
+
+/// Every file `calib self-check` will write or edit, checked before any work (the replay rounds take
+/// minutes): --out can be made, --write-config is an existing, writable TOML file, --write-session is a
+/// session whose session.toml is one.
+pub fn check_outputs(a: &crate::self_check_report::SelfCheckArgs) -> anyhow::Result<()> {
+    abvs_runtime::outputs::check_dir_creatable("--out", &a.out)?;
+    let editable = |flag: &str, p: &Path, what: &str| -> anyhow::Result<()> {
+        if !p.is_file() {
+            bail!("{flag} {}: no such file ({what})", p.display());
+        }
+        let text = std::fs::read_to_string(p).with_context(|| format!("{flag} {}: reading it", p.display()))?;
+        text.parse::<toml_edit::DocumentMut>()
+            .with_context(|| format!("{flag} {}: not a TOML document", p.display()))?;
+        std::fs::OpenOptions::new()
+            .append(true)
+            .open(p)
+            .with_context(|| format!("{flag} {}: not writable", p.display()))?;
+        Ok(())
+    };
+    if let Some(p) = &a.write_config {
+        editable(
+            "--write-config",
+            p,
+            "the configuration to edit must exist: `abvs run --print-config > FILE` writes one",
+        )?;
+    }
+    if let Some(d) = &a.write_session {
+        editable("--write-session", &d.join("session.toml"), "expected a session directory")?;
+    }
+    Ok(())
 }
 
 /// Smallest offset (ms) and readout (ms) named as an effect: below them the fit's first-order bias (a few
@@ -585,6 +619,7 @@ pub fn analyse(a: &crate::self_check_report::SelfCheckArgs, label: &str) -> anyh
         markdown: format!("\n## Timing\n\nNo estimate: {reason}.\n"),
         console: vec![format!("timing: no estimate: {reason}")],
         plotted: false,
+        failed_writes: Vec::new(),
     };
     let Some(frames) = read_frames(&a.log)? else {
         return Ok(none("the log has no timing columns (written by an abvs before the timing evidence)".into()));
@@ -786,21 +821,37 @@ pub fn analyse(a: &crate::self_check_report::SelfCheckArgs, label: &str) -> anyh
         })
         .collect();
     json["named"] = json!({ "encoder_time_offset": named_offset, "readout": named_readout, "per_eye": per_eye });
+    // the edits: a failure is reported after the report is written (it does not take the report with it)
+    let mut failed_writes = Vec::new();
     if let Some(p) = &a.write_config {
-        edit_toml(p, Some("motion"), &t)?;
-        console.push(format!("timing: wrote [motion] time_offset_ms, readout_ms into {}", p.display()));
-        md += &format!("\nWritten into the configuration {}.\n", p.display());
+        match edit_toml(p, Some("motion"), &t) {
+            Ok(()) => {
+                console.push(format!("timing: wrote [motion] time_offset_ms, readout_ms into {}", p.display()));
+                md += &format!("\nWritten into the configuration {}.\n", p.display());
+            }
+            Err(e) => {
+                md += &format!("\nNot written into the configuration {}: {e:#}.\n", p.display());
+                failed_writes.push(format!("--write-config: {e:#}"));
+            }
+        }
     }
     if let Some(d) = &a.write_session {
         let p = d.join("session.toml");
-        edit_toml(&p, None, &t)?;
-        console.push(format!("timing: wrote time_offset_ms, readout_ms into {}", p.display()));
-        md += &format!("\nWritten into the session {}.\n", p.display());
+        match edit_toml(&p, None, &t) {
+            Ok(()) => {
+                console.push(format!("timing: wrote time_offset_ms, readout_ms into {}", p.display()));
+                md += &format!("\nWritten into the session {}.\n", p.display());
+            }
+            Err(e) => {
+                md += &format!("\nNot written into the session {}: {e:#}.\n", p.display());
+                failed_writes.push(format!("--write-session: {e:#}"));
+            }
+        }
     }
     if plotted {
         md += "\n![error against eye speed](error_by_speed.png)\n";
     }
-    Ok(Analysis { json, markdown: md, console, plotted })
+    Ok(Analysis { json, markdown: md, console, plotted, failed_writes })
 }
 
 #[cfg(test)]

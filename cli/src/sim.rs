@@ -69,6 +69,52 @@ pub struct SessionArgs {
     /// camera clock (effects.md; default: each simulated unit's own, 0.1-5 ms).
     #[arg(long, value_parser = crate::args::finite_in(0.0, 10.0))]
     time_offset_ms: Option<f64>,
+    /// Write over an existing, non-empty --out: the session there (frames/, calib/, truth/, session.toml,
+    /// frames.csv, encoders.csv) is removed first, so no frame of it is left behind; other files stay.
+    #[arg(long)]
+    force: bool,
+}
+
+/// What `abvs sim session` writes into its directory: all of it is removed before a --force render.
+const SESSION_ENTRIES: [&str; 6] = ["frames", "calib", "truth", "session.toml", "frames.csv", "encoders.csv"];
+
+impl SessionArgs {
+    /// --out before any work: a new or empty directory, or with --force any directory (a session there
+    /// would otherwise be overwritten in part, its extra frames left behind).
+    pub fn check(&self) -> anyhow::Result<()> {
+        abvs_runtime::outputs::check_dir_creatable("--out", &self.out)?;
+        let nonempty = self.out.is_dir()
+            && std::fs::read_dir(&self.out)
+                .with_context(|| format!("--out {}: reading the directory", self.out.display()))?
+                .next()
+                .is_some();
+        if nonempty && !self.force {
+            bail!(
+                "--out {}: the directory exists and is not empty (a session there would be overwritten in part); \
+                 choose a new directory, or add --force to replace it",
+                self.out.display()
+            );
+        }
+        Ok(())
+    }
+
+    /// With --force: the earlier session's entries removed (the render then starts from an empty session).
+    fn clear_earlier(&self) -> anyhow::Result<()> {
+        if !self.force {
+            return Ok(());
+        }
+        for name in SESSION_ENTRIES {
+            let p = self.out.join(name);
+            let r = if p.is_dir() { std::fs::remove_dir_all(&p) } else { std::fs::remove_file(&p) };
+            match r {
+                Err(e) if e.kind() != std::io::ErrorKind::NotFound => {
+                    return Err(e).with_context(|| format!("--force: removing {}", p.display()))
+                }
+                _ => {}
+            }
+        }
+        Ok(())
+    }
 }
 
 #[derive(Args)]
@@ -264,6 +310,8 @@ pub fn run(cmd: SimCmd) -> anyhow::Result<ExitCode> {
             };
             // refused before any work (a session takes minutes to render)
             spec.validate()?;
+            a.check()?;
+            a.clear_earlier()?;
             let pb = crate::progress_bar(a.frames as u64, "render");
             abvs_sim::synth::generate(&spec, &a.out, &mut |stage, done, total| {
                 pb.set_message(stage.to_string());

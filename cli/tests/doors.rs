@@ -1,7 +1,8 @@
 //! Knocks on every door: for every subcommand and every numeric flag of clap's command tree
 //! (`abvs cli-tree`, so a new flag is covered without editing this test), the values 0, -1, NaN,
-//! inf, 1e30 and a huge size. The rule: no panic, abort or signal, no check taking more than a
-//! few seconds, and a refusal naming the flag. Values may be accepted (`--seed 0`): the cases
+//! inf, 1e30 and a huge size, and negative ones after a space (`--flag -1`, as users type them).
+//! The rule: no panic, abort or signal, no check taking more than a few seconds, and a refusal
+//! naming the flag (never clap's "unexpected argument '-1'"). Values may be accepted (`--seed 0`): the cases
 //! stop after every check that precedes work (clap's value parsers, grid sizes, output paths),
 //! as `abvs --validate-only` does, so an accepted value costs nothing. They run in one process
 //! (`abvs validate-lines`, a panic caught per case; an abort ends the process and fails the test);
@@ -277,11 +278,39 @@ fn every_numeric_flag_refuses_bad_values_by_name_without_panic_or_hang() {
             eprintln!("accepted: {what}");
         }
     }
+    // a negative number after a space is the flag's value, refused (or taken) by the flag's own check: never
+    // clap's "unexpected argument '-1'", which names no flag
+    let mut spaced = 0;
+    for (i, id, v) in cases.iter().filter(|(_, _, v)| v == "-1") {
+        let l = &leaves[*i];
+        let a = l.arg(id);
+        if a["positional"].as_bool() == Some(true) || !matches!(a["kind"].as_str(), Some("float") | Some("int")) {
+            continue;
+        }
+        let name = str_of(a, "name");
+        let mut base: Vec<(String, String)> =
+            l.base.iter().filter(|(b, _)| b != id && !l.exclusive(id, b)).cloned().collect();
+        for v in [v.as_str(), "-0.5", "-1e30"] {
+            let extra = vec![name.clone(), v.to_string()];
+            let o = l.run(&mut b, &mut base, &extra, tmp.path());
+            let what = format!("abvs {}", l.command(&base, &extra).join(" "));
+            if let Some(bad) = judge(&o, &name) {
+                found.push(format!("{what}: {bad}:\n{}", o.stderr));
+            } else if o.stderr.contains("unexpected argument") {
+                found.push(format!("{what}: the value after the space read as a flag:\n{}", o.stderr));
+            }
+            spaced += 1;
+        }
+    }
+    assert!(spaced > 100, "{spaced} negative values after a space");
     // the same answers as processes of their own: a refusal, a size refused by a check, an accepted value
     for (args, flag) in [
         (vec!["kin", "psc", "--step-deg=NaN", "--out", "x.csv"], "--step-deg"),
         (vec!["kin", "psc", "--step-deg=1e-9", "--out", "x.csv"], "--step-deg"),
         (vec!["sim", "unit", "--seed=0", "--out", "x.toml"], "--seed"),
+        (vec!["run", "--readout-ms", "-5"], "--readout-ms"),
+        (vec!["run", "--motion-gate-px", "-1"], "--motion-gate-px"),
+        (vec!["sim", "session", "--out", "new-session", "--time-offset-ms", "-5"], "--time-offset-ms"),
     ] {
         let args: Vec<String> = args.into_iter().map(String::from).collect();
         let (o, p) = (b.run(&args), process(&args));

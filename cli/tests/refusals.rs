@@ -208,3 +208,37 @@ fn help_lists_what_is_accepted_and_messages_say_what_the_file_holds() {
     );
     assert!(!e.contains("-120"), "{e}");
 }
+
+/// `sim session --out` into a session already there: refused without --force (a render over it would
+/// leave its extra frames behind); with --force the old session is removed first, so only the new frames
+/// are there, and files that are not the session's stay.
+#[test]
+fn sim_session_refuses_an_existing_directory_and_force_leaves_no_stale_frames() {
+    let t = tempfile::tempdir().unwrap();
+    let out = t.path().join("s");
+    let render = |frames: &str, extra: &[&str]| {
+        let mut a = vec!["sim", "session", "--out", out.to_str().unwrap(), "--frames", frames, "--width", "64"];
+        a.extend(["--height", "48", "--supersample", "1", "--fk-method", "mh", "--calib-step-deg", "20"]);
+        a.extend(extra);
+        a.into_iter().map(String::from).collect::<Vec<_>>()
+    };
+    fn args(v: &[String]) -> Vec<&str> {
+        v.iter().map(String::as_str).collect()
+    }
+    ok(&args(&render("4", &[])));
+    let count = || std::fs::read_dir(out.join("frames")).unwrap().count();
+    assert_eq!(count(), 8);
+    std::fs::write(out.join("notes.txt"), "mine").unwrap();
+    let e = refused(&args(&render("2", &[])), &["--out", "--force"]);
+    assert!(e.contains("not empty"), "{e}");
+    assert_eq!(count(), 8, "a refusal touches nothing");
+    ok(&args(&render("2", &["--force"])));
+    assert_eq!(count(), 4, "2 frames of 2 eyes: none of the 4-frame session's left");
+    let csv = std::fs::read_to_string(out.join("frames.csv")).unwrap();
+    assert_eq!(csv.lines().count(), 3, "{csv}");
+    assert_eq!(std::fs::read_to_string(out.join("notes.txt")).unwrap(), "mine");
+    // an empty directory is a new one
+    let empty = t.path().join("empty");
+    std::fs::create_dir(&empty).unwrap();
+    ok(&["--validate-only", "sim", "session", "--out", empty.to_str().unwrap()]);
+}

@@ -169,3 +169,37 @@ fn the_offline_report_names_the_wrong_eye_and_where() {
         assert!(off > 10.0 && v["worst_fixation"]["mean_error_norm_deg"].as_f64().unwrap() > 0.1, "{v:#}");
     }
 }
+
+/// `calib self-check` checks every file it will write or edit before any work (the replay rounds take
+/// minutes), and an edit that fails at the end takes neither report.md nor summary.json with it.
+#[test]
+fn self_check_outputs_are_checked_first_and_a_failed_write_keeps_the_report() {
+    let tmp = tempfile::tempdir().unwrap();
+    let log = tmp.path().join("check.csv");
+    run(tmp.path(), &["--self-check-log", log.to_str().unwrap(), "--self-check-every", "1"]);
+    let out = tmp.path().join("report");
+    let cfg = tmp.path().join("robot.toml");
+    let self_check = |extra: &[&std::ffi::OsStr]| {
+        abvs().args(["calib", "self-check", "--log"]).arg(&log).arg("--out").arg(&out).args(extra).output().unwrap()
+    };
+    // an absent configuration: refused at once, by name, before the rounds and before --out is made
+    let t0 = std::time::Instant::now();
+    let o = self_check(&["--write-config".as_ref(), cfg.as_os_str()]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success() && err.contains("--write-config") && err.contains("no such file"), "{err}");
+    assert!(!out.exists(), "refused before any work");
+    assert!(t0.elapsed().as_secs_f64() < 10.0, "refused after {:?}", t0.elapsed());
+    // a session without session.toml: the same
+    let o = self_check(&["--write-session".as_ref(), tmp.path().as_os_str()]);
+    assert!(String::from_utf8_lossy(&o.stderr).contains("--write-session"), "{o:?}");
+    // a TOML file that passes the check but cannot take the estimate (`motion` is not a table): the edit fails
+    // at the end; the report and the summary are written, and the failure is named
+    std::fs::write(&cfg, "motion = 5\n").unwrap();
+    let o = self_check(&["--rounds".as_ref(), "0".as_ref(), "--write-config".as_ref(), cfg.as_os_str()]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success() && err.contains("--write-config") && err.contains("not a table"), "{err}");
+    assert!(out.join("report.md").is_file() && out.join("summary.json").is_file(), "{err}");
+    let md = std::fs::read_to_string(out.join("report.md")).unwrap();
+    assert!(md.contains("Not written into the configuration"), "{md}");
+    assert_eq!(std::fs::read_to_string(&cfg).unwrap(), "motion = 5\n");
+}

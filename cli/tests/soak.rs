@@ -1,11 +1,13 @@
 //! Soak: `abvs run --loop --seconds N` replays the fixture session in a loop at its frame rate through the
-//! whole runtime (default engine, ground-truth scoring, iceoryx2 publishing) and reports per statistics
-//! window the latency p50/p99, the counts and the resident memory. The claim: after the first part, resident
-//! memory stays flat (within 5 %) with no growth trend, and every window keeps publishing with bounded
-//! latency.
+//! whole runtime (default engine, ground-truth scoring, the self-check, iceoryx2 publishing) and reports per
+//! statistics window the latency p50/p99, the counts and the resident memory. The claim: after the first
+//! window, resident memory does not grow (under 2 MB after the first window in CI's 30 s; over 10 minutes
+//! or more, the run's steady slope under 0.1 MB/min), and every window keeps publishing with bounded latency.
 //!
-//! CI runs 60 s (the test's budget); `ABVS_SOAK_SECONDS=1800` runs the 30-minute soak of runtime/BENCHMARKS.md
-//! (which used the release build directly: see there).
+//! CI runs 30 s at 320x240 in 2.5 s windows: the first window holds the start-up, so memory a run takes on in
+//! its first seconds after that (the truth lane's pool, made as its worker fell behind: issue 42, 16 MB/min
+//! here before the fix) reads as growth. `ABVS_SOAK_SECONDS=1800` runs the 30-minute soak of
+//! runtime/BENCHMARKS.md (which used the release build directly: see there).
 use std::process::Command;
 
 use serde_json::Value;
@@ -13,7 +15,7 @@ use serde_json::Value;
 #[test]
 fn a_looped_replay_keeps_resident_memory_flat_and_latency_bounded() {
     let secs: f64 =
-        std::env::var("ABVS_SOAK_SECONDS").map(|s| s.parse().expect("ABVS_SOAK_SECONDS: seconds")).unwrap_or(60.0);
+        std::env::var("ABVS_SOAK_SECONDS").map(|s| s.parse().expect("ABVS_SOAK_SECONDS: seconds")).unwrap_or(30.0);
     // 12 windows: the first two are the first part (models loaded, buffers first touched, allocator arenas
     // filled), the other ten are judged
     let window = secs / 12.0;
@@ -25,6 +27,10 @@ fn a_looped_replay_keeps_resident_memory_flat_and_latency_bounded() {
             "--resolution",
             "320x240",
             "--quiet",
+            // what a soak must hold with: depth scored against the truth, the self-check on
+            "--truth-stride",
+            "8",
+            "--self-check",
             "--loop",
             "--seconds",
             &secs.to_string(),
@@ -84,15 +90,23 @@ fn a_looped_replay_keeps_resident_memory_flat_and_latency_bounded() {
     let (lo, hi) = rss.iter().fold((f64::INFINITY, 0f64), |(lo, hi), p| (lo.min(p.1), hi.max(p.1)));
     assert!(lo > 10.0, "resident memory read: {rss:?}");
     assert!((hi - lo) / lo <= 0.05, "resident memory not flat within 5 %: {lo:.1} .. {hi:.1} MB: {rss:?}");
-    // no growth trend: the least-squares growth over the judged windows stays under 2 % of the memory (a leak of
-    // 3 MB/min fails in 60 s; runtime/BENCHMARKS.md has the slope of the 30-minute soak)
-    let m = rss.len() as f64;
-    let (mx, my) = (rss.iter().map(|p| p.0).sum::<f64>() / m, rss.iter().map(|p| p.1).sum::<f64>() / m);
-    let slope =
-        rss.iter().map(|p| (p.0 - mx) * (p.1 - my)).sum::<f64>() / rss.iter().map(|p| (p.0 - mx).powi(2)).sum::<f64>();
-    let span = rss.last().unwrap().0 - rss[0].0;
-    eprintln!("resident memory over the judged windows: {lo:.1} .. {hi:.1} MB, slope {slope:.4} MB/min");
-    assert!(slope * span <= 0.02 * my, "resident memory grows {slope:.3} MB/min ({my:.1} MB): {rss:?}");
+    // no growth: the run's own least-squares slope over its windows after the first (`rss`), under 0.1 MB/min
+    // (a day's soak: 144 MB at most). Scoring depth against the truth and the self-check keep nothing per
+    // frame: their pools, histograms and rings are resident from the start (issue 42: the truth lane's pool,
+    // made as its worker fell behind and grown as larger clouds came, read 6.5 MB/min).
+    let slope = v["rss"]["steady_slope_mb_per_min"].as_f64().unwrap_or(f64::NAN);
+    eprintln!("resident memory over the judged windows: {lo:.3} .. {hi:.3} MB, steady slope {slope:.4} MB/min");
+    // In 30 s a one-time step still reads as a slope: the release build at 320x240 takes on 0.63 MB once,
+    // 7.5-10 s into the run, flat after (the default engine's, census-refine / ONNX Runtime: not with
+    // --engine sgbm), 1.3 MB/min over 30 s. So the CI run bounds what the
+    // windows after the first take on (before the fix: 3.4 and 12.7 MB in two debug runs; after: 0.66 MB),
+    // and a run of 10 minutes or more (ABVS_SOAK_SECONDS) the slope itself.
+    let first = windows[0]["rss_mb"].as_f64().unwrap();
+    let grown = windows.iter().map(|w| f(w, "rss_mb")).fold(f64::NEG_INFINITY, f64::max) - first;
+    assert!(grown < 2.0, "resident memory grew {grown:.2} MB after the first window: {}", v["rss"]);
+    if secs >= 600.0 {
+        assert!(slope < 0.1, "resident memory grows {slope:.3} MB/min: {}", v["rss"]);
+    }
 }
 
 /// A looped run without --seconds runs until stopped: SIGTERM (or Ctrl-C) ends it cleanly, with its

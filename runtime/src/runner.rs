@@ -23,7 +23,7 @@ use crate::messages::{monotonic_ns, DepthFrame, RectifiedCamera, Work};
 use crate::sinks::Sink;
 use crate::sources::PairSource;
 use crate::stage::{Stage, StageContext};
-use crate::stats::{rss_bytes, Latency, RunStats, Window};
+use crate::stats::{rss_bytes, Latency, RunStats, Window, MAX_WINDOWS};
 
 /// One thread of the graph: stages run in order on each frame.
 pub struct Lane {
@@ -442,7 +442,7 @@ pub fn run<S: PairSource>(graph: Graph<S>, cfg: &RunConfig) -> Result<RunStats> 
         let mut depth = DepthFrame::new(out.0, out.1);
         let window_ns = (cfg.window.as_nanos().clamp(1_000_000, i64::MAX as u128)) as i64;
         let mut win = WindowCounter::new(started, window_ns);
-        win.prepare(&mut stats, cfg.duration);
+        win.prepare(&mut stats);
         let out_cpu = LaneCpu::start();
         loop {
             let now = monotonic_ns();
@@ -531,8 +531,8 @@ pub fn run<S: PairSource>(graph: Graph<S>, cfg: &RunConfig) -> Result<RunStats> 
 }
 
 /// The statistics window being filled (see [`RunConfig::window`]): closing one reads the counters and the
-/// resident memory; neither allocates (the list of windows is reserved up front for an hour, or for the
-/// run's duration).
+/// resident memory; neither allocates (the list of windows is reserved and written up front, [`MAX_WINDOWS`]
+/// long: at that many, neighbours merge in pairs and the window doubles).
 struct WindowCounter {
     started: i64,
     len_ns: i64,
@@ -547,15 +547,26 @@ impl WindowCounter {
         WindowCounter { started, len_ns, end_ns: started + len_ns, latency: Latency::default(), at_start: [0; 3] }
     }
 
-    /// Sets the run's window length and reserves its list: the run's windows, or an hour's (a longer run
-    /// without a duration grows the list, doubling, about once an hour and then ever more rarely).
-    fn prepare(&self, stats: &mut RunStats, duration: Option<Duration>) {
+    /// Sets the run's window length and reserves its list, [`MAX_WINDOWS`] long, each page written once: the
+    /// list's memory is resident from the start, whatever the run's length.
+    fn prepare(&self, stats: &mut RunStats) {
         stats.window_s = self.len_ns as f64 / 1e9;
-        let n = match duration {
-            Some(d) => (d.as_nanos() / self.len_ns as u128) as usize + 2,
-            None => (3_600_000_000_000 / self.len_ns) as usize + 2,
+        let empty = Window {
+            t_s: 0.0,
+            frames_in: 0,
+            frames_published: 0,
+            frames_dropped: 0,
+            p50_ms: 0.0,
+            p99_ms: 0.0,
+            max_ms: 0.0,
+            rss_bytes: 0,
         };
-        stats.windows.reserve(n.min(1 << 16));
+        stats.windows.clear();
+        stats.windows.reserve_exact(MAX_WINDOWS);
+        std::hint::black_box(&mut stats.windows);
+        stats.windows.resize(MAX_WINDOWS, empty);
+        std::hint::black_box(&mut stats.windows);
+        stats.windows.clear();
     }
 
     fn close(&mut self, now: i64, stats: &mut RunStats, progress: &Progress) {
@@ -575,10 +586,57 @@ impl WindowCounter {
             max_ms: l.max_ms(),
             rss_bytes: rss_bytes().unwrap_or(0),
         });
+        if stats.windows.len() == MAX_WINDOWS {
+            // full: neighbours merge, the window doubles (the list never grows)
+            let w = &mut stats.windows;
+            for i in 0..MAX_WINDOWS / 2 {
+                w[i] = w[2 * i].merged(&w[2 * i + 1]);
+            }
+            w.truncate(MAX_WINDOWS / 2);
+            self.len_ns = self.len_ns.saturating_mul(2);
+            stats.window_s = self.len_ns as f64 / 1e9;
+        }
         self.at_start = counts;
         self.latency.reset();
         while self.end_ns <= now {
             self.end_ns += self.len_ns;
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_window_list_stays_within_its_reservation_for_a_run_of_any_length() {
+        let mut stats = RunStats::new(&["source"]);
+        let len_ns = 10_000_000; // 10 ms windows: a day of them would be 8.6 million
+        let mut win = WindowCounter::new(0, len_ns);
+        win.prepare(&mut stats);
+        let (cap, ptr) = (stats.windows.capacity(), stats.windows.as_ptr());
+        assert!(cap >= MAX_WINDOWS);
+        let progress = Progress::default();
+        let n = 3 * MAX_WINDOWS + 5;
+        // as the output lane does: a frame every 5 ms, the window closed when its end has passed, and at the end
+        for k in 1..=2 * n as i64 {
+            progress.frames_in.fetch_add(1, Ordering::Relaxed);
+            stats.frames_published += 1;
+            win.latency.record_ns(5_000_000);
+            let now = k * len_ns / 2;
+            if now >= win.end_ns && k < 2 * n as i64 {
+                win.close(now, &mut stats, &progress);
+            }
+        }
+        win.close(n as i64 * len_ns, &mut stats, &progress);
+        // the same buffer throughout (no reallocation), at most MAX_WINDOWS windows, every frame counted
+        assert_eq!((stats.windows.capacity(), stats.windows.as_ptr()), (cap, ptr));
+        assert!(stats.windows.len() < MAX_WINDOWS && stats.windows.len() > MAX_WINDOWS / 4, "{}", stats.windows.len());
+        let total: u64 = stats.windows.iter().map(|w| w.frames_in).sum();
+        assert_eq!(total, 2 * n as u64);
+        // the windows doubled twice; the last one ends at the last close
+        assert!((stats.window_s - 0.04).abs() < 1e-12, "{}", stats.window_s);
+        assert!((stats.windows.last().unwrap().t_s - n as f64 * 0.01).abs() < 1e-9);
+        assert!(stats.windows.iter().all(|w| (w.p50_ms - 5.0).abs() < 0.01 && (w.p99_ms - 5.0).abs() < 0.01));
     }
 }

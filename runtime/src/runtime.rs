@@ -207,12 +207,13 @@ impl Runtime {
             self;
         let engine_name = engine.name().to_string();
         let replay = matches!(input, Input::Replay(_));
+        // live frames come when the cameras deliver them: never paced
+        let paced = replay && c.source.paced && !c.source.lossless;
         let cfg = PipelineConfig {
             out,
             motion,
             lossless: c.source.lossless,
-            // live frames come when the cameras deliver them: never paced
-            paced: replay && c.source.paced && !c.source.lossless,
+            paced,
             // a replay loops without end as many frames as a u64 counts (with `seconds`, until then)
             frames: if replay && c.source.looping { c.source.frames.or(Some(u64::MAX)) } else { c.source.frames },
             duration: c.source.seconds.map(Duration::from_secs_f64),
@@ -227,6 +228,8 @@ impl Runtime {
             Input::Replay(s) => crate::pipeline::run(s, kin, cams, engine, sinks, cfg)?,
             Input::Live(s) => crate::pipeline::run(s, kin, cams, engine, sinks, cfg)?,
         };
+        // an unpaced replay takes frames ahead of their times: no latency to report
+        stats.latency_measured = !replay || paced;
         let (w, h) = (c.disparity.width, c.disparity.height);
         let extra = &mut stats.extra;
         extra.insert("session".into(), serde_json::json!(source_name));

@@ -112,7 +112,41 @@ pub struct Window {
     pub rss_bytes: u64,
 }
 
+/// The most windows a run keeps: at this many, neighbours are merged in pairs and the window doubles, so a run
+/// of any length with any window holds a fixed list (256 kB, reserved and written at the start).
+pub const MAX_WINDOWS: usize = 4096;
+
 impl Window {
+    /// `self` and the window after it as one: counts summed, the later end and resident memory, p50 the mean
+    /// of the two weighted by frames published, p99 and max the larger (p99 then an upper bound).
+    pub fn merged(&self, next: &Window) -> Window {
+        let (a, b) = (self.frames_published as f64, next.frames_published as f64);
+        let p50 = match (self.p50_ms.is_finite(), next.p50_ms.is_finite()) {
+            (true, true) if a + b > 0.0 => (self.p50_ms * a + next.p50_ms * b) / (a + b),
+            (true, _) => self.p50_ms,
+            _ => next.p50_ms,
+        };
+        let big = |x: f64, y: f64| {
+            if x.is_nan() {
+                y
+            } else if y.is_nan() {
+                x
+            } else {
+                x.max(y)
+            }
+        };
+        Window {
+            t_s: next.t_s,
+            frames_in: self.frames_in + next.frames_in,
+            frames_published: self.frames_published + next.frames_published,
+            frames_dropped: self.frames_dropped + next.frames_dropped,
+            p50_ms: p50,
+            p99_ms: big(self.p99_ms, next.p99_ms),
+            max_ms: big(self.max_ms, next.max_ms),
+            rss_bytes: next.rss_bytes,
+        }
+    }
+
     fn json(&self) -> Value {
         json!({
             "t_s": round3(self.t_s),
@@ -192,6 +226,10 @@ pub struct RunStats {
     /// From the moment a frame exists (its last row's exposure ended, as a camera delivers it) to its
     /// publication.
     pub end_to_end: Latency,
+    /// Whether `end_to_end` measures latency: live frames and paced replays. An unpaced replay (lossless,
+    /// offline) takes frames ahead of their times, so its "latency" reads 0 and is reported as not
+    /// applicable (null in the JSON, "n/a" in the table).
+    pub latency_measured: bool,
     /// Depth error against ground truth (synthetic sessions scored by a truth sink).
     pub depth_error: Option<DepthError>,
     /// Valid points over every published frame.
@@ -221,6 +259,7 @@ impl RunStats {
             sink_failures: BTreeMap::new(),
             stages: stage_names.iter().map(|n| (*n, Latency::default())).collect(),
             end_to_end: Latency::default(),
+            latency_measured: true,
             depth_error: None,
             points_total: 0,
             output_digest: 0xcbf29ce484222325,
@@ -268,7 +307,7 @@ impl RunStats {
             "sink_failures": self.sink_failures,
             "fps": if elapsed_s > 0.0 { self.frames_published as f64 / elapsed_s } else { 0.0 },
             "elapsed_s": elapsed_s,
-            "latency_ms": self.end_to_end.json(),
+            "latency_ms": if self.latency_measured { self.end_to_end.json() } else { Value::Null },
             "stages": stages,
             "points_mean": self.points_total as f64 / self.frames_published.max(1) as f64,
             "output_digest": format!("{:016x}", self.output_digest),
@@ -359,6 +398,13 @@ impl RunStats {
         s += &format!("{:<22} {:>9} {:>9} {:>9} {:>7}\n", "stage (ms)", "p50", "p99", "max", "count");
         for (n, l) in self.stages.iter().map(|(n, l)| (*n, l)).chain(std::iter::once(("end to end", &self.end_to_end)))
         {
+            if n == "end to end" && !self.latency_measured {
+                s += &format!(
+                    "{:<22} {:>9} {:>9} {:>9} {:>7}  (unpaced replay: not applicable)\n",
+                    n, "-", "-", "-", "-"
+                );
+                continue;
+            }
             s += &format!(
                 "{:<22} {:>9.2} {:>9.2} {:>9.2} {:>7}\n",
                 n,
@@ -418,5 +464,29 @@ impl RunStats {
             );
         }
         s
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn latency_of_an_unpaced_replay_is_reported_as_not_applicable() {
+        let mut s = RunStats::new(&["source"]);
+        // an unpaced replay: frames taken ahead of their times record the 1 us floor (read as "0.00 ms")
+        for _ in 0..10 {
+            s.end_to_end.record_ns(-5_000_000);
+        }
+        s.latency_measured = false;
+        let j = s.json(1.0);
+        assert!(j["latency_ms"].is_null(), "{j}");
+        let t = s.table(1.0);
+        let row = t.lines().find(|l| l.starts_with("end to end")).unwrap();
+        assert!(row.contains("not applicable") && !row.contains("0.00"), "{row}");
+        // measured (live, paced): the numbers
+        s.latency_measured = true;
+        assert_eq!(s.json(1.0)["latency_ms"]["count"], 10);
+        assert!(s.table(1.0).lines().any(|l| l.starts_with("end to end") && l.contains("0.00")));
     }
 }

@@ -39,7 +39,7 @@ const DIST_BIN_MM: f64 = 0.05;
 const DIST_BINS: usize = 40_000; // 0 .. 2 m; farther lands in the last bin
 
 /// The error of the frames of one speed band.
-#[derive(Debug, Clone, Default)]
+#[derive(Debug, Clone)]
 pub struct SpeedBand {
     /// Frames scored (published with depth, a truth row for their seq).
     pub frames: u64,
@@ -48,15 +48,22 @@ pub struct SpeedBand {
     pub abs_rel_sum: f64,
     pub points: u64,
     /// Histogram of each scored point's 3D distance to the true surface point ([`DIST_BIN_MM`] bins),
-    /// allocated at the band's first point.
+    /// allocated and written at start-up: its memory is resident from the first frame, not as the bins are
+    /// first hit.
     dist_hist: Vec<u32>,
 }
 
 impl SpeedBand {
+    fn new() -> Self {
+        let mut dist_hist = Vec::with_capacity(DIST_BINS);
+        // written, not calloc'ed (zero pages would become resident bin by bin over a soak); black_box: the
+        // buffer escapes before it is written, so the write cannot be folded into a zeroed allocation
+        std::hint::black_box(&mut dist_hist);
+        dist_hist.resize(DIST_BINS, 0);
+        SpeedBand { frames: 0, gated: 0, abs_rel_sum: 0.0, points: 0, dist_hist }
+    }
+
     fn add_distance(&mut self, mm: f64) {
-        if self.dist_hist.is_empty() {
-            self.dist_hist = vec![0; DIST_BINS];
-        }
         let bin = ((mm / DIST_BIN_MM) as usize).min(DIST_BINS - 1);
         self.dist_hist[bin] = self.dist_hist[bin].saturating_add(1);
     }
@@ -107,6 +114,8 @@ pub struct TruthSink {
     unscored: u64,
     /// The same errors by the eyes' speed ([`SPEED_BANDS_DEG_S`]).
     by_speed: [SpeedBand; 5],
+    /// The frame's row nodes as quaternions (reused: nothing is allocated per frame).
+    row_nodes: Vec<(UnitQuaternion<f64>, Vector3<f64>)>,
 }
 
 impl TruthSink {
@@ -171,7 +180,8 @@ impl TruthSink {
             err: DepthError::default(),
             by_confidence: None,
             unscored: 0,
-            by_speed: Default::default(),
+            by_speed: std::array::from_fn(|_| SpeedBand::new()),
+            row_nodes: Vec::new(),
         }))
     }
 
@@ -180,11 +190,9 @@ impl TruthSink {
         self.err
     }
 
-    /// The true pose of the left eye for a frame of the session, by its seq: at the frame's instant, and at
-    /// its row nodes.
-    fn true_pose(&self, seq: u64) -> Option<(Pose, &[Pose])> {
-        let i = self.poses.binary_search_by_key(&seq, |(s, _, _)| *s).ok()?;
-        Some((self.poses[i].1, &self.poses[i].2))
+    /// The index in `poses` of a frame of the session, by its seq.
+    fn true_pose(&self, seq: u64) -> Option<usize> {
+        self.poses.binary_search_by_key(&seq, |(s, _, _)| *s).ok()
     }
 }
 
@@ -242,13 +250,15 @@ impl Sink for TruthSink {
     }
 
     fn consume(&mut self, out: &Published) -> Result<()> {
-        let Some((frame_pose, row_nodes)) = self.true_pose(out.session_seq) else {
+        let Some(k) = self.true_pose(out.session_seq) else {
             self.unscored += 1;
             return Ok(());
         };
+        let frame_pose = self.poses[k].1;
         // the nodes' rotations as quaternions once per frame, not per scored point (from_matrix iterates)
-        let row_nodes: Vec<(UnitQuaternion<f64>, Vector3<f64>)> =
-            row_nodes.iter().map(|p| (UnitQuaternion::from_matrix(&p.r), p.t)).collect();
+        self.row_nodes.clear();
+        self.row_nodes.extend(self.poses[k].2.iter().map(|p| (UnitQuaternion::from_matrix(&p.r), p.t)));
+        let row_nodes = &self.row_nodes;
         let band = &mut self.by_speed[speed_band(out.motion.max_speed_deg_s())];
         if out.motion.gated {
             // invalid on purpose: counted by speed, not scored
@@ -267,7 +277,7 @@ impl Sink for TruthSink {
             // the raw pixel the pipeline took this point from, and where that pixel really looked
             let Some(raw) = source_pixel(&self.camera, out.cam, &cam_from_rect, rows.as_ref(), u, v) else { continue };
             let Some(dir) = self.camera.unproject(&Vector2::new(raw.x, raw.y)) else { continue };
-            let true_pose = pose_at_row(&frame_pose, &row_nodes, raw.y, self.camera.height);
+            let true_pose = pose_at_row(&frame_pose, row_nodes, raw.y, self.camera.height);
             let origin = Point3::from(true_pose.t);
             let Some(hit) = self.scene.cast(&origin, &(true_pose.r * dir)) else { continue };
             let p = out.depth.points[j];

@@ -8,6 +8,11 @@
 //! consumed every copy it was handed, and the counts say how many frames the inner sink saw. When every copy
 //! is in use the frame is skipped by this sink only (counted; the pipeline never waits), except in blocking
 //! mode (lossless runs), which waits for a free copy.
+//!
+//! Memory: the whole pool is made at the first frame, every buffer sized for the largest frame the pipeline's
+//! buffers hold and written once, so the lane's resident memory is fixed from then on. (A pool made as the
+//! worker fell behind, each copy growing as bigger clouds came, kept resident memory rising for minutes of a
+//! soak: issue 42.)
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
@@ -20,9 +25,9 @@ use crate::messages::{DepthFrame, FrameMotion, Published, Rectification, Rectifi
 use crate::sinks::Sink;
 use crate::stats::RunStats;
 
-/// An owned copy of a [`Published`] frame, every field; its buffers grow to the frame's size once and are
-/// reused (no allocation per frame after the pool's first round). A field added to `Published` is added to
-/// `fill` and `view` here.
+/// An owned copy of a [`Published`] frame, every field; its buffers are sized once for the largest frame
+/// (`of`) and reused (no allocation per frame). A field added to `Published` is added to `fill` and `view`
+/// here.
 pub struct PublishedCopy {
     seq: u64,
     session_seq: u64,
@@ -45,8 +50,22 @@ fn copy_into<T: Copy>(dst: &mut Vec<T>, src: &[T]) {
     dst.extend_from_slice(src);
 }
 
+/// An empty buffer with room for `n` values, each page of it written once: resident from the start, so a
+/// cloud larger than the ones before adds nothing to the process's memory. (`vec![0; n]` would map zero
+/// pages that become resident only as frames first write them.)
+fn resident<T: Copy + Default>(n: usize) -> Vec<T> {
+    let mut v = Vec::with_capacity(n);
+    // (the buffer escapes before it is written: the write cannot be folded into a zeroed allocation)
+    std::hint::black_box(&mut v);
+    v.resize(n, T::default());
+    std::hint::black_box(&mut v);
+    v.clear();
+    v
+}
+
 impl PublishedCopy {
-    /// A copy of `out` in new buffers.
+    /// A copy of `out` in new buffers, each sized (and made resident) for the largest frame the pipeline's
+    /// buffers hold: `out`'s full buffers, not only its valid points.
     pub fn of(out: &Published) -> Self {
         let mut c = PublishedCopy {
             seq: 0,
@@ -56,11 +75,17 @@ impl PublishedCopy {
             pose: *out.pose,
             rect: *out.rect,
             cam: *out.cam,
-            depth: DepthFrame::empty(),
-            left_rect: Vec::new(),
-            right_rect: Vec::new(),
-            disparity: Vec::new(),
-            confidence: Vec::new(),
+            depth: DepthFrame {
+                depth: resident(out.depth.depth.len()),
+                points: resident(out.depth.points.len()),
+                intensity: resident(out.depth.intensity.len()),
+                pixel: resident(out.depth.pixel.len()),
+                ..DepthFrame::empty()
+            },
+            left_rect: resident(out.left_rect.len()),
+            right_rect: resident(out.right_rect.len()),
+            disparity: resident(out.disparity.len()),
+            confidence: resident(out.confidence.map_or(0, <[f32]>::len)),
             has_confidence: false,
             motion: FrameMotion::new(),
         };
@@ -117,6 +142,8 @@ impl PublishedCopy {
 pub struct SideLaneStats {
     /// Frames the pipeline published to the sink.
     pub frames_in: u64,
+    /// Copies in the lane's pool (made at the first frame, each sized for the largest frame).
+    pub copies: u64,
     /// Frames the inner sink consumed (all that were copied: the lane is drained before the run ends).
     pub frames_consumed: u64,
     /// Frames not copied because every copy was still queued (the worker behind); never in blocking mode.
@@ -149,8 +176,10 @@ pub struct SideLane<S: Sink + 'static> {
     blocking: bool,
     queue_tx: Option<Sender<Box<PublishedCopy>>>,
     free_rx: Receiver<Box<PublishedCopy>>,
-    /// Copies made so far (at most `slots`): the pool grows on the first frames to their size.
-    made: usize,
+    /// Copies not handed to the worker yet: the whole pool, made at the first frame.
+    unused: Vec<Box<PublishedCopy>>,
+    /// Whether the pool has been made.
+    made: bool,
     slots: usize,
     st: SideLaneStats,
     worker: Option<JoinHandle<Done<S>>>,
@@ -205,7 +234,8 @@ impl<S: Sink + 'static> SideLane<S> {
             blocking,
             queue_tx: Some(queue_tx),
             free_rx,
-            made: 0,
+            unused: Vec::new(),
+            made: false,
             slots,
             st: SideLaneStats::default(),
             worker: Some(worker),
@@ -224,14 +254,15 @@ impl<S: Sink + 'static> Sink for SideLane<S> {
 
     fn consume(&mut self, out: &Published) -> Result<()> {
         self.st.frames_in += 1;
-        let copy = match self.free_rx.try_recv() {
+        if !self.made {
+            // the whole pool now, at its full size: nothing of the lane grows after the first frame
+            self.unused = (0..self.slots).map(|_| Box::new(PublishedCopy::of(out))).collect();
+            (self.made, self.st.copies) = (true, self.slots as u64);
+        }
+        let copy = match self.unused.pop().map_or_else(|| self.free_rx.try_recv(), Ok) {
             Ok(mut c) => {
                 c.fill(out);
                 Some(c)
-            }
-            Err(_) if self.made < self.slots => {
-                self.made += 1;
-                Some(Box::new(PublishedCopy::of(out)))
             }
             Err(_) if self.blocking => loop {
                 match self.free_rx.recv_timeout(Duration::from_millis(100)) {
@@ -354,6 +385,25 @@ mod tests {
         assert_eq!((st["frames_in"].as_u64(), st["frames_consumed"].as_u64()), (Some(10), Some(10)));
         assert_eq!(st["frames_skipped"].as_u64(), Some(0));
         assert_eq!(stats.extra["slow_finished"], serde_json::json!(true));
+    }
+
+    #[test]
+    fn the_whole_pool_is_made_at_the_first_frame_with_room_for_a_full_cloud() {
+        let seen = Arc::new(Mutex::new(Vec::new()));
+        let mut lane = SideLane::new(Slow(seen), 3, true).unwrap();
+        // 5 valid points of the frame's 32: each copy still has room (resident) for all 32
+        let (d, cam) = frame(5);
+        publish(&mut lane, 0, &d, &cam);
+        assert_eq!(lane.unused.len(), 2, "one copy handed to the worker, the other two made and waiting");
+        for c in &lane.unused {
+            let dep = &c.depth;
+            let room = [dep.depth.capacity(), dep.points.capacity(), dep.intensity.capacity(), dep.pixel.capacity()];
+            assert!(room.iter().all(|&n| n >= 32), "{room:?}");
+            assert!(c.left_rect.capacity() >= 32 && c.disparity.capacity() >= 32);
+        }
+        let mut stats = RunStats::new(&[]);
+        lane.finish(&mut stats);
+        assert_eq!(stats.extra["slow_side_lane"]["copies"].as_u64(), Some(3));
     }
 
     #[test]

@@ -39,9 +39,9 @@ impl Default for Summary {
             frames_unfitted: 0,
             skipped: 0,
             warnings: 0,
-            matches: std::collections::VecDeque::new(),
-            vertical: vec![0; BINS],
-            fits: std::collections::VecDeque::new(),
+            matches: ring(0),
+            vertical: written(BINS, 0u64).into(),
+            fits: ring((Vector3::zeros(), Matrix3::zeros())),
             check_time: Latency::default(),
             check_cpu: Latency::default(),
             recent: std::collections::VecDeque::new(),
@@ -49,6 +49,24 @@ impl Default for Summary {
             failed: 0,
         }
     }
+}
+
+/// `n` copies of `x` in a buffer each page of which is written now: resident from the first frame, so neither
+/// the histogram's bins nor the rings (which take half an hour to fill) read as growth in a soak (issue 42).
+/// (`black_box`: the buffer escapes before it is written, so the write cannot become a zeroed allocation.)
+fn written<T: Clone>(n: usize, x: T) -> std::collections::VecDeque<T> {
+    let mut v = std::collections::VecDeque::with_capacity(n);
+    std::hint::black_box(&mut v);
+    v.resize(n, x);
+    std::hint::black_box(&mut v);
+    v
+}
+
+/// An empty ring with room for [`KEEP`] frames, resident from the start.
+fn ring<T: Clone>(x: T) -> std::collections::VecDeque<T> {
+    let mut v = written(KEEP, x);
+    v.clear();
+    v
 }
 
 impl Summary {
