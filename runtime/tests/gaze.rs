@@ -155,10 +155,11 @@ fn a_goal_becomes_a_yoked_saccade_that_settles_and_gates_its_frames() {
 
 #[test]
 fn the_measured_fixation_finds_the_commanded_point() {
-    let mut c = controller();
     let mut board = live_board();
     let h = home_extrinsic_m();
     for p in [[0.0, 0.0, 0.5], [0.1, -0.05, 0.8], [-0.2, 0.1, 1.5]] {
+        // each from home, as the runtime's FK below evaluates it (the same motion history)
+        let mut c = controller();
         c.step(NOW, &[[0.0; 3]; 2], Some(goal(1, GoalKind::LookAt, p, [0.0; 3])), Some(&mut board));
         let counts = board.sent.last().unwrap().0;
         // the poses the runtime's FK gives at those link angles (the same calibrated models)
@@ -174,10 +175,11 @@ fn the_measured_fixation_finds_the_commanded_point() {
         assert!(err < 0.003 * p[2] * p[2], "{p:?}: measured {m:?} ({err} m)");
         assert!((verg - (p[0].powi(2) + p[1].powi(2) + p[2].powi(2)).sqrt()).abs() < 0.05, "{verg}");
     }
-    // parallel axes (both at home): no fixation
+    // parallel axes: no fixation
     let id = Pose::identity();
-    let pose = StereoPose { rel_left: id, rel_right: id, left_to_right: h };
-    assert!(measured_fixation(&pose, &h).1.is_nan());
+    let parallel = Pose::new(nalgebra::Matrix3::identity(), h.t);
+    let pose = StereoPose { rel_left: id, rel_right: id, left_to_right: parallel };
+    assert!(measured_fixation(&pose, &parallel).1.is_nan());
 }
 
 #[test]

@@ -23,6 +23,9 @@ pub const ROLL_LIMIT_DEG: f64 = 15.0;
 /// old when the controller sees it).
 const SACCADE_HISTORY: usize = 8;
 
+/// The drive board for one step, if the run has one.
+pub type BoardRef<'a> = Option<&'a mut (dyn BoardLink + 'static)>;
+
 /// What the controller counted.
 #[derive(Debug, Clone)]
 pub struct GazeCounts {
@@ -171,7 +174,7 @@ impl GazeController {
 
     /// One frame: takes `goal` (if any) at `now_ns` (CLOCK_MONOTONIC) with the links at `theta` (deg, homed,
     /// the frame's), steps a pursuit, and notices a saccade's arrival. Allocates nothing without a goal.
-    pub fn step(&mut self, now_ns: i64, theta: &[[f64; 3]; 2], goal: Option<Goal>, board: Option<&mut dyn BoardLink>) {
+    pub fn step(&mut self, now_ns: i64, theta: &[[f64; 3]; 2], goal: Option<Goal>, board: BoardRef<'_>) {
         if let Some(last) = self.last_now_ns {
             if now_ns > last {
                 self.interval_ns = (now_ns - last).clamp(5_000_000, 100_000_000);
@@ -221,7 +224,7 @@ impl GazeController {
     }
 
     /// The board's readiness for a new command.
-    fn ready(&self, now_ns: i64, board: &Option<&mut dyn BoardLink>) -> Result<(), Refusal> {
+    fn ready(&self, now_ns: i64, board: &BoardRef<'_>) -> Result<(), Refusal> {
         let b = board.as_ref().ok_or(Refusal::NoBoard)?;
         b.home_counts().ok_or(Refusal::NotHomed)?;
         let silent = b.last_record_ns().is_none_or(|t| (now_ns - t) as f64 * 1e-6 > self.cfg.watchdog_ms);
@@ -288,7 +291,7 @@ impl GazeController {
         (to, st)
     }
 
-    fn take(&mut self, g: Goal, now_ns: i64, theta: &[[f64; 3]; 2], mut board: Option<&mut dyn BoardLink>) {
+    fn take(&mut self, g: Goal, now_ns: i64, theta: &[[f64; 3]; 2], mut board: BoardRef<'_>) {
         self.counts.goals += 1;
         self.goal_id = g.id;
         self.pursuing = None;
@@ -338,12 +341,7 @@ impl GazeController {
         self.next_saccade = (self.next_saccade + 1) % SACCADE_HISTORY;
     }
 
-    fn send(
-        &mut self,
-        board: &mut Option<&mut dyn BoardLink>,
-        plan: &YokedSaccade,
-        duration_us: u32,
-    ) -> Result<(), Refusal> {
+    fn send(&mut self, board: &mut BoardRef<'_>, plan: &YokedSaccade, duration_us: u32) -> Result<(), Refusal> {
         let b = board.as_mut().ok_or(Refusal::NoBoard)?;
         b.send_move(plan.target_counts, duration_us).map_err(|e| {
             log::warn!("gaze: {e}");
@@ -354,7 +352,7 @@ impl GazeController {
     }
 
     /// A pursuit's frame: the point one frame ahead, reached over that frame.
-    fn pursue_step(&mut self, now_ns: i64, theta: &[[f64; 3]; 2], mut board: Option<&mut dyn BoardLink>) {
+    fn pursue_step(&mut self, now_ns: i64, theta: &[[f64; 3]; 2], mut board: BoardRef<'_>) {
         let Some(p) = self.pursuing else { return };
         if let Err(r) = self.ready(now_ns, &board) {
             return self.refuse(r);

@@ -96,7 +96,7 @@ impl GazeStateWire {
             measured_m: s.measured_m,
             vergence_m: s.vergence_m,
             planned_ms: s.planned_ms,
-            flags: if s.gated_saccade { FLAG_GATED_SACCADE } else { 0 } | if gated { FLAG_GATED } else { 0 },
+            flags: (if s.gated_saccade { FLAG_GATED_SACCADE } else { 0 }) | (if gated { FLAG_GATED } else { 0 }),
             reserved: 0,
         }
     }
