@@ -165,6 +165,8 @@ fn the_measured_fixation_finds_the_commanded_point() {
         // the poses the runtime's FK gives at those link angles (the same calibrated models)
         let rel = [0, 1].map(|e| {
             let mut fk = EyeFk::load(&calib().join(format!("eye{e}"))).unwrap();
+            // the controller's history: a reading at home, then the move (backlash depends on the approach)
+            fk.pose(&[0.0; 3], [0.0, 1.0, 0.0]).unwrap();
             fk.pose(&counts[e].map(|x| counts_to_deg(x, 0)), [0.0, 1.0, 0.0]).unwrap()
         });
         let pose =
