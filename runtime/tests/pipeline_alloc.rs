@@ -1,4 +1,4 @@
-//! Steady state of the pipeline (the runtime's graph, with the gaze stage and no goals) does not allocate: a counting global allocator over a replay of the fixture
+//! Steady state of the pipeline does not allocate: a counting global allocator over a replay of the fixture
 //! session, allocations counted between consecutive published frames after a warm-up, on every thread of the
 //! process but one: the replay's decode-ahead thread, counted apart.
 //!
@@ -12,10 +12,7 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 
 use abvs_camera::StereoCalibration;
-use abvs_runtime::gaze::controller::GazeController;
-use abvs_runtime::gaze::stage::GazeStage;
-use abvs_runtime::gaze::{GazeConfig, Mailbox};
-use abvs_runtime::pipeline::{run_with_gaze, PipelineConfig, Published, Sink};
+use abvs_runtime::pipeline::{run_replay, PipelineConfig, Published, Sink};
 use abvs_runtime::session::Session;
 use abvs_runtime::sources::replay::{on_decode_thread, ReplaySource};
 use abvs_runtime::tasks::disparity;
@@ -89,12 +86,8 @@ fn per_frame_allocations(engine: &str) -> Vec<(u64, u64)> {
     let eng = disparity::engine(engine, Some(&model), (cfg.out.width, cfg.out.height), 48.0, 2).unwrap();
     let marks = Arc::new(Mutex::new(Vec::with_capacity(FRAMES as usize + 10)));
     let source = ReplaySource::open(session).unwrap();
-    // the runtime's graph: the gaze stage after kinematics, without goals (the replay path of `abvs run`)
-    let models = [kin.left.ik_model().unwrap(), kin.right.ik_model().unwrap()];
-    let ctl = GazeController::new(GazeConfig::default(), models, &kin.home_left_to_right, kin.gravity);
-    let gaze = GazeStage::new(ctl, Arc::new(Mailbox::default()), kin.home_left_to_right);
-    let sinks: Vec<Box<dyn Sink>> = vec![Box::new(Probe(marks.clone()))];
-    let stats = run_with_gaze(source, kin, (stereo.left, stereo.right), eng, sinks, cfg, Some(gaze)).unwrap();
+    let stats =
+        run_replay(source, kin, (stereo.left, stereo.right), eng, vec![Box::new(Probe(marks.clone()))], cfg).unwrap();
     assert_eq!(stats.frames_published, FRAMES);
     assert!(stats.windows.len() >= 10, "{} statistics windows", stats.windows.len());
     assert!(stats.windows.iter().all(|w| w.rss_bytes > 0));
