@@ -8,15 +8,14 @@
 
 pub mod error;
 pub mod explain;
-pub mod gaze;
 pub mod identify;
-pub mod ik;
 pub mod methods;
 pub mod metrics;
 pub mod mlp;
 pub mod mpe;
 pub mod repeatability;
 
-/// The model directory format and the FkModel evaluator live in abvs-fk (what the robot links).
-pub use abvs_fk::{model, onnx_io};
+/// The model directory format, the FkModel evaluator, calibrated IK and gaze live in abvs-fk (what the
+/// robot links: the runtime points the eyes with them).
+pub use abvs_fk::{gaze, ik, model, onnx_io};
 pub use error::{CalibError, Result};

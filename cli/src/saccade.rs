@@ -1,13 +1,13 @@
 //! `abvs sim board --serve` (a simulated drive board executing move commands) and
 //! `abvs gaze saccade` (home from the board's stream, solve the calibrated IK of each target,
 //! send minimum-jerk moves as command frames, watch the encoders arrive).
-use abvs_calib::gaze::{Binocular, Torsion};
+use abvs_calib::gaze::{Binocular, Torsion, YokedSaccade};
 use abvs_calib::ik::CalibratedIk;
 use abvs_calib::model::{FkModel, FkState};
 use abvs_camera::StereoCalibration;
-use abvs_eye::encoder::{counts_to_deg, deg_to_counts};
+use abvs_eye::encoder::counts_to_deg;
 use abvs_eye::pose::Pose;
-use abvs_eye::saccade::{MinJerk, PEAK_SPEED_DEG_S};
+use abvs_eye::saccade::PEAK_SPEED_DEG_S;
 use abvs_runtime::session::EncoderRecord;
 use abvs_runtime::sinks::stats::monotonic_ns;
 use abvs_runtime::sources::encoder_link::{
@@ -306,11 +306,9 @@ pub fn saccade(a: SaccadeArgs) -> anyhow::Result<ExitCode> {
             }
         };
         let from: [[f64; 3]; 2] = [0, 1].map(|e| latest[e].expect("a sample").deg());
-        let target_counts: [[i64; 3]; 2] = sol.map(|th| th.map(|d| deg_to_counts(d, 0)));
-        let to: [[f64; 3]; 2] = target_counts.map(|c| c.map(|x| counts_to_deg(x, 0)));
         // Both eyes move together (yoked): the slower eye's duration for both.
-        let dur = (0..2).map(|e| MinJerk::with_peak_speed(from[e], to[e], a.peak_deg_s).duration_s).fold(0.0, f64::max);
-        let duration_us = (dur * 1e6).ceil() as u32;
+        let plan = YokedSaccade::plan(from, sol, a.peak_deg_s);
+        let (to, target_counts, duration_us) = (plan.to_deg, plan.target_counts, plan.duration_us);
         for e in 0..2 {
             let raw: [i32; 3] = std::array::from_fn(|i| (home[e][i] + target_counts[e][i]) as i32);
             let c = CommandFrame { seq, eye: e as u8, kind: COMMAND_MOVE, target_counts: raw, duration_us };
@@ -354,7 +352,7 @@ pub fn saccade(a: SaccadeArgs) -> anyhow::Result<ExitCode> {
             (None, Some(_)) => 0.0,
             _ => f64::NAN,
         });
-        let travel_deg = (0..2).flat_map(|e| (0..3).map(move |i| (to[e][i] - from[e][i]).abs())).fold(0.0, f64::max);
+        let travel_deg = plan.travel_deg();
         let rep = Report {
             target,
             from_deg: from,

@@ -8,7 +8,9 @@
 //!   (AVX2/FMA kernels at batch 1, GEMM for batches; [`batch`] is the batched pass training
 //!   shares);
 //! - [`method`]: the calibration methods by name (manifest, command line);
-//! - [`onnx_io`]: networks as ONNX files and plain-MLP ONNX graphs as networks.
+//! - [`onnx_io`]: networks as ONNX files and plain-MLP ONNX graphs as networks;
+//! - [`ik`] and [`gaze`]: calibrated inverse kinematics, binocular fixation (Listing's law), the
+//!   yoked minimum-jerk saccade plan and smooth pursuit: what pointing the eyes needs on the robot.
 //!
 //! abvs-calib trains and fits what this crate evaluates; the runtime links only this.
 // Leg/axis-indexed loops read closer to the equations than iterators.
@@ -16,7 +18,9 @@
 
 pub mod batch;
 pub mod error;
+pub mod gaze;
 pub mod hash;
+pub mod ik;
 pub mod method;
 pub mod model;
 pub mod net;

@@ -334,6 +334,17 @@ impl FkModel {
         Ok(FkModel { manifest, dir: dir.into(), kind, nominal: SpmGeometry::nominal() })
     }
 
+    /// A physics-only (mh) model of a unit model held in memory: the nominal mechanism, or a unit-model
+    /// file the runtime's FK reads, so that the IK and gaze of [`crate::ik`] run on any FK the runtime does.
+    pub fn from_unit(unit: &UnitModel) -> Result<Self> {
+        Ok(FkModel {
+            manifest: Manifest::new(Method::Mh),
+            dir: PathBuf::new(),
+            kind: Kind::Physics { fk: unit.compile()?, residual: None },
+            nominal: SpmGeometry::nominal(),
+        })
+    }
+
     pub fn method(&self) -> Method {
         self.manifest.method
     }

@@ -11,6 +11,8 @@ mcap-ros2-support, iceoryx2, numpy.
   mcap FILE PREFIX             receive the iceoryx2 headers until stdin closes, then decode FILE
   rmw ENDPOINT                 listen on ENDPOINT as an rmw_zenoh (Jazzy) subscriber would: the five typed
                                keys with the hashes rosbags computes, the liveliness tokens, the attachments
+  gaze PREFIX X Y Z            wait for the runtime's gaze states, send look_at(X, Y Z), print the first
+                               state that reports the goal (and the one before)
 """
 import json
 import os
@@ -424,11 +426,37 @@ def cmd_rmw(endpoint):
     print(json.dumps(out))
 
 
+def cmd_gaze(prefix, x, y, z):
+    with abvs.Gaze(prefix) as gaze:
+        before = gaze.state(timeout_s=60.0)
+        if before is None:
+            print(json.dumps({"error": "no gaze state in 60 s"}))
+            return
+        goal = gaze.look_at(float(x), float(y), float(z))
+        deadline = time.monotonic() + 30.0
+        s = None
+        while time.monotonic() < deadline:
+            s = gaze.state(timeout_s=1.0)
+            if s is not None and s.goal_id == goal:
+                break
+        got = s if s is not None and s.goal_id == goal else None
+
+        def d(st):
+            return None if st is None else {
+                "seq": st.seq, "goal_id": st.goal_id, "phase": st.phase, "reason": st.reason,
+                "commanded_fixation": [None if v != v else v for v in st.commanded_fixation],
+                "measured_fixation": [None if v != v else v for v in st.measured_fixation],
+                "vergence_m": None if st.vergence_m != st.vergence_m else st.vergence_m,
+            }
+        print(json.dumps({"goal": goal, "before": d(before), "state": d(got)}))
+
+
 def main(argv):
     if not argv:
         sys.exit(__doc__)
     cmd, args = argv[0], argv[1:]
-    {"layout": cmd_layout, "iox": cmd_iox, "zenoh": cmd_zenoh, "mcap": cmd_mcap, "rmw": cmd_rmw}[cmd](*args)
+    {"layout": cmd_layout, "iox": cmd_iox, "zenoh": cmd_zenoh, "mcap": cmd_mcap, "rmw": cmd_rmw,
+     "gaze": cmd_gaze}[cmd](*args)
 
 
 if __name__ == "__main__":

@@ -31,12 +31,15 @@
 //! processes); [`ros2`] builds the ROS 2 messages of a frame. The roles share [`messages`] (and its clock);
 //! every task is a [`stage::Stage`]; [`runner`] runs any graph of them on threads joined by bounded channels,
 //! and [`pipeline`] declares the standard one, which [`runtime`] assembles from a configuration. [`session`]
-//! is the on-disk format of recorded sessions, which [`record`] writes from live sources.
+//! is the on-disk format of recorded sessions, which [`record`] writes from live sources. [`gaze`] points the
+//! eyes: goals from the robot's processes ([`gaze::GazeHandle`], [`RuntimeHandle::gaze`]) become moves of the
+//! drive board, on the port the live source reads.
 #![warn(missing_docs)]
 pub mod bridges;
 pub mod config;
 pub mod cpu;
 pub mod error;
+pub mod gaze;
 pub mod messages;
 pub mod outputs;
 pub mod pipeline;

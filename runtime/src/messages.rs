@@ -149,8 +149,11 @@ pub struct FrameMotion {
     pub readout_anchor: f64,
     /// Motion blur of the faster eye over the exposure, in rectified output pixels at the image centre.
     pub blur_px: f64,
-    /// Blur above the run's threshold: depth is published invalid (NaN) with an empty cloud.
+    /// Blur above the run's threshold, or the exposure overlaps a commanded saccade (`gaze.gated_saccade`):
+    /// depth is published invalid (NaN) with an empty cloud.
     pub gated: bool,
+    /// The gaze at this frame (the gaze stage's; idle without one).
+    pub gaze: crate::gaze::GazeState,
 }
 
 impl Default for FrameMotion {
@@ -179,14 +182,15 @@ impl FrameMotion {
             readout_anchor: 0.0,
             blur_px: 0.0,
             gated: false,
+            gaze: crate::gaze::GazeState::default(),
         }
     }
 
     /// Copies `other` into this frame's buffers (no allocation once they have grown to its size).
     pub fn copy_from(&mut self, other: &FrameMotion) {
         (self.t_start_ns, self.exposure_ns, self.readout_ns) = (other.t_start_ns, other.exposure_ns, other.readout_ns);
-        (self.theta_pm, self.speed_deg_s, self.blur_px, self.gated) =
-            (other.theta_pm, other.speed_deg_s, other.blur_px, other.gated);
+        (self.theta_pm, self.speed_deg_s, self.blur_px, self.gated, self.gaze) =
+            (other.theta_pm, other.speed_deg_s, other.blur_px, other.gated, other.gaze);
         (self.omega_rad_s, self.readout_anchor) = (other.omega_rad_s, other.readout_anchor);
         (self.theta_wide, self.omega_wide_rad_s, self.vel_m_s) =
             (other.theta_wide, other.omega_wide_rad_s, other.vel_m_s);
@@ -391,6 +395,7 @@ impl Work {
         m.speed_deg_s = [0.0; 2];
         m.blur_px = 0.0;
         m.gated = false;
+        m.gaze = crate::gaze::GazeState::default();
         self.raw_left.copy_from_slice(f.left);
         self.raw_right.copy_from_slice(f.right);
         self.pose = None;

@@ -15,6 +15,7 @@ use std::time::Duration;
 use abvs_camera::Camera;
 
 use crate::error::Result;
+use crate::gaze::stage::GazeStage;
 pub use crate::messages::{Published, Work};
 pub use crate::runner::{Counts, Graph, Lane, Progress, RunConfig};
 pub use crate::sinks::Sink;
@@ -35,6 +36,9 @@ use crate::tasks::rectify::{RectifiedCamera, RectifyStage};
 /// rectification share a lane: each is well under a millisecond, and a queue between them would add a
 /// hand-off per frame for no parallelism worth having.
 pub const STANDARD_GRAPH: &str = "rectify = align, kinematics, rectify; disparity = disparity; output = depth";
+
+/// The standard graph with the gaze stage after kinematics ([`crate::gaze`]): the runtime's graph.
+pub const GAZE_GRAPH: &str = "rectify = align, kinematics, gaze, rectify; disparity = disparity; output = depth";
 
 /// The latency histograms of the standard graph: the source, then its lanes.
 pub const STAGES: [&str; 4] = ["source", "rectify", "disparity", "output"];
@@ -123,15 +127,33 @@ pub fn graph<S: PairSource>(
     sinks: Vec<Box<dyn Sink>>,
     cfg: &PipelineConfig,
 ) -> Result<Graph<S>> {
+    graph_with_gaze(source, kin, cams, engine, sinks, cfg, None)
+}
+
+/// [`graph`], with the gaze stage after kinematics when given one ([`GAZE_GRAPH`]).
+pub fn graph_with_gaze<S: PairSource>(
+    source: S,
+    kin: StereoKinematics,
+    cams: (Camera, Camera),
+    engine: Box<dyn DisparityEngine>,
+    sinks: Vec<Box<dyn Sink>>,
+    cfg: &PipelineConfig,
+    gaze: Option<GazeStage>,
+) -> Result<Graph<S>> {
     let kinematics = KinematicsStage::new(kin).with_motion(cfg.motion);
-    let stages: Vec<Box<dyn Stage>> = vec![
-        Box::new(AlignStage::new(kinematics.encoder_latency_s()).with_motion(cfg.motion)),
-        Box::new(kinematics),
-        Box::new(RectifyStage::new(cams, cfg.grid_step)),
-        Box::new(DisparityStage::with_check(engine, cfg.check)?.with_min_confidence(cfg.min_confidence)?),
-        Box::new(DepthStage::new(cfg.depth)),
-    ];
-    Graph::from_description(source, cfg.out, STANDARD_GRAPH, stages, sinks)
+    let mut stages: Vec<Box<dyn Stage>> =
+        vec![Box::new(AlignStage::new(kinematics.encoder_latency_s()).with_motion(cfg.motion)), Box::new(kinematics)];
+    let description = match gaze {
+        Some(g) => {
+            stages.push(Box::new(g));
+            GAZE_GRAPH
+        }
+        None => STANDARD_GRAPH,
+    };
+    stages.push(Box::new(RectifyStage::new(cams, cfg.grid_step)));
+    stages.push(Box::new(DisparityStage::with_check(engine, cfg.check)?.with_min_confidence(cfg.min_confidence)?));
+    stages.push(Box::new(DepthStage::new(cfg.depth)));
+    Graph::from_description(source, cfg.out, description, stages, sinks)
 }
 
 /// Runs a replay through the whole pipeline and returns its statistics.
@@ -157,4 +179,17 @@ pub fn run<S: PairSource>(
     cfg: PipelineConfig,
 ) -> Result<RunStats> {
     crate::runner::run(graph(source, kin, cams, engine, sinks, &cfg)?, &cfg.run_config())
+}
+
+/// [`run`] with the gaze stage ([`GAZE_GRAPH`]).
+pub fn run_with_gaze<S: PairSource>(
+    source: S,
+    kin: StereoKinematics,
+    cams: (Camera, Camera),
+    engine: Box<dyn DisparityEngine>,
+    sinks: Vec<Box<dyn Sink>>,
+    cfg: PipelineConfig,
+    gaze: Option<GazeStage>,
+) -> Result<RunStats> {
+    crate::runner::run(graph_with_gaze(source, kin, cams, engine, sinks, &cfg, gaze)?, &cfg.run_config())
 }

@@ -331,8 +331,10 @@ pub fn run<S: PairSource>(graph: Graph<S>, cfg: &RunConfig) -> Result<RunStats> 
     let progress = cfg.progress.clone().unwrap_or_default();
     let mut stats = RunStats::new(&names);
     let started = monotonic_ns();
+    // the board's command side first: a live source's start hands its encoder stream away
+    let mut board = source.board();
     let mut encoders = Some(source.start(started + 5_000_000));
-    let mut ctx = StageContext { raw: (rw, rh), out: cam, encoders: &mut encoders };
+    let mut ctx = StageContext { raw: (rw, rh), out: cam, encoders: &mut encoders, board: &mut board };
     for s in lanes.iter_mut().flat_map(|l| l.stages.iter_mut()) {
         s.start(&mut ctx)?;
     }

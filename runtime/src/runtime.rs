@@ -16,6 +16,9 @@ use abvs_camera::{Camera, StereoCalibration};
 use crate::bridges::publish::PublishSink;
 use crate::config::{EngineKind, FkSource, RuntimeConfig, SourceKind};
 use crate::error::{Result, RuntimeError};
+use crate::gaze::controller::GazeController;
+use crate::gaze::stage::GazeStage;
+use crate::gaze::{GazeConfig, GazeHandle, Mailbox};
 use crate::pipeline::PipelineConfig;
 use crate::runner::{Counts, Progress};
 use crate::session::Session;
@@ -52,6 +55,9 @@ pub struct Runtime {
     motion: crate::tasks::motion::MotionConfig,
     source_name: String,
     description: String,
+    /// The gaze goals' mailbox ([`Runtime::gaze`]) and both eyes' IK models.
+    gaze: Arc<Mailbox>,
+    gaze_models: [abvs_fk::model::FkModel; 2],
 }
 
 /// What a finished run reports.
@@ -96,6 +102,8 @@ impl Runtime {
             SourceKind::Live => None,
         };
         let (stereo, kin) = calibration(c, session.as_ref())?;
+        let gaze_models = [kin.left.ik_model()?, kin.right.ik_model()?];
+        let gaze = Arc::new(Mailbox::default());
         let out = RectifiedCamera::with_hfov(c.disparity.width, c.disparity.height, c.disparity.rect_hfov_deg);
         let engine = engine(c, &out, &stereo)?;
         // encoder_time_offset: the configuration's, else the session's measured one, else the FK models'
@@ -115,7 +123,7 @@ impl Runtime {
             (Ok(l), Ok(r)) => Some(TimingContext { cams: [l, r], time_offset_ms: offsets_s.map(|t| t * 1e3) }),
             _ => None,
         };
-        let sinks = sinks(c, &out, timing)?;
+        let sinks = sinks(c, &out, timing, &gaze)?;
         let (input, readout_ms, source_name, description) = match session {
             Some(session) => {
                 let (name, description) = (session.dir.display().to_string(), session.meta.description.clone());
@@ -146,7 +154,15 @@ impl Runtime {
             motion,
             source_name,
             description,
+            gaze,
+            gaze_models,
         })
+    }
+
+    /// Points the eyes of this runtime once it runs (goals are taken from its first frame; without a drive
+    /// board, a replay, they are refused with `no_board`).
+    pub fn gaze(&self) -> GazeHandle {
+        GazeHandle::new(self.gaze.clone())
     }
 
     /// Adds a sink of the caller's: it receives every published frame ([`crate::messages::Published`]: depth,
@@ -195,16 +211,32 @@ impl Runtime {
         let stop = Arc::new(AtomicBool::new(false));
         let progress = Arc::new(Progress::default());
         let (s, p) = (stop.clone(), progress.clone());
+        let gaze = self.gaze();
         let thread = std::thread::Builder::new()
             .name("abvs-runtime".into())
             .spawn(move || self.run_with(Some(s), Some(p)))
             .map_err(|e| RuntimeError::Invalid(format!("starting the runtime's thread: {e}")))?;
-        Ok(RuntimeHandle { stop, progress, thread: Some(thread) })
+        Ok(RuntimeHandle { stop, progress, gaze, thread: Some(thread) })
     }
 
     fn run_with(self, stop: Option<Arc<AtomicBool>>, progress: Option<Arc<Progress>>) -> Result<Report> {
-        let Runtime { config: c, input, kin, cams, engine, out, sinks, readout_ms, motion, source_name, description } =
-            self;
+        let Runtime {
+            config: c,
+            input,
+            kin,
+            cams,
+            engine,
+            out,
+            sinks,
+            readout_ms,
+            motion,
+            source_name,
+            description,
+            gaze,
+            gaze_models,
+        } = self;
+        let ctl = GazeController::new(GazeConfig::default(), gaze_models, &kin.home_left_to_right, kin.gravity);
+        let gaze = Some(GazeStage::new(ctl, gaze, kin.home_left_to_right));
         let engine_name = engine.name().to_string();
         let replay = matches!(input, Input::Replay(_));
         // live frames come when the cameras deliver them: never paced
@@ -225,8 +257,8 @@ impl Runtime {
             ..Default::default()
         };
         let mut stats = match input {
-            Input::Replay(s) => crate::pipeline::run(s, kin, cams, engine, sinks, cfg)?,
-            Input::Live(s) => crate::pipeline::run(s, kin, cams, engine, sinks, cfg)?,
+            Input::Replay(s) => crate::pipeline::run_with_gaze(s, kin, cams, engine, sinks, cfg, gaze)?,
+            Input::Live(s) => crate::pipeline::run_with_gaze(s, kin, cams, engine, sinks, cfg, gaze)?,
         };
         // an unpaced replay takes frames ahead of their times: no latency to report
         stats.latency_measured = !replay || paced;
@@ -265,6 +297,7 @@ impl Runtime {
 pub struct RuntimeHandle {
     stop: Arc<AtomicBool>,
     progress: Arc<Progress>,
+    gaze: GazeHandle,
     thread: Option<JoinHandle<Result<Report>>>,
 }
 
@@ -272,6 +305,11 @@ impl RuntimeHandle {
     /// Asks the run to stop: it takes no more frames and finishes those in flight.
     pub fn stop(&self) {
         self.stop.store(true, Ordering::Relaxed);
+    }
+
+    /// Points the running eyes: look at a point, pursue one, hold, go home ([`GazeHandle`]).
+    pub fn gaze(&self) -> GazeHandle {
+        self.gaze.clone()
     }
 
     /// Frames taken, published and dropped so far.
@@ -347,10 +385,20 @@ fn engine(c: &RuntimeConfig, out: &RectifiedCamera, stereo: &StereoCalibration) 
 }
 
 /// The sinks and bridges the configuration names, in the order they run on the output lane.
-fn sinks(c: &RuntimeConfig, out: &RectifiedCamera, timing: Option<TimingContext>) -> Result<Vec<Box<dyn Sink>>> {
+fn sinks(
+    c: &RuntimeConfig,
+    out: &RectifiedCamera,
+    timing: Option<TimingContext>,
+    gaze: &Arc<Mailbox>,
+) -> Result<Vec<Box<dyn Sink>>> {
     let mut sinks: Vec<Box<dyn Sink>> = Vec::new();
     if c.bridges.iceoryx.enabled {
         let cfg = c.bridge_config();
+        // gaze goals in, the state of every frame out (`{prefix}/gaze/goal`, `{prefix}/gaze/state`)
+        sinks.push(Box::new(
+            crate::bridges::iceoryx::gaze::GazeBridge::new(&cfg, gaze.clone())
+                .map_err(|e| RuntimeError::Invalid(e.to_string()))?,
+        ));
         sinks.push(Box::new(if c.disparity.confidence || c.disparity.engine.scores_pixels() {
             PublishSink::with_confidence(cfg)?
         } else {

@@ -16,6 +16,8 @@ pub struct StageContext<'a> {
     pub out: RectifiedCamera,
     /// The source's encoder stream, taken by the stage that aligns frames to it.
     pub encoders: &'a mut Option<Box<dyn EncoderFeed>>,
+    /// The drive board's command side (live sources), taken by the gaze stage.
+    pub board: &'a mut Option<Box<dyn crate::sources::board::BoardLink>>,
 }
 
 /// One processing step of the graph (see the module docs for when the runner calls what).

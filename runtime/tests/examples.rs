@@ -86,6 +86,20 @@ fn subscribe_receives_every_published_frame_on_every_topic_from_another_process(
     assert_eq!(num(&fields(&out, "subscriber seq_gaps"), "malformed"), 0, "{out}");
 }
 
+/// `gaze` points the eyes through the running runtime's handle: on the fixture (a replay, no drive board) its
+/// goal is answered by a frame's state, refused by name, and the run goes on.
+#[test]
+fn gaze_goals_are_answered_and_a_replay_refuses_them_by_name() {
+    let out = run("gaze", &[]);
+    assert!(out.lines().any(|l| l.starts_with("goal 1: phase refused reason no_board")), "{out}");
+    let published: u64 = out
+        .lines()
+        .find_map(|l| l.strip_prefix("frames_published "))
+        .and_then(|n| n.trim().parse().ok())
+        .unwrap_or_else(|| panic!("no frames_published line in:\n{out}"));
+    assert!((1..=12).contains(&published), "{out}");
+}
+
 /// Every Rust block of the README and the guides under docs/ is lines of one of the runtime's examples (which
 /// the tests above build and run), so no page can show code that no longer builds. The runtime guide's "Use it
 /// from your own process" shows `custom_sink`.

@@ -21,7 +21,11 @@ pub fn open_devices(l: &LiveConfig) -> Result<(StereoCapture, EncoderStream)> {
     let port = open_port(&l.encoders, l.baud).map_err(RuntimeError::Device)?;
     let capture =
         StereoCapture::open(&l.left, &l.right, cfg, pairing).map_err(|e| RuntimeError::Device(e.to_string()))?;
-    Ok((capture, EncoderStream::spawn(port, l.encoders.clone(), ENCODER_QUEUE)))
+    // the same port carries the gaze controller's commands to the board
+    let writer =
+        port.try_clone().map_err(|e| RuntimeError::Device(format!("{}: cannot clone the port: {e}", l.encoders)))?;
+    let stream = EncoderStream::spawn(port, l.encoders.clone(), ENCODER_QUEUE);
+    Ok((capture, stream.with_commands(Box::new(writer), l.encoders.clone())))
 }
 
 /// What the cameras are asked for: size, pixel format, rate, exposure, the rolling-shutter readout (frames

@@ -32,6 +32,12 @@
 //! replaced), and follows the minimum-jerk profile of `abvs_eye::saccade` in link space to the
 //! target counts over the duration; the encoder frames report the motion as it happens. The host
 //! converts homed targets to raw counts with the home counts its homing found.
+//!
+//! Both directions share one port: the live runtime reads the encoder frames and writes the gaze
+//! controller's command frames on it (`sources::board::SerialBoard`, a clone of the port the encoder
+//! stream reads; one move command per eye per goal, and per frame while pursuing). The protocol is
+//! unchanged by that (encoder frames v1, command frames v1); a change of either frame's layout or
+//! meaning takes a new version byte.
 use crc::{Crc, CRC_16_IBM_3740};
 use std::collections::VecDeque;
 

@@ -11,7 +11,7 @@
 //! emitted only once their eye is homed; the ones before are counted. A board reset restarts
 //! homing of both eyes and the clock mapping (the counts' origin and the board clock are new).
 use std::io::{ErrorKind, Read};
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicI64, Ordering};
 use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
 
@@ -160,8 +160,34 @@ impl EncoderTracker {
 pub struct EncoderStream {
     rx: Receiver<EncoderRecord>,
     shared: Arc<Mutex<(EncoderStats, [bool; 2])>>,
+    last_ns: Arc<AtomicI64>,
     stop: Arc<AtomicBool>,
     thread: Option<JoinHandle<Result<(), String>>>,
+    /// The same port for writing (the drive board's commands), when it was given one.
+    commands: Option<(Box<dyn std::io::Write + Send>, String)>,
+}
+
+/// Homing and liveness of an [`EncoderStream`], for another thread (the gaze controller's).
+#[derive(Clone)]
+pub struct EncoderWatch {
+    shared: Arc<Mutex<(EncoderStats, [bool; 2])>>,
+    last_ns: Arc<AtomicI64>,
+}
+
+impl EncoderWatch {
+    /// Both eyes' home counts once both are homed.
+    pub fn home_counts(&self) -> Option<[[i64; 3]; 2]> {
+        let s = self.shared.lock().expect("encoder stats lock");
+        match (s.1, s.0.home_counts) {
+            ([true, true], [Some(l), Some(r)]) => Some([l, r]),
+            _ => None,
+        }
+    }
+
+    /// CLOCK_MONOTONIC ns at which the newest homed record arrived.
+    pub fn last_record_ns(&self) -> Option<i64> {
+        Some(self.last_ns.load(Ordering::Relaxed)).filter(|&t| t != i64::MIN)
+    }
 }
 
 impl EncoderStream {
@@ -171,7 +197,8 @@ impl EncoderStream {
         let (tx, rx): (Sender<EncoderRecord>, _) = crossbeam_channel::bounded(capacity.max(1));
         let shared = Arc::new(Mutex::new((EncoderStats::default(), [false; 2])));
         let stop = Arc::new(AtomicBool::new(false));
-        let (sh, st) = (shared.clone(), stop.clone());
+        let last_ns = Arc::new(AtomicI64::new(i64::MIN));
+        let (sh, st, last) = (shared.clone(), stop.clone(), last_ns.clone());
         let thread = std::thread::Builder::new()
             .name("encoders".into())
             .spawn(move || {
@@ -198,6 +225,9 @@ impl EncoderStream {
                     };
                     let rx_ns = crate::messages::monotonic_ns();
                     tracker.feed(&buf[..n], rx_ns, &mut out);
+                    if !out.is_empty() {
+                        last.store(rx_ns, Ordering::Relaxed);
+                    }
                     for r in out.drain(..) {
                         if let Err(TrySendError::Full(_)) = tx.try_send(r) {
                             overflow += 1;
@@ -211,7 +241,24 @@ impl EncoderStream {
                 result
             })
             .expect("spawning the encoder thread");
-        EncoderStream { rx, shared, stop, thread: Some(thread) }
+        EncoderStream { rx, shared, last_ns, stop, thread: Some(thread), commands: None }
+    }
+
+    /// The same port for writing: the drive board's commands ([`crate::sources::board::SerialBoard`]).
+    pub fn with_commands(mut self, writer: Box<dyn std::io::Write + Send>, name: String) -> Self {
+        self.commands = Some((writer, name));
+        self
+    }
+
+    /// Homing and liveness, for another thread.
+    pub fn watch(&self) -> EncoderWatch {
+        EncoderWatch { shared: self.shared.clone(), last_ns: self.last_ns.clone() }
+    }
+
+    /// The command side of the port, once (`None` without one).
+    pub fn take_board(&mut self) -> Option<crate::sources::board::SerialBoard> {
+        let (w, name) = self.commands.take()?;
+        Some(crate::sources::board::SerialBoard::new(w, self.watch(), name))
     }
 
     /// Homed records, in arrival order.

@@ -1,5 +1,6 @@
 //! The live source of the pipeline: the two eye cameras ([`StereoCapture`]) and the drive board's
-//! encoder stream ([`EncoderStream`], homed, on CLOCK_MONOTONIC). Frames come when the cameras
+//! encoder stream ([`EncoderStream`], homed, on CLOCK_MONOTONIC), and the board's command side on the same
+//! port ([`PairSource::board`]: the gaze controller's moves). Frames come when the cameras
 //! deliver them (no pacing); the time-alignment stage waits briefly for encoder samples still on
 //! the wire.
 use std::time::{Duration, Instant};
@@ -68,6 +69,11 @@ impl LiveSource {
 impl PairSource for LiveSource {
     fn size(&self) -> (u32, u32) {
         (self.width, self.height)
+    }
+
+    fn board(&mut self) -> Option<Box<dyn crate::sources::board::BoardLink>> {
+        let board = self.encoders.as_mut()?.take_board()?;
+        Some(Box::new(board))
     }
 
     fn start(&mut self, _now_ns: i64) -> Box<dyn EncoderFeed> {

@@ -1,4 +1,5 @@
 //! Sources: where data enters the runtime (cameras, the encoder board, recorded sessions).
+pub mod board;
 pub mod devices;
 pub mod encoder_link;
 pub mod encoder_stream;
@@ -24,6 +25,10 @@ pub trait PairSource: Send {
     fn next_frame(&mut self, limit: Option<u64>) -> Option<SourcePair<'_>>;
     /// Adds what the source counted (unreadable files, capture drops) to the run's statistics.
     fn finish(&mut self, _stats: &mut RunStats) {}
+    /// Hands out the command side of the drive board (once, at the start; `None`: no board, a replay).
+    fn board(&mut self) -> Option<Box<dyn board::BoardLink>> {
+        None
+    }
 }
 
 /// The encoder samples of a [`PairSource`], on its clock.

@@ -63,6 +63,16 @@ impl EyeFk {
         Ok(EyeFk::Unit { fk: Box::new(fk), state })
     }
 
+    /// The FK as an [`FkModel`] for the calibrated IK of the gaze controller (the same model files; a unit
+    /// model as a physics-only model).
+    pub fn ik_model(&self) -> Result<FkModel> {
+        match self {
+            EyeFk::Calibrated { model, .. } => FkModel::load(&model.dir)
+                .map_err(|e| RuntimeError::Model { path: model.dir.clone(), msg: e.to_string() }),
+            EyeFk::Unit { fk, .. } => FkModel::from_unit(&fk.model).map_err(|e| RuntimeError::Invalid(e.to_string())),
+        }
+    }
+
     /// The unit model behind a physics-based FK (its encoder latency is applied by time alignment).
     pub fn unit(&self) -> Option<&UnitModel> {
         match self {

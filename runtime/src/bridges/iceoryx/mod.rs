@@ -74,7 +74,8 @@
 //! private prefix.
 //!
 //! By concern: this module (the wire types, [`BridgeConfig`], [`BridgeError`]), `services` (nodes,
-//! services and their checks, /dev/shm space, dead nodes), `publisher`, `subscriber`.
+//! services and their checks, /dev/shm space, dead nodes), `publisher`, `subscriber`; [`gaze`]: the gaze
+//! goals in and the gaze states out (`{prefix}/gaze/goal`, `{prefix}/gaze/state`).
 use core::fmt::Debug;
 use std::mem::MaybeUninit;
 use std::time::{Duration, Instant};
@@ -384,6 +385,7 @@ pub enum BridgeError {
     },
 }
 
+pub mod gaze;
 mod publisher;
 mod services;
 mod subscriber;

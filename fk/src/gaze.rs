@@ -25,10 +25,19 @@
 //! Each eye therefore iterates: aim from the model's predicted optical centre, solve the
 //! calibrated IK, take the new predicted centre, until it moves less than 1e-6 mm (a fixed
 //! point; the correction contracts by about offset / distance per round).
-use crate::error::{CalibError, Result};
+//!
+//! # Moves
+//! [`YokedSaccade`]: both eyes' minimum-jerk link moves ([`abvs_eye::saccade::MinJerk`]) to a
+//! fixation, at a peak link speed, yoked (the slower eye's duration for both, so both arrive
+//! together), with the targets rounded to encoder counts as the drive board takes them.
+//! [`Pursuit`]: a point moving at a constant velocity; smooth pursuit re-solves the fixation for the
+//! point at each frame's time ([`Binocular::pursue_at`]), each solve reached from the last.
+use crate::error::{FkError as CalibError, Result};
 use crate::ik::{CalibratedIk, IkSolution};
 use crate::model::FkState;
+use abvs_eye::encoder::{counts_to_deg, deg_to_counts};
 use abvs_eye::pose::{exp_so3, Fick, Pose};
+use abvs_eye::saccade::MinJerk;
 use nalgebra::Vector3;
 
 /// How torsion about the line of sight is chosen; see the module doc.
@@ -224,6 +233,77 @@ impl<'m> Binocular<'m> {
     }
 }
 
+/// Both eyes' minimum-jerk moves to new link angles, yoked; see the module doc.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct YokedSaccade {
+    /// Link angles at the start, per eye (deg, homed).
+    pub from_deg: [[f64; 3]; 2],
+    /// Link angles at the end, per eye (deg, homed): the targets rounded to whole counts.
+    pub to_deg: [[f64; 3]; 2],
+    /// The targets as homed encoder counts, per eye.
+    pub target_counts: [[i64; 3]; 2],
+    /// The move's duration (us, whole): the slower eye's at the peak speed.
+    pub duration_us: u32,
+}
+
+impl YokedSaccade {
+    /// Moves from `from_deg` to `to_deg` (per eye, deg, homed) whose fastest link peaks at
+    /// `peak_deg_s`.
+    pub fn plan(from_deg: [[f64; 3]; 2], to_deg: [[f64; 3]; 2], peak_deg_s: f64) -> YokedSaccade {
+        let target_counts = to_deg.map(|th| th.map(|d| deg_to_counts(d, 0)));
+        let to_deg = target_counts.map(|c| c.map(|x| counts_to_deg(x, 0)));
+        let dur =
+            (0..2).map(|e| MinJerk::with_peak_speed(from_deg[e], to_deg[e], peak_deg_s).duration_s).fold(0.0, f64::max);
+        let duration_us = (dur * 1e6).ceil().min(u32::MAX as f64) as u32;
+        YokedSaccade { from_deg, to_deg, target_counts, duration_us }
+    }
+
+    /// Each eye's move over the yoked duration.
+    pub fn moves(&self) -> [MinJerk; 2] {
+        [0, 1].map(|e| MinJerk { from: self.from_deg[e], to: self.to_deg[e], duration_s: self.duration_s() })
+    }
+
+    /// The duration (s).
+    pub fn duration_s(&self) -> f64 {
+        self.duration_us as f64 * 1e-6
+    }
+
+    /// The largest link travel over both eyes (deg).
+    pub fn travel_deg(&self) -> f64 {
+        (0..2).flat_map(|e| (0..3).map(move |i| (self.to_deg[e][i] - self.from_deg[e][i]).abs())).fold(0.0, f64::max)
+    }
+}
+
+/// A point moving at a constant velocity (smooth pursuit); see the module doc.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Pursuit {
+    /// Where the point is at time 0 (mm, left home camera frame).
+    pub point_mm: [f64; 3],
+    /// Its velocity (mm/s, left home camera frame).
+    pub velocity_mm_s: [f64; 3],
+}
+
+impl Pursuit {
+    /// The point at `t_s` seconds.
+    pub fn point_at(&self, t_s: f64) -> [f64; 3] {
+        std::array::from_fn(|i| self.point_mm[i] + self.velocity_mm_s[i] * t_s)
+    }
+}
+
+impl Binocular<'_> {
+    /// Smooth pursuit: both eyes fixate the pursued point at `t_s`, reached from the states `st`
+    /// (the previous frame's solve; moved on success only).
+    pub fn pursue_at(
+        &self,
+        st: [&mut FkState; 2],
+        pursuit: &Pursuit,
+        t_s: f64,
+        gravity: [[f64; 3]; 2],
+    ) -> Result<Fixation> {
+        self.fixate_and_move(st, pursuit.point_at(t_s), gravity)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -247,5 +327,21 @@ mod tests {
         let f = Torsion::Listing.orientation_deg(&Fick::from_deg([20.0, 0.0, 20.0]).to_matrix().column(2).into());
         let want = (20f64.to_radians() * 20f64.to_radians() / 2.0).to_degrees();
         assert!((f[1] - want).abs() < 0.5, "{f:?} vs {want}");
+    }
+
+    #[test]
+    fn yoked_saccade_takes_the_slower_eye_and_whole_counts() {
+        let s = YokedSaccade::plan([[0.0; 3]; 2], [[10.0, -4.0, 2.0], [20.0, 1.0, 0.0]], 1561.0);
+        // the right eye travels 20 deg: T = 15/8 * 20 / 1561 s for both
+        let want = 1.875 * s.to_deg[1][0] / 1561.0;
+        assert!((s.duration_s() - want).abs() < 1.5e-6, "{} vs {want}", s.duration_s());
+        for e in 0..2 {
+            assert_eq!(s.to_deg[e], s.target_counts[e].map(|c| counts_to_deg(c, 0)));
+            assert_eq!(s.moves()[e].at(s.duration_s()), s.to_deg[e]);
+            assert!(s.moves()[e].peak_speed() <= 1561.0 + 1e-6);
+        }
+        assert!((s.travel_deg() - s.to_deg[1][0]).abs() < 1e-12);
+        let p = Pursuit { point_mm: [0.0, 0.0, 1000.0], velocity_mm_s: [100.0, 0.0, -50.0] };
+        assert_eq!(p.point_at(0.5), [50.0, 0.0, 975.0]);
     }
 }

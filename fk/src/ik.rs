@@ -33,7 +33,7 @@
 //!   [`IkConfig::min_conditioning`], or (network models) the nominal mechanism's singularity
 //!   measure at the solution is below its limit (physics-based models check their own geometry);
 //! - the solution left the working mode's neighbourhood (see above).
-use crate::error::{CalibError, Result};
+use crate::error::{FkError as CalibError, Result};
 use crate::model::{FkModel, FkState, Frozen};
 use abvs_eye::encoder::deg_to_counts;
 use abvs_eye::pose::rotation_vector;

@@ -1,0 +1,101 @@
+//! The gaze stage: the controller once per frame, after kinematics (which solved the frame's poses). It
+//! takes the newest goal, measures where the eyes look, gates frames exposed during a commanded saccade, and
+//! writes the frame's [`GazeState`] into [`crate::messages::FrameMotion::gaze`] (and the mailbox's latest).
+use std::sync::Arc;
+
+use abvs_eye::Pose;
+use nalgebra::Vector3;
+
+use super::controller::GazeController;
+use super::{GazeState, Mailbox};
+use crate::error::Result;
+use crate::messages::{monotonic_ns, StereoPose, Work};
+use crate::sources::board::BoardLink;
+use crate::stage::{Stage, StageContext};
+use crate::stats::RunStats;
+
+/// See the module doc.
+pub struct GazeStage {
+    ctl: GazeController,
+    mailbox: Arc<Mailbox>,
+    board: Option<Box<dyn BoardLink>>,
+    /// T_lH^rH (m).
+    home_left_to_right: Pose,
+}
+
+impl GazeStage {
+    /// The stage for a controller, the mailbox the goals come through and the home extrinsic T_lH^rH (m).
+    pub fn new(ctl: GazeController, mailbox: Arc<Mailbox>, home_left_to_right: Pose) -> GazeStage {
+        GazeStage { ctl, mailbox, board: None, home_left_to_right }
+    }
+}
+
+/// Where both optical axes come closest (m, left home camera frame: the midpoint of the shortest segment
+/// between them) and its distance from the midpoint of both optical centres; NaN where the axes are parallel
+/// or meet behind an eye.
+pub fn measured_fixation(pose: &StereoPose, home_left_to_right: &Pose) -> ([f64; 3], f64) {
+    let (o1, d1) = (pose.rel_left.t, pose.rel_left.r * Vector3::z());
+    // the right eye's axis in the left home frame: x_l = R^T (x_r - t)
+    let h = home_left_to_right;
+    let o2 = h.r.transpose() * (pose.rel_right.t - h.t);
+    let d2 = h.r.transpose() * (pose.rel_right.r * Vector3::z());
+    let w0 = o1 - o2;
+    let (b, d, e) = (d1.dot(&d2), d1.dot(&w0), d2.dot(&w0));
+    let denom = 1.0 - b * b;
+    let nan = ([f64::NAN; 3], f64::NAN);
+    if !(denom > 1e-12) {
+        return nan;
+    }
+    let (s, t) = ((b * e - d) / denom, (e - b * d) / denom);
+    if !(s > 0.0 && t > 0.0) {
+        return nan;
+    }
+    let p = (o1 + d1 * s + o2 + d2 * t) * 0.5;
+    ([p.x, p.y, p.z], (p - (o1 + o2) * 0.5).norm())
+}
+
+impl Stage for GazeStage {
+    fn name(&self) -> &'static str {
+        "gaze"
+    }
+
+    fn start(&mut self, ctx: &mut StageContext) -> Result<()> {
+        self.board = ctx.board.take();
+        Ok(())
+    }
+
+    fn process(&mut self, w: &mut Work) -> Result<()> {
+        let goal = self.mailbox.take();
+        self.ctl.step(monotonic_ns(), &w.theta, goal, self.board.as_deref_mut());
+        let mut s: GazeState = self.ctl.state(w.seq);
+        if let Some(pose) = &w.pose {
+            (s.measured_m, s.vergence_m) = measured_fixation(pose, &self.home_left_to_right);
+        }
+        let m = &w.motion;
+        let first = m.t_start_ns[0].min(m.t_start_ns[1]);
+        let last = m.t_start_ns[0].max(m.t_start_ns[1]) + m.readout_ns + m.exposure_ns;
+        if self.ctl.overlaps_saccade(first, last) {
+            // known from the plan, before the encoders show the speed: the speed gate stays as it was
+            w.motion.gated = true;
+            s.gated_saccade = true;
+            self.ctl.counts.frames_gated_saccade += 1;
+        }
+        w.motion.gaze = s;
+        self.mailbox.set_state(s);
+        Ok(())
+    }
+
+    fn failure(&self, _e: &crate::error::RuntimeError) -> &'static str {
+        "gaze failed"
+    }
+
+    fn finish(&mut self, stats: &mut RunStats) {
+        let mut j = self.ctl.counts.json();
+        let (posted, superseded) = self.mailbox.counts();
+        j["posted"] = serde_json::json!(posted);
+        j["superseded"] = serde_json::json!(superseded);
+        j["peak_deg_s"] = serde_json::json!(self.ctl.config().peak_deg_s);
+        j["min_distance_m"] = serde_json::json!(self.ctl.config().min_distance_m);
+        stats.extra.insert("gaze".into(), j);
+    }
+}
