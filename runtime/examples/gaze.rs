@@ -36,11 +36,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let state = gaze.state(); // Option<GazeState>: the latest frame's
     let report = handle.join()?;
     match answered {
-        Some(s) => println!(
-            "goal {id}: phase {} reason {}",
-            s.phase.name(),
-            s.reason.map_or("-", |r| r.name())
-        ),
+        Some(s) => println!("goal {id}: phase {} reason {}", s.phase.name(), s.reason.map_or("-", |r| r.name())),
         None => println!("goal {id}: no state answered it"),
     }
     println!("latest state: {state:?}");

@@ -176,7 +176,9 @@ pub struct SideLane<S: Sink + 'static> {
     blocking: bool,
     queue_tx: Option<Sender<Box<PublishedCopy>>>,
     free_rx: Receiver<Box<PublishedCopy>>,
-    /// Copies not handed to the worker yet: the whole pool, made at the first frame.
+    /// Copies not handed to the worker yet: the whole pool, made at the first frame. Boxed as the channels
+    /// carry them, so a copy moves between the lane and the worker as a pointer.
+    #[allow(clippy::vec_box)]
     unused: Vec<Box<PublishedCopy>>,
     /// Whether the pool has been made.
     made: bool,
