@@ -86,7 +86,9 @@ enum Cmd {
 /// clap's "unexpected argument '-5'". Only words that read as numbers: `--out -x` still reads `-x` as a flag.
 fn command() -> clap::Command {
     fn negatives(c: clap::Command) -> clap::Command {
-        c.mut_args(|a| a.allow_negative_numbers(true)).mut_subcommands(negatives)
+        // flags that take no value (switches) cannot take a number either (clap asserts it)
+        c.mut_args(|a| if a.get_action().takes_values() { a.allow_negative_numbers(true) } else { a })
+            .mut_subcommands(negatives)
     }
     negatives(Cli::command())
 }

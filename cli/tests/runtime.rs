@@ -63,8 +63,9 @@ fn calibrated_fk_gives_far_better_depth_than_nominal_and_replays_are_identical()
     let again = run(&s, &["--engine", "sgbm", "--lossless"]).unwrap();
     assert_eq!(cal["output_digest"], again["output_digest"]);
     assert_ne!(cal["output_digest"], nom["output_digest"]);
+    // a lossless replay takes frames ahead of their times: no end-to-end latency to measure (null, not 0)
+    assert!(cal["latency_ms"]["p50"].is_null(), "{}", cal["latency_ms"]);
     for k in ["p50", "p99"] {
-        assert!(cal["latency_ms"][k].as_f64().unwrap() > 0.0);
         for st in ["source", "rectify", "disparity", "output"] {
             assert!(cal["stages"][st][k].as_f64().unwrap() > 0.0, "stage {st} {k}");
         }

@@ -394,16 +394,17 @@ fn sinks(
     let mut sinks: Vec<Box<dyn Sink>> = Vec::new();
     if c.bridges.iceoryx.enabled {
         let cfg = c.bridge_config();
+        // the publishers first: their nodes remove (and count) what a killed runtime left behind
+        sinks.push(Box::new(if c.disparity.confidence || c.disparity.engine.scores_pixels() {
+            PublishSink::with_confidence(cfg.clone())?
+        } else {
+            PublishSink::new(cfg.clone())?
+        }));
         // gaze goals in, the state of every frame out (`{prefix}/gaze/goal`, `{prefix}/gaze/state`)
         sinks.push(Box::new(
             crate::bridges::iceoryx::gaze::GazeBridge::new(&cfg, gaze.clone())
                 .map_err(|e| RuntimeError::Invalid(e.to_string()))?,
         ));
-        sinks.push(Box::new(if c.disparity.confidence || c.disparity.engine.scores_pixels() {
-            PublishSink::with_confidence(cfg)?
-        } else {
-            PublishSink::new(cfg)?
-        }));
     }
     // ROS 2 outputs: lossless runs wait for them, live ones drop their oldest queued frame
     if let Some(p) = &c.sinks.mcap.file {

@@ -14,7 +14,7 @@
 //! ```text
 //! m = min(1, margin / MARGIN_FULL)     t = min(1, texture / TEXTURE_FULL)     a = exp(-|refined - network| / AGREE_PX)
 //! SGBM accepted:   c = 0.5 + 0.25 m + 0.25 a
-//! network filled:  c = 0.5 m t a
+//! network filled:  c = 0.5 m t a          (without an SGBM prior, every pixel scores as accepted)
 //! times EDGE_FACTOR at a depth edge, times EDGE_FACTOR at the search window's end; 0 without a disparity or
 //! where the match falls outside the right image
 //! ```
@@ -103,7 +103,10 @@ impl Scorer {
                 let m = (((s & !AT_EDGE) as f32 / margin_one) / MARGIN_FULL).min(1.0);
                 let a = (-(d - net[i]).abs() / AGREE_PX).exp();
                 let a = if a.is_finite() { a } else { 0.0 };
-                let accepted = prior.is_some_and(|p| p[i].is_finite());
+                // Without a prior (the engine at its network's resolution: no SGBM ran) nothing contradicts
+                // the network, so its pixels score as accepted ones; the mask then removes only ambiguous,
+                // edge and out-of-range ones. The "network filled" score was calibrated where SGBM declined.
+                let accepted = prior.is_none_or(|p| p[i].is_finite());
                 let mut c = if accepted { 0.5 + 0.25 * m + 0.25 * a } else { 0.5 * m * t * a };
                 let nb = [
                     refined[up + x],
