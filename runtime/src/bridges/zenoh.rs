@@ -66,6 +66,11 @@ impl ZenohWriter {
     /// rmw_zenoh format also the node's and the publishers' liveliness tokens).
     pub fn open(config: Config, settings: &ZenohSettings) -> crate::Result<ZenohWriter> {
         let session = ::zenoh::open(config).wait().map_err(|e| err("opening the session", e))?;
+        Self::on_session(session, settings)
+    }
+
+    /// The same on an open session (shared with the gaze topics, `bridges::zenoh_gaze`).
+    pub fn on_session(session: Session, settings: &ZenohSettings) -> crate::Result<ZenohWriter> {
         let mut node =
             rmw_zenoh::Node::new(settings.domain, session.zid().to_string(), &settings.namespace, &settings.node);
         let mut tokens = Vec::new();
