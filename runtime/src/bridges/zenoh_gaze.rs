@@ -55,7 +55,7 @@ pub const TOPICS: [Topic; 2] = [
             "================================================================================\nMSG: geometry_msgs/Point\n",
             "float64 x\nfloat64 y\nfloat64 z\n",
         ),
-        rihs01: "RIHS01_3b7ca3e3ca3b8bc0c5e4fa45cb0c6e3ef95e1b0d5ecf84e73d4f6df7ae9d0e1a",
+        rihs01: "RIHS01_4c0296af86e01e562e9e0405d138a01537247580076c58ea38d7923ac1045897",
     },
     Topic {
         topic: "/abvs/gaze/state",
