@@ -150,3 +150,12 @@ fn zenoh_goals_are_off_by_default_refused_without_security_and_iceoryx2_unaffect
     assert!(z["taken"].as_u64().unwrap() >= 1 && z["refused"] == z["taken"], "{z}");
     eprintln!("test wall time {:.1} s", t0.elapsed().as_secs_f64());
 }
+
+#[test]
+fn the_documented_access_control_is_the_shipped_file() {
+    let doc = std::fs::read_to_string(shipped("docs/gaze.md")).unwrap();
+    let file = std::fs::read_to_string(shipped("config/zenoh-gaze-acl.json5")).unwrap();
+    let start = doc.find("```json5\n").expect("docs/gaze.md shows the example") + "```json5\n".len();
+    let end = start + doc[start..].find("```").unwrap();
+    assert_eq!(&doc[start..end], file, "docs/gaze.md's block differs from config/zenoh-gaze-acl.json5");
+}

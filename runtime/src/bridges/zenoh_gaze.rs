@@ -344,6 +344,7 @@ impl crate::sinks::Sink for ZenohGaze {
     }
 
     fn finish(&mut self, stats: &mut RunStats) {
+        let accept_goals = self.goals.is_some();
         if let Some(s) = self.goals.take() {
             let _ = s.undeclare().wait();
         }
@@ -355,7 +356,7 @@ impl crate::sinks::Sink for ZenohGaze {
         stats.extra.insert(
             "gaze_zenoh".into(),
             serde_json::json!({
-                "accept_goals": self.goals.is_some() || n(&c.received) > 0,
+                "accept_goals": accept_goals,
                 "goals_received": n(&c.received),
                 "goals_posted": n(&c.posted),
                 "dropped": {"oversized": n(&c.oversized), "undecodable": n(&c.undecodable), "wrong_frame": n(&c.wrong_frame)},
