@@ -33,6 +33,8 @@ const TRUTH_COPIES: usize = 8;
 /// Runs one deployment as its configuration describes it.
 pub fn run_config(c: &RuntimeConfig) -> anyhow::Result<ExitCode> {
     let mut runtime = Runtime::from_config(c)?;
+    // who may move the eyes, said before the first frame (always: a security setting is never quiet)
+    eprintln!("{}", runtime.gaze_access());
     if let (true, Some(replay)) = (c.sinks.truth_stride > 0, runtime.replay()) {
         if let Some(t) = TruthSink::for_replay(replay, c.sinks.truth_stride)? {
             // scoring costs about a frame's time: beside the pipeline, at idle priority, never in its path

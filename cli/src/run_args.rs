@@ -110,9 +110,19 @@ pub struct RunArgs {
     /// Zenoh endpoint to connect to, e.g. tcp/192.168.1.20:7447 (repeatable; implies --zenoh).
     #[arg(long, value_name = "ENDPOINT")]
     pub zenoh_connect: Vec<String>,
-    /// A standard Zenoh configuration file (JSON5; implies --zenoh).
+    /// A standard Zenoh configuration file (JSON5; implies --zenoh): TLS, user/password, access control.
     #[arg(long, value_name = "FILE")]
     pub zenoh_config: Option<PathBuf>,
+    /// Zenoh endpoint to listen on, e.g. tcp/0.0.0.0:7447 (repeatable; implies --zenoh).
+    #[arg(long, value_name = "ENDPOINT")]
+    pub zenoh_listen: Vec<String>,
+    /// Take gaze goals from other machines on /abvs/gaze/goal over Zenoh (PointStamped). Refused unless the
+    /// Zenoh configuration authenticates peers or enables an access control, or --zenoh-insecure.
+    #[arg(long)]
+    pub zenoh_gaze_goals: bool,
+    /// With --zenoh-gaze-goals: accept goals from anyone who reaches the session (no authentication).
+    #[arg(long)]
+    pub zenoh_insecure: bool,
     /// Zenoh key names: `bridge` (zenoh-bridge-ros2dds's) or `rmw-zenoh` (a ROS 2 node that rmw_zenoh
     /// systems see directly; implies --zenoh).
     #[arg(long, value_enum)]
@@ -343,12 +353,17 @@ pub fn effective_config(a: &RunArgs, m: &ArgMatches) -> anyhow::Result<RuntimeCo
         c.sinks.mcap.file = a.mcap.as_ref().map(abs);
     }
     let z = &mut c.bridges.zenoh;
-    if a.zenoh || !a.zenoh_connect.is_empty() || a.zenoh_config.is_some() {
+    if a.zenoh || !a.zenoh_connect.is_empty() || a.zenoh_config.is_some() || !a.zenoh_listen.is_empty() {
         z.enabled = true;
     }
     if !a.zenoh_connect.is_empty() {
         z.connect = a.zenoh_connect.clone();
     }
+    if !a.zenoh_listen.is_empty() {
+        z.listen = a.zenoh_listen.clone();
+    }
+    z.accept_gaze_goals |= a.zenoh_gaze_goals;
+    z.insecure |= a.zenoh_insecure;
     if given("zenoh_config") {
         z.config = a.zenoh_config.as_ref().map(abs);
     }

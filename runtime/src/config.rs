@@ -104,6 +104,34 @@ pub struct RuntimeConfig {
     /// `[bridges]`: publishing to other processes.
     #[serde(default)]
     pub bridges: BridgesConfig,
+    /// `[gaze]`: limits on the goals that point the eyes, whoever sends them.
+    #[serde(default)]
+    pub gaze: GazeSettings,
+}
+
+/// `[gaze]`: limits on pointing the eyes that hold for every sender (docs/gaze.md, "Who may move the eyes").
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct GazeSettings {
+    /// Goals the controller executes per second at most, sustained (a token bucket; a goal over the limit
+    /// waits, the newest one only, and one replaced while it waits is counted as `rate_limited`).
+    pub max_goals_per_s: f64,
+    /// Goals that may come back to back (the bucket's size).
+    pub goal_burst: u32,
+}
+
+impl Default for GazeSettings {
+    fn default() -> Self {
+        let l = crate::gaze::RateLimit::default();
+        GazeSettings { max_goals_per_s: l.max_goals_per_s, goal_burst: l.goal_burst }
+    }
+}
+
+impl GazeSettings {
+    /// The rate limit the gaze stage runs with.
+    pub fn rate_limit(&self) -> crate::gaze::RateLimit {
+        crate::gaze::RateLimit { max_goals_per_s: self.max_goals_per_s, goal_burst: self.goal_burst }
+    }
 }
 
 /// `[source]`: where frames and encoder counts come from.
@@ -364,9 +392,22 @@ pub struct ZenohSettings {
     pub enabled: bool,
     /// Endpoints to connect to, e.g. `tcp/192.168.1.20:7447` (added to the configuration file's).
     pub connect: Vec<String>,
-    /// A standard Zenoh configuration file (JSON5); absent: Zenoh's defaults (a peer).
+    /// Endpoints to listen on, e.g. `tcp/0.0.0.0:7447` (added to the configuration file's).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub listen: Vec<String>,
+    /// A standard Zenoh configuration file (JSON5): TLS/mTLS, user/password authentication, access control
+    /// (`access_control`) in Zenoh's own format; absent: Zenoh's defaults (a peer, open to the network).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub config: Option<PathBuf>,
+    /// Take gaze goals from `/abvs/gaze/goal` (geometry_msgs/msg/PointStamped) over Zenoh: goals from other
+    /// machines move the motors. Off by default; on, the runtime refuses to start unless `config` sets
+    /// authentication or an access control, or `insecure` is set.
+    #[serde(default)]
+    pub accept_gaze_goals: bool,
+    /// With `accept_gaze_goals`: start without authentication or access control (anyone who reaches the
+    /// session may point the eyes; the start-up line says so).
+    #[serde(default)]
+    pub insecure: bool,
     /// Frames the publisher may fall behind by before the oldest is dropped.
     pub queue: usize,
     /// Key names: `bridge` (zenoh-bridge-ros2dds's) or `rmw-zenoh` (a ROS 2 node on rmw_zenoh).
@@ -386,7 +427,10 @@ impl Default for ZenohSettings {
         ZenohSettings {
             enabled: false,
             connect: Vec::new(),
+            listen: Vec::new(),
             config: None,
+            accept_gaze_goals: false,
+            insecure: false,
             queue: crate::bridges::zenoh::DEFAULT_QUEUE,
             keys: Ros2Keys::default(),
             distro: RosDistro::default(),
@@ -518,6 +562,7 @@ impl RuntimeConfig {
             motion: MotionSettings::default(),
             sinks: SinksConfig::default(),
             bridges: BridgesConfig::default(),
+            gaze: GazeSettings::default(),
         }
     }
 
@@ -606,6 +651,10 @@ impl RuntimeConfig {
         if z.domain > 232 {
             return Err(format!("bridges.zenoh.domain: {} must be in 0..=232 (ROS 2 domain ids)", z.domain));
         }
+        if z.insecure && !z.accept_gaze_goals {
+            return Err("bridges.zenoh.insecure: only meaningful with accept_gaze_goals = true".into());
+        }
+        self.gaze.rate_limit().check()?;
         self.motion.check()?;
         let w = self.sinks.stats_window_s;
         if !(0.01..=86400.0).contains(&w) {

@@ -5,6 +5,7 @@
 //! the FK models, builds the disparity engine, and opens the sinks and bridges. [`Runtime::add_sink`] adds the
 //! caller's own sinks; [`Runtime::run`], [`Runtime::run_until`] or [`Runtime::spawn`] then run the standard graph
 //! ([`crate::pipeline`]) and return its [`Report`]. The `abvs run` program is this call plus its flags.
+use ::zenoh::Wait;
 use std::path::Path;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
@@ -58,6 +59,8 @@ pub struct Runtime {
     /// The gaze goals' mailbox ([`Runtime::gaze`]) and both eyes' IK models.
     gaze: Arc<Mailbox>,
     gaze_models: [abvs_fk::model::FkModel; 2],
+    /// Where gaze goals are taken from (the start-up line, [`Runtime::gaze_access`]).
+    gaze_access: String,
 }
 
 /// What a finished run reports.
@@ -123,7 +126,7 @@ impl Runtime {
             (Ok(l), Ok(r)) => Some(TimingContext { cams: [l, r], time_offset_ms: offsets_s.map(|t| t * 1e3) }),
             _ => None,
         };
-        let sinks = sinks(c, &out, timing, &gaze)?;
+        let (sinks, gaze_access) = sinks(c, &out, timing, &gaze)?;
         let (input, readout_ms, source_name, description) = match session {
             Some(session) => {
                 let (name, description) = (session.dir.display().to_string(), session.meta.description.clone());
@@ -156,6 +159,7 @@ impl Runtime {
             description,
             gaze,
             gaze_models,
+            gaze_access,
         })
     }
 
@@ -163,6 +167,12 @@ impl Runtime {
     /// board, a replay, they are refused with `no_board`).
     pub fn gaze(&self) -> GazeHandle {
         GazeHandle::new(self.gaze.clone())
+    }
+
+    /// Where the runtime takes gaze goals from: this machine only (iceoryx2, the Rust handle), or also the
+    /// network over Zenoh and how it is secured (the line `abvs run` prints at start-up).
+    pub fn gaze_access(&self) -> &str {
+        &self.gaze_access
     }
 
     /// Adds a sink of the caller's: it receives every published frame ([`crate::messages::Published`]: depth,
@@ -234,9 +244,10 @@ impl Runtime {
             description,
             gaze,
             gaze_models,
+            gaze_access: _,
         } = self;
         let ctl = GazeController::new(GazeConfig::default(), gaze_models, &kin.home_left_to_right, kin.gravity);
-        let gaze = Some(GazeStage::new(ctl, gaze, kin.home_left_to_right));
+        let gaze = Some(GazeStage::new(ctl, gaze, kin.home_left_to_right).with_rate_limit(c.gaze.rate_limit()));
         let engine_name = engine.name().to_string();
         let replay = matches!(input, Input::Replay(_));
         // live frames come when the cameras deliver them: never paced
@@ -390,7 +401,7 @@ fn sinks(
     out: &RectifiedCamera,
     timing: Option<TimingContext>,
     gaze: &Arc<Mailbox>,
-) -> Result<Vec<Box<dyn Sink>>> {
+) -> Result<(Vec<Box<dyn Sink>>, String)> {
     let mut sinks: Vec<Box<dyn Sink>> = Vec::new();
     if c.bridges.iceoryx.enabled {
         let cfg = c.bridge_config();
@@ -411,8 +422,19 @@ fn sinks(
         sinks.push(Box::new(crate::sinks::mcap_log::sink(p, c.sinks.mcap.queue, c.source.lossless)?));
     }
     let z = &c.bridges.zenoh;
-    if z.enabled {
-        sinks.push(Box::new(crate::bridges::zenoh::sink(z, c.source.lossless)?));
+    let zc = crate::bridges::zenoh_gaze::config(z)?;
+    // checked before any session opens: goals over the network need authentication or access control
+    let access = crate::bridges::zenoh_gaze::goal_access(z, &zc, c.bridges.iceoryx.enabled)?;
+    if z.enabled || z.accept_gaze_goals {
+        // one session (one peer, one identity for the access control) for the outputs and the gaze topics
+        let session =
+            ::zenoh::open(zc).wait().map_err(|e| RuntimeError::Invalid(format!("zenoh: opening the session: {e}")))?;
+        // the gaze topics first: they finish before the outputs close the session
+        sinks.push(Box::new(crate::bridges::zenoh_gaze::ZenohGaze::new(session.clone(), z, gaze.clone(), z.enabled)?));
+        if z.enabled {
+            let w = crate::bridges::zenoh::ZenohWriter::on_session(session, z)?;
+            sinks.push(Box::new(crate::sinks::ros2_out::Ros2OutSink::new("zenoh", w, z.queue, c.source.lossless)?));
+        }
     }
     if let Some(p) = &c.sinks.rerun {
         sinks.push(rerun_sink(p)?);
@@ -442,7 +464,7 @@ fn sinks(
         }
         sinks.push(Box::new(crate::sinks::self_check::SelfCheckSink::with_timing(cfg, out, timing)?));
     }
-    Ok(sinks)
+    Ok((sinks, access))
 }
 
 #[cfg(feature = "rerun")]

@@ -4,3 +4,4 @@ pub mod iceoryx;
 pub mod publish;
 pub mod rmw_zenoh;
 pub mod zenoh;
+pub mod zenoh_gaze;

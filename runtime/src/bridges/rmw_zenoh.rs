@@ -174,6 +174,12 @@ impl Node {
         )
     }
 
+    /// Numbers the next entities from `id` on (another part of the runtime declares entities on the same node:
+    /// the ids stay unique).
+    pub fn skip_to(&mut self, id: u32) {
+        self.next_id = self.next_id.max(id);
+    }
+
     /// The node's own token (`NN`).
     pub fn token(&self) -> String {
         self.prefix(NODE_ID, EntityKind::Node)

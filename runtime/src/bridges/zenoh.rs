@@ -7,8 +7,9 @@
 //!   attachment (sequence number, source time, publisher GID) on every sample.
 //!
 //! The session is opened with a standard Zenoh configuration (`--zenoh-config FILE`, JSON5; default: a
-//! peer with Zenoh's defaults) plus the endpoints of `--zenoh-connect` (peers retry an endpoint that is
-//! not up yet in the background, so the runtime starts without its consumers). Publishing runs on the
+//! peer with Zenoh's defaults) plus the endpoints of `--zenoh-connect` and `--zenoh-listen` (peers retry an
+//! endpoint that is not up yet in the background, so the runtime starts without its consumers); the gaze
+//! topics share it (`super::zenoh_gaze`, which also says who may send goals). Publishing runs on the
 //! sink's own thread ([`Ros2OutSink`]): the network may block that thread (congestion control `Block`,
 //! so a large cloud is never half-dropped), never the pipeline, whose frames wait in a bounded queue
 //! that drops the oldest (counted in the stats under `zenoh`).
@@ -24,7 +25,7 @@ use super::rmw_zenoh::{self, EntityKind, Qos, Ros2Keys};
 use crate::config::ZenohSettings;
 use crate::error::RuntimeError;
 use crate::ros2::{Topic, TOPICS};
-use crate::sinks::ros2_out::{OutputError, Ros2OutSink, Ros2Writer};
+use crate::sinks::ros2_out::{OutputError, Ros2Writer};
 
 /// Frames the publisher may fall behind by before the oldest is dropped: the newest matter on a network.
 pub const DEFAULT_QUEUE: usize = 4;
@@ -66,6 +67,11 @@ impl ZenohWriter {
     /// rmw_zenoh format also the node's and the publishers' liveliness tokens).
     pub fn open(config: Config, settings: &ZenohSettings) -> crate::Result<ZenohWriter> {
         let session = ::zenoh::open(config).wait().map_err(|e| err("opening the session", e))?;
+        Self::on_session(session, settings)
+    }
+
+    /// The same on an open session (shared with the gaze topics, `bridges::zenoh_gaze`).
+    pub fn on_session(session: Session, settings: &ZenohSettings) -> crate::Result<ZenohWriter> {
         let mut node =
             rmw_zenoh::Node::new(settings.domain, session.zid().to_string(), &settings.namespace, &settings.node);
         let mut tokens = Vec::new();
@@ -124,10 +130,4 @@ impl Ros2Writer for ZenohWriter {
         self.session.close().wait().map_err(|source| OutputError::Zenoh { key: "(closing the session)", source })?;
         Ok(serde_json::Value::Null)
     }
-}
-
-/// The Zenoh publisher of `settings` as a pipeline sink (stats key `zenoh`); `blocking`: lossless runs.
-pub fn sink(settings: &ZenohSettings, blocking: bool) -> crate::Result<Ros2OutSink> {
-    let c = config(settings.config.as_deref(), &settings.connect)?;
-    Ros2OutSink::new("zenoh", ZenohWriter::open(c, settings)?, settings.queue, blocking)
 }

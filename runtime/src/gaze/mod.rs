@@ -21,7 +21,10 @@
 //! - `pursuit`: the eyes follow a moving point (re-solved each frame);
 //! - `refused`: the latest goal was refused ([`GazeState::reason`]); the eyes hold (nothing was sent).
 pub mod controller;
+pub mod limit;
 pub mod stage;
+
+pub use limit::{GoalSource, RateLimit};
 
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
@@ -183,6 +186,11 @@ pub struct GazeState {
     pub planned_ms: f64,
     /// The frame's exposure overlaps a commanded saccade: gated with reason "saccade".
     pub gated_saccade: bool,
+    /// Where the goal of `goal_id` came from (`None` before the first).
+    pub source: Option<GoalSource>,
+    /// A newer goal waits for the rate limit ([`RateLimit`]): it is taken at a later frame unless a newer one
+    /// replaces it.
+    pub goal_waiting: bool,
 }
 
 impl Default for GazeState {
@@ -197,6 +205,8 @@ impl Default for GazeState {
             vergence_m: f64::NAN,
             planned_ms: 0.0,
             gated_saccade: false,
+            source: None,
+            goal_waiting: false,
         }
     }
 }
@@ -235,31 +245,52 @@ impl Default for GazeConfig {
 /// without a new goal takes no lock.
 #[derive(Debug, Default)]
 pub struct Mailbox {
-    slot: Mutex<Option<Goal>>,
+    slot: Mutex<Option<(Goal, GoalSource)>>,
     pending: AtomicBool,
     next_id: AtomicU64,
     posted: AtomicU64,
     superseded: AtomicU64,
+    /// Posted and superseded per [`GoalSource`] (its index).
+    by_source: [[AtomicU64; 2]; GoalSource::ALL.len()],
     latest: Mutex<Option<GazeState>>,
 }
 
 impl Mailbox {
-    /// Posts `goal` (replacing one not yet taken).
+    /// Posts `goal` from the Rust handle (replacing one not yet taken).
     pub fn post(&self, goal: Goal) {
+        self.post_from(goal, GoalSource::Rust)
+    }
+
+    /// Posts `goal` that came from `source` (replacing one not yet taken; the replaced one is counted as
+    /// superseded under its own source).
+    pub fn post_from(&self, goal: Goal, source: GoalSource) {
         let mut s = self.slot.lock().expect("gaze mailbox");
-        if s.replace(goal).is_some() {
+        if let Some((_, old)) = s.replace((goal, source)) {
             self.superseded.fetch_add(1, Ordering::Relaxed);
+            self.by_source[old.index()][1].fetch_add(1, Ordering::Relaxed);
         }
         self.posted.fetch_add(1, Ordering::Relaxed);
+        self.by_source[source.index()][0].fetch_add(1, Ordering::Relaxed);
         self.pending.store(true, Ordering::Release);
     }
 
     /// The newest goal not yet taken.
     pub fn take(&self) -> Option<Goal> {
+        self.take_from().map(|(g, _)| g)
+    }
+
+    /// The newest goal not yet taken, and where it came from.
+    pub fn take_from(&self) -> Option<(Goal, GoalSource)> {
         if !self.pending.swap(false, Ordering::Acquire) {
             return None;
         }
         self.slot.lock().expect("gaze mailbox").take()
+    }
+
+    /// Goals posted by `source`, and those of them replaced before the controller took them.
+    pub fn counts_from(&self, source: GoalSource) -> (u64, u64) {
+        let c = &self.by_source[source.index()];
+        (c[0].load(Ordering::Relaxed), c[1].load(Ordering::Relaxed))
     }
 
     /// A fresh goal id (ids of the Rust handle; a process on iceoryx2 chooses its own).

@@ -7,6 +7,7 @@ use abvs_eye::Pose;
 use nalgebra::Vector3;
 
 use super::controller::GazeController;
+use super::limit::{GoalGate, RateLimit};
 use super::{GazeState, Mailbox};
 use crate::error::Result;
 use crate::messages::{monotonic_ns, StereoPose, Work};
@@ -21,12 +22,29 @@ pub struct GazeStage {
     board: Option<Box<dyn BoardLink>>,
     /// T_lH^rH (m).
     home_left_to_right: Pose,
+    /// The rate limit and the counts per source.
+    gate: GoalGate,
+    /// The source of the goal last taken.
+    source: Option<super::GoalSource>,
 }
 
 impl GazeStage {
     /// The stage for a controller, the mailbox the goals come through and the home extrinsic T_lH^rH (m).
     pub fn new(ctl: GazeController, mailbox: Arc<Mailbox>, home_left_to_right: Pose) -> GazeStage {
-        GazeStage { ctl, mailbox, board: None, home_left_to_right }
+        GazeStage {
+            ctl,
+            mailbox,
+            board: None,
+            home_left_to_right,
+            gate: GoalGate::new(RateLimit::default()),
+            source: None,
+        }
+    }
+
+    /// The same with the rate limit `limit` on the goals executed.
+    pub fn with_rate_limit(mut self, limit: RateLimit) -> GazeStage {
+        self.gate = GoalGate::new(limit);
+        self
     }
 }
 
@@ -65,9 +83,19 @@ impl Stage for GazeStage {
     }
 
     fn process(&mut self, w: &mut Work) -> Result<()> {
-        let goal = self.mailbox.take();
-        self.ctl.step(monotonic_ns(), &w.theta, goal, self.board.as_deref_mut());
+        let now = monotonic_ns();
+        let goal = self.gate.next(&self.mailbox, now);
+        let refused_before: u64 = self.ctl.counts.refused.iter().sum();
+        self.ctl.step(now, &w.theta, goal.map(|g| g.0), self.board.as_deref_mut());
+        if let Some((_, source)) = goal {
+            if self.ctl.counts.refused.iter().sum::<u64>() > refused_before {
+                self.gate.refused(source);
+            }
+            self.source = Some(source);
+        }
         let mut s: GazeState = self.ctl.state(w.seq);
+        s.source = self.source;
+        s.goal_waiting = self.gate.waiting();
         if let Some(pose) = &w.pose {
             (s.measured_m, s.vergence_m) = measured_fixation(pose, &self.home_left_to_right);
         }
@@ -96,6 +124,7 @@ impl Stage for GazeStage {
         j["superseded"] = serde_json::json!(superseded);
         j["peak_deg_s"] = serde_json::json!(self.ctl.config().peak_deg_s);
         j["min_distance_m"] = serde_json::json!(self.ctl.config().min_distance_m);
+        (j["sources"], j["rate_limit"]) = self.gate.json(&self.mailbox);
         stats.extra.insert("gaze".into(), j);
     }
 }

@@ -128,6 +128,10 @@ pub const DESCRIPTIONS: &[Description] = &[
             ("effort", FLOAT64 + SEQUENCE, 0, ""),
         ],
     ),
+    // the gaze topics (`bridges::zenoh_gaze`): goals in, the state out
+    ("geometry_msgs/msg/Point", &[("x", FLOAT64, 0, ""), ("y", FLOAT64, 0, ""), ("z", FLOAT64, 0, "")]),
+    ("geometry_msgs/msg/PointStamped", &[HEADER, ("point", NESTED, 0, "geometry_msgs/msg/Point")]),
+    ("std_msgs/msg/String", &[("data", STRING, 0, "")]),
 ];
 
 /// Why a hash could not be computed.
@@ -203,6 +207,12 @@ mod tests {
             ("sensor_msgs/msg/Image", "RIHS01_d31d41a9a4c4bc8eae9be757b0beed306564f7526c88ea6a4588fb9582527d47"),
             ("builtin_interfaces/msg/Time", "RIHS01_b106235e25a4c5ed35098aa0a61a3ee9c9b18d197f398b0e4206cea9acf9c197"),
             ("std_msgs/msg/Header", "RIHS01_f49fb3ae2cf070f793645ff749683ac6b06203e41c891e17701b1cb597ce6a01"),
+            // rmw_zenoh's docs/design.md (the `chatter` key of demo_nodes_cpp), and the generated code's
+            ("std_msgs/msg/String", "RIHS01_df668c740482bbd48fb39d76a70dfd4bd59db1288021743503259e948f6b1a18"),
+            (
+                "geometry_msgs/msg/PointStamped",
+                "RIHS01_4c0296af86e01e562e9e0405d138a01537247580076c58ea38d7923ac1045897",
+            ),
         ];
         for (name, hash) in published {
             assert_eq!(rihs01(DESCRIPTIONS, name).unwrap(), hash, "{name}");
@@ -219,12 +229,12 @@ mod tests {
         let mut changed = DESCRIPTIONS.to_vec();
         changed[0] = ("builtin_interfaces/msg/Time", &[("sec", INT32, 0, ""), ("nanosec", INT32, 0, "")]);
         assert_ne!(rihs01(&changed, "sensor_msgs/msg/Image").unwrap(), published[1].1);
-        assert!(rihs01(DESCRIPTIONS, "std_msgs/msg/String").is_err());
+        assert!(rihs01(DESCRIPTIONS, "std_msgs/msg/Bool").is_err());
     }
 
     #[test]
     fn topic_constants_are_the_computed_hashes() {
-        for t in super::super::TOPICS {
+        for t in super::super::TOPICS.iter().chain(&crate::bridges::zenoh_gaze::TOPICS) {
             assert_eq!(t.rihs01, rihs01(DESCRIPTIONS, t.type_name).unwrap(), "{}", t.type_name);
         }
     }

@@ -17,7 +17,7 @@ use iceoryx2::prelude::*;
 
 use super::services::{iox, node};
 use super::{BridgeConfig, BridgeError, Ipc};
-use crate::gaze::{GazeState, Goal, GoalKind, Mailbox, Phase};
+use crate::gaze::{GazeState, Goal, GoalKind, GoalSource, Mailbox, Phase};
 use crate::messages::Published;
 use crate::stats::RunStats;
 
@@ -201,7 +201,7 @@ impl crate::sinks::Sink for GazeBridge {
     fn consume(&mut self, out: &Published) -> crate::Result<()> {
         while let Ok(Some(s)) = self.goals.receive() {
             self.received += 1;
-            self.mailbox.post(s.payload().goal());
+            self.mailbox.post_from(s.payload().goal(), GoalSource::Iceoryx2);
         }
         let w = GazeStateWire::new(&out.motion.gaze, out.t_frame_ns, out.motion.gated);
         match self.states.loan_uninit().map(|s| s.write_payload(w)).map(|s| s.send()) {
