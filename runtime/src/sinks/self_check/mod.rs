@@ -175,6 +175,36 @@ mod tests {
         assert!((got - w.map(f64::to_degrees)).abs().max() < 0.02, "{got:?}");
     }
 
+    /// A pair wider than MATCH_WIDTH_MAX is matched box-filtered and its matches come back in its own
+    /// pixels: a known sub-pixel shift of a 640 px texture reads the same as at 320.
+    #[test]
+    fn a_wide_pair_is_matched_at_a_coarser_level_in_its_own_pixels() {
+        let tex = |x: f64, y: f64| {
+            (128.0
+                + 50.0 * (0.19 * x + 0.05 * y).sin()
+                + 40.0 * (0.11 * y - 0.08 * x).cos()
+                + 20.0 * (0.26 * x + 0.2 * y).sin())
+            .clamp(1.0, 255.0)
+        };
+        let (w, h) = (640usize, 480usize);
+        let (sx, sy) = (-15.3, 0.6);
+        let left: Vec<u8> = (0..w * h).map(|i| tex((i % w) as f64, (i / w) as f64).round() as u8).collect();
+        let right: Vec<u8> = (0..w * h).map(|i| tex((i % w) as f64 - sx, (i / w) as f64 - sy).round() as u8).collect();
+        let mut matcher = Matcher::new(300, 4.0).unwrap();
+        let mut out = Vec::new();
+        matcher.find(&left, &right, w, h, 40.0, &mut out).unwrap();
+        assert!(out.len() > 50, "{} matches", out.len());
+        let med = |v: &mut Vec<f32>| {
+            v.sort_by(f32::total_cmp);
+            v[v.len() / 2]
+        };
+        let dx = med(&mut out.iter().map(|m| m.xr - m.xl).collect());
+        let dy = med(&mut out.iter().map(|m| m.dy()).collect());
+        assert!((dx - sx as f32).abs() < 0.1 && (dy - sy as f32).abs() < 0.05, "dx {dx} dy {dy}");
+        assert!(out.iter().all(|m| m.xl > 0.0 && m.xl < w as f32 && m.yl < h as f32), "in the pair's pixels");
+        assert!(out.iter().any(|m| m.xl > 400.0), "the whole width");
+    }
+
     #[test]
     fn lucas_kanade_finds_a_sub_pixel_shift() {
         let (w, h) = (120usize, 80usize);
