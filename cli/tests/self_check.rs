@@ -232,3 +232,47 @@ fn self_check_outputs_are_checked_first_and_a_failed_write_keeps_the_report() {
     assert!(md.contains("Not written into the configuration"), "{md}");
     assert_eq!(std::fs::read_to_string(&cfg).unwrap(), "motion = 5\n");
 }
+
+/// A log is fitted and replayed only with its own run (issue 37): a match log of another run is refused by
+/// name, another run's `.run.toml` is not replayed (said why), a missing one is reported, and a run whose
+/// rolling-shutter correction was off is not fitted as if it had been on.
+#[test]
+fn logs_are_tied_to_their_run() {
+    let tmp = tempfile::tempdir().unwrap();
+    let p = |n: &str| tmp.path().join(n);
+    for (name, extra) in [("a", &[][..]), ("b", &[][..]), ("off", &["--rolling-shutter", "off"][..])] {
+        let log = p(&format!("{name}.csv"));
+        let mut args = vec!["--self-check-every", "1", "--self-check-log", log.to_str().unwrap()];
+        args.extend_from_slice(extra);
+        run(tmp.path(), &args);
+    }
+    let check = |log: &str, out: &str| {
+        let o = abvs().args(["calib", "self-check", "--log"]).arg(p(log)).arg("--out").arg(p(out)).output().unwrap();
+        (
+            o.status.success(),
+            String::from_utf8_lossy(&o.stdout).into_owned(),
+            String::from_utf8_lossy(&o.stderr).into_owned(),
+        )
+    };
+    // another run's match log beside the frame log: refused, both named
+    std::fs::copy(p("a.matches.csv"), p("a.keep")).unwrap();
+    std::fs::copy(p("b.matches.csv"), p("a.matches.csv")).unwrap();
+    let (ok, _, err) = check("a.csv", "r1");
+    assert!(!ok && err.contains("logs of different runs") && err.contains("a.matches.csv"), "{err}");
+    std::fs::rename(p("a.keep"), p("a.matches.csv")).unwrap();
+    // another run's configuration: not replayed, and said so
+    std::fs::copy(p("b.run.toml"), p("a.run.toml")).unwrap();
+    let (ok, out, err) = check("a.csv", "r2");
+    assert!(ok, "{err}");
+    assert!(out.contains("no rounds") && out.contains("another run's configuration"), "{out}");
+    assert!(!p("r2/round-1.csv").exists() && !err.contains("round 1"), "{err}");
+    // none: said so
+    std::fs::remove_file(p("a.run.toml")).unwrap();
+    let (ok, out, _) = check("a.csv", "r3");
+    assert!(ok && out.contains("no rounds: no") && out.contains("a.run.toml"), "{out}");
+    // the correction off: no timing fitted as if it had been on
+    let (ok, out, _) = check("off.csv", "r4");
+    assert!(ok && out.contains("timing: no estimate") && out.contains("rolling-shutter correction was off"), "{out}");
+    let v: Value = serde_json::from_str(&std::fs::read_to_string(p("r4/summary.json")).unwrap()).unwrap();
+    assert!(v["timing"]["reason"].as_str().unwrap().contains("rolling-shutter"), "{v:#}");
+}

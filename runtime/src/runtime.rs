@@ -422,7 +422,8 @@ fn sinks(
     }
     let sc = &c.sinks.self_check;
     if sc.enabled {
-        let cfg = crate::sinks::self_check::SelfCheckConfig {
+        let toml = c.to_toml_string();
+        let mut cfg = crate::sinks::self_check::SelfCheckConfig {
             every: sc.every,
             log: sc.log.clone(),
             threshold_deg: sc.threshold_deg,
@@ -432,9 +433,12 @@ fn sinks(
             ..Default::default()
         };
         if let Some(log) = &sc.log {
-            // the run's configuration beside its log: an offline estimate can replay it with other timing
+            // the run's configuration beside its log: an offline estimate can replay it with other timing; the
+            // run's identity in both, so that a log is never fitted or replayed with another run's
+            cfg.run_id = crate::sinks::self_check::new_run_id(&toml);
             let p = crate::sinks::self_check::run_config_path(log);
-            std::fs::write(&p, c.to_toml_string()).map_err(|e| RuntimeError::File {
+            let text = format!("{}\n{toml}", crate::sinks::self_check::run_id_line(cfg.run_id));
+            std::fs::write(&p, text).map_err(|e| RuntimeError::File {
                 path: p.clone(),
                 line: None,
                 msg: format!("writing: {e}"),

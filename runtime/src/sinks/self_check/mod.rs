@@ -104,6 +104,27 @@ pub struct SelfCheckConfig {
     /// Run the worker only on otherwise idle CPU time (Linux SCHED_IDLE; nice 19 where refused), so it never
     /// takes a core from the pipeline's stages; false keeps the pipeline's priority.
     pub background: bool,
+    /// The run's identity, on every row of both logs and in `<log>.run.toml` ([`new_run_id`]; 0 = none), so
+    /// that `abvs calib self-check` refuses logs and configurations of different runs.
+    pub run_id: u64,
+}
+
+/// A run identity for the logs: 48 bits (exact in a CSV number) of SHA-256 over the run's configuration, the
+/// wall-clock time and the process.
+pub fn new_run_id(config: &str) -> u64 {
+    use sha2::Digest;
+    let now = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_nanos());
+    let mut h = sha2::Sha256::new();
+    h.update(config.as_bytes());
+    h.update(now.to_le_bytes());
+    h.update(std::process::id().to_le_bytes());
+    let d = h.finalize();
+    d[..6].iter().fold(0u64, |a, b| (a << 8) | *b as u64).max(1)
+}
+
+/// The line of `<log>.run.toml` that names its run (a TOML comment: the file stays a configuration).
+pub fn run_id_line(run_id: u64) -> String {
+    format!("# self-check run_id = {run_id}")
 }
 
 impl Default for SelfCheckConfig {
@@ -118,6 +139,7 @@ impl Default for SelfCheckConfig {
             log: None,
             blocking: false,
             background: true,
+            run_id: 0,
         }
     }
 }
