@@ -978,7 +978,9 @@ mod tests {
         let head = abvs_runtime::sinks::self_check::MATCH_LOG_HEADER;
         std::fs::write(
             &p,
-            format!("{head}\n0,1,2,3,4,0.1,0.2,0.5,1,2,3,0.01,0.02,0,0\n0,1,2,3,4,0.1,0.2,oops,1,2,3,0.01,0.02,0,0\n"),
+            format!(
+                "{head}\n0,1,2,3,4,0.1,0.2,0.5,1,2,3,0.01,0.02,0,0,7\n0,1,2,3,4,0.1,0.2,oops,1,2,3,0.01,0.02,0,0,7\n"
+            ),
         )
         .unwrap();
         let e = format!("{:#}", read_matches(&p).unwrap_err());
