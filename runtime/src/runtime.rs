@@ -117,6 +117,7 @@ impl Runtime {
             Some(s) => (s.meta.width, s.meta.height),
             None => (c.source.live.width, c.source.live.height),
         };
+        check_readout(c, session.as_ref())?;
         // the self-check's timing evidence needs the raw cameras at the frames' size (a size the calibration
         // does not fit is refused by the rectify stage, by name)
         let timing = match (camera_for_frames(&stereo.left, fw, fh), camera_for_frames(&stereo.right, fw, fh)) {
@@ -447,6 +448,28 @@ fn sinks(
         sinks.push(Box::new(crate::sinks::self_check::SelfCheckSink::with_timing(cfg, out, timing)?));
     }
     Ok(sinks)
+}
+
+/// A rolling-shutter readout is at most one frame period (the sensor reads the next frame's first row after
+/// this frame's last): checked against the frames it applies to, the session's rate in a replay, the cameras'
+/// live, before any sink writes a file. Names where the value came from.
+fn check_readout(c: &RuntimeConfig, session: Option<&Session>) -> Result<()> {
+    let (fps, rate_from) = match session {
+        Some(s) => (s.meta.fps, format!("the session's {} fps", s.meta.fps)),
+        None => (c.source.live.fps as f64, format!("[source.live] fps = {}", c.source.live.fps)),
+    };
+    let period_ms = 1000.0 / fps;
+    let (r, from) = match (c.motion.readout_ms, session) {
+        (Some(r), _) => (r, "[motion] readout_ms (--readout-ms)"),
+        (None, Some(_)) => return Ok(()), // session.toml's own readout is checked when the session opens
+        (None, None) => (c.source.live.readout_ms, "[source.live] readout_ms (--readout-ms)"),
+    };
+    if !(0.0..=period_ms).contains(&r) {
+        return Err(RuntimeError::Invalid(format!(
+            "{from}: {r} ms is out of range (0 ..= {period_ms:.3} ms, one frame period at {rate_from})"
+        )));
+    }
+    Ok(())
 }
 
 #[cfg(feature = "rerun")]
