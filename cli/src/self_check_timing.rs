@@ -55,6 +55,10 @@ pub struct FrameTiming {
     pub offset_ms: [f64; 2],
     /// |rotation error| the self-check measured on the frame (deg); NaN without a fit.
     pub error_deg: f64,
+    /// Row bands of the rolling-shutter correction (0: the frame corrected as a whole); NaN in older logs.
+    pub row_bands: f64,
+    /// The run's identity (`run_id`); NaN in older logs.
+    pub run_id: f64,
 }
 
 /// One match's timing evidence (the runtime's match log).
@@ -135,9 +139,73 @@ pub fn read_frames(path: &Path) -> anyhow::Result<Option<Vec<FrameTiming>>> {
             anchor: v[6],
             offset_ms: [v[7], v[8]],
             error_deg: (v[9] * v[9] + v[10] * v[10] + v[11] * v[11]).sqrt(),
+            row_bands: f64::NAN,
+            run_id: f64::NAN,
         });
     }
+    // the run's identity and what its correction did (logs written before them lack the columns)
+    if let Some(extra) = read_columns(path, &["row_bands", "run_id"], true)? {
+        for (f, (_, v)) in out.iter_mut().zip(extra) {
+            (f.row_bands, f.run_id) = (v[0], v[1]);
+        }
+    }
     Ok(Some(out))
+}
+
+/// The one run identity of a log's rows (`None`: the log predates it); an error when its rows mix runs.
+pub fn run_id_of(path: &Path, ids: impl Iterator<Item = f64>) -> anyhow::Result<Option<u64>> {
+    let mut one = None;
+    for id in ids.filter(|x| x.is_finite()) {
+        match one {
+            None => one = Some(id),
+            Some(o) if o != id => bail!("{}: rows of two runs ({o} and {id}): one log, one run", path.display()),
+            _ => {}
+        }
+    }
+    Ok(one.map(|x| x as u64))
+}
+
+/// The run a `<log>.run.toml` names (its `# self-check run_id = N` line; `None` in older files).
+fn run_id_of_config(path: &Path) -> anyhow::Result<Option<u64>> {
+    let text = std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+    let Some(rest) = text.lines().find_map(|l| l.strip_prefix("# self-check run_id = ")) else { return Ok(None) };
+    Ok(Some(rest.trim().parse().with_context(|| format!("{}: run_id `{rest}` is not a number", path.display()))?))
+}
+
+/// The match log (`<log>.matches.csv`) and the run it names (`None` in older logs).
+pub fn read_matches_of_run(path: &Path) -> anyhow::Result<(Vec<MatchEvidence>, Option<u64>)> {
+    let m = read_matches(path)?;
+    let ids = read_columns(path, &["run_id"], true)?.unwrap_or_default();
+    Ok((m, run_id_of(path, ids.into_iter().map(|(_, v)| v[0]))?))
+}
+
+/// Refuses a match log of another run than its frame log, naming both.
+fn same_run(log: &Path, frames: &[FrameTiming], mpath: &Path, mrun: Option<u64>) -> anyhow::Result<Option<u64>> {
+    let run = run_id_of(log, frames.iter().map(|f| f.run_id))?;
+    if let (Some(a), Some(b)) = (run, mrun) {
+        if a != b {
+            bail!(
+                "{} is of run {b}, the frame log {} of run {a}: logs of different runs (each `abvs run \
+                 --self-check-log` writes both; keep them together)",
+                mpath.display(),
+                log.display()
+            );
+        }
+    }
+    Ok(run)
+}
+
+/// Why the log's run cannot be fitted as it was applied: frames the rolling-shutter correction left whole
+/// although the cameras have a readout (the fit models a per-row correction).
+fn not_as_applied(frames: &[FrameTiming]) -> Option<String> {
+    let whole = frames.iter().filter(|f| f.row_bands == 0.0 && f.readout_ms > 0.0 && steady(f)).count();
+    (whole > 0).then(|| {
+        format!(
+            "the run rectified {whole} moving frames as a whole, at their instant (the rolling-shutter correction \
+             was off: `--rolling-shutter off`, `[motion] rolling_shutter = false`), while the fit models a run that \
+             reads each row at its own time: replay with the correction on and fit that log"
+        )
+    })
 }
 
 /// The match log (`<log>.matches.csv`).
@@ -544,16 +612,33 @@ fn offset_item(t: &TimingFit) -> toml_edit::Item {
     }
 }
 
-/// The configuration a log's run used (`<log>.run.toml`), when it replayed a session that is still there.
-fn replay_config(log: &Path) -> anyhow::Result<Option<RuntimeConfig>> {
+/// The configuration a log's run used (`<log>.run.toml`), when it replayed a session that is still there and
+/// names the log's run; otherwise why the rounds cannot run.
+fn replay_config(log: &Path, run: Option<u64>) -> anyhow::Result<Result<RuntimeConfig, String>> {
     let p = abvs_runtime::sinks::self_check::run_config_path(log);
     if !p.exists() {
-        return Ok(None);
+        return Ok(Err(format!("no {} beside the log (its run's configuration): nothing to replay", p.display())));
+    }
+    if let (Some(a), Some(b)) = (run, run_id_of_config(&p)?) {
+        if a != b {
+            return Ok(Err(format!(
+                "{} is of run {b}, the log of run {a}: not replayed (another run's configuration)",
+                p.display()
+            )));
+        }
     }
     let c = RuntimeConfig::load(&p)?;
-    let replay = c.source.kind == SourceKind::Session
-        && c.source.session.as_deref().is_some_and(|d| d.join("session.toml").exists());
-    Ok(replay.then_some(c))
+    if c.source.kind != SourceKind::Session {
+        return Ok(Err(format!("{}: a live run, not a replay: record another minute with the estimate", p.display())));
+    }
+    match c.source.session.as_deref() {
+        Some(d) if d.join("session.toml").exists() => Ok(Ok(c)),
+        d => Ok(Err(format!(
+            "{}: its session {} is not there any more",
+            p.display(),
+            d.map_or("(none)".into(), |d| d.display().to_string())
+        ))),
+    }
 }
 
 /// Replays `cfg`'s session with `t`'s timing, lossless, nothing published, the self-check logging to `log`.
@@ -668,7 +753,13 @@ pub fn analyse(a: &crate::self_check_report::SelfCheckArgs, label: &str) -> anyh
         r.plotted = plot(&logs)?;
         return Ok(r);
     }
-    let matches = read_matches(&mpath)?;
+    let (matches, mrun) = read_matches_of_run(&mpath)?;
+    let run = same_run(&a.log, &frames, &mpath, mrun)?;
+    if let Some(why) = not_as_applied(&frames) {
+        let mut r = none(why);
+        r.plotted = plot(&logs)?;
+        return Ok(r);
+    }
     let Some(first) = fit(&frames, &matches)? else {
         let mut r = none(
             "too few frames in which the eyes moved steadily (at least 10 with matches, faster than 5 deg/s): \
@@ -680,7 +771,18 @@ pub fn analyse(a: &crate::self_check_report::SelfCheckArgs, label: &str) -> anyh
     };
     // rounds: a replay is run again with the estimate and fitted again while the correction is large
     let mut fits = vec![first];
-    let replay = if a.rounds > 0 { replay_config(&a.log)? } else { None };
+    let mut no_rounds = None;
+    let replay = if a.rounds > 0 && fits[0].refine() {
+        match replay_config(&a.log, run)? {
+            Ok(c) => Some(c),
+            Err(why) => {
+                no_rounds = Some(why);
+                None
+            }
+        }
+    } else {
+        None
+    };
     if let Some(cfg) = &replay {
         for k in 1..=a.rounds {
             let prev = fits.last().expect("one fit");
@@ -688,15 +790,21 @@ pub fn analyse(a: &crate::self_check_report::SelfCheckArgs, label: &str) -> anyh
                 break;
             }
             let log = a.out.join(format!("round-{k}.csv"));
+            // what the round applies, as the replay reads it (per eye where the estimate is per eye)
+            let applied = match offset_setting(prev) {
+                TimeOffsetMs::Both(v) => format!("offset {v:.2} ms (both eyes)"),
+                TimeOffsetMs::PerEye([l, r]) => format!("offsets {l:.2} ms left, {r:.2} ms right"),
+            };
             eprintln!(
-                "timing: round {k}: replaying {} with offset {:.2} ms, readout {:.2} ms",
+                "timing: round {k}: replaying {} with {applied}, readout {:.2} ms",
                 cfg.source.session.as_deref().unwrap_or(Path::new("?")).display(),
-                prev.offset_common.value,
-                prev.readout.value
+                round2(prev.readout.value.max(0.0))
             );
             rerun(cfg, prev, &log)?;
             let frames = read_frames(&log)?.with_context(|| format!("{}: no timing columns", log.display()))?;
-            let matches = read_matches(&abvs_runtime::sinks::self_check::match_log_path(&log))?;
+            let mp = abvs_runtime::sinks::self_check::match_log_path(&log);
+            let (matches, mrun) = read_matches_of_run(&mp)?;
+            same_run(&log, &frames, &mp, mrun)?;
             let Some(t) = fit(&frames, &matches)? else { break };
             fits.push(t);
             logs.push((log, frames));
@@ -802,6 +910,10 @@ pub fn analyse(a: &crate::self_check_report::SelfCheckArgs, label: &str) -> anyh
     if fits.len() > 1 {
         console.insert(0, format!("timing: {} rounds of replay with the estimate", fits.len() - 1));
     }
+    if let Some(why) = &no_rounds {
+        console.insert(0, format!("timing: no rounds: {why}"));
+        md += &format!("\n**No rounds:** {why}.\n");
+    }
     if t.refine() {
         console.push("timing: large correction: re-run with these values and fit again".into());
     }
@@ -866,7 +978,9 @@ mod tests {
         let head = abvs_runtime::sinks::self_check::MATCH_LOG_HEADER;
         std::fs::write(
             &p,
-            format!("{head}\n0,1,2,3,4,0.1,0.2,0.5,1,2,3,0.01,0.02,0,0\n0,1,2,3,4,0.1,0.2,oops,1,2,3,0.01,0.02,0,0\n"),
+            format!(
+                "{head}\n0,1,2,3,4,0.1,0.2,0.5,1,2,3,0.01,0.02,0,0,7\n0,1,2,3,4,0.1,0.2,oops,1,2,3,0.01,0.02,0,0,7\n"
+            ),
         )
         .unwrap();
         let e = format!("{:#}", read_matches(&p).unwrap_err());

@@ -329,3 +329,41 @@ fn every_numeric_flag_refuses_bad_values_by_name_without_panic_or_hang() {
     );
     assert!(found.is_empty(), "{} doors failed:\n{}", found.len(), found.join("\n"));
 }
+
+/// A readout longer than a frame period is refused wherever it enters, by name, before any work (issue 37:
+/// `run --readout-ms 1000` and `[motion] readout_ms = 1000` were accepted; session.toml refused it).
+#[test]
+fn a_readout_longer_than_a_frame_is_refused_by_name() {
+    let tmp = tempfile::tempdir().unwrap();
+    let fixture = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../fixtures/session");
+    let log = tmp.path().join("check.csv");
+    let run = |args: &[&std::ffi::OsStr]| {
+        std::process::Command::new(env!("CARGO_BIN_EXE_abvs")).arg("run").args(args).output().unwrap()
+    };
+    let o = run(&[
+        "--session".as_ref(),
+        fixture.as_os_str(),
+        "--no-publish".as_ref(),
+        "--readout-ms".as_ref(),
+        "1000".as_ref(),
+        "--self-check-log".as_ref(),
+        log.as_os_str(),
+    ]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success() && err.contains("--readout-ms") && err.contains("one frame period"), "{err}");
+    assert!(err.contains("25 fps") && !log.exists(), "{err}");
+    // the same value in a configuration's [motion]
+    let o = run(&[
+        "--session".as_ref(),
+        fixture.as_os_str(),
+        "--readout-ms".as_ref(),
+        "1000".as_ref(),
+        "--print-config".as_ref(),
+    ]);
+    let cfg = tmp.path().join("c.toml");
+    std::fs::write(&cfg, &o.stdout).unwrap();
+    assert!(String::from_utf8_lossy(&o.stdout).contains("readout_ms = 1000"), "{o:?}");
+    let o = run(&["--config".as_ref(), cfg.as_os_str(), "--no-publish".as_ref()]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success() && err.contains("[motion] readout_ms") && err.contains("one frame period"), "{err}");
+}

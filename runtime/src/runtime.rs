@@ -120,6 +120,7 @@ impl Runtime {
             Some(s) => (s.meta.width, s.meta.height),
             None => (c.source.live.width, c.source.live.height),
         };
+        check_readout(c, session.as_ref())?;
         // the self-check's timing evidence needs the raw cameras at the frames' size (a size the calibration
         // does not fit is refused by the rectify stage, by name)
         let timing = match (camera_for_frames(&stereo.left, fw, fh), camera_for_frames(&stereo.right, fw, fh)) {
@@ -444,7 +445,8 @@ fn sinks(
     }
     let sc = &c.sinks.self_check;
     if sc.enabled {
-        let cfg = crate::sinks::self_check::SelfCheckConfig {
+        let toml = c.to_toml_string();
+        let mut cfg = crate::sinks::self_check::SelfCheckConfig {
             every: sc.every,
             log: sc.log.clone(),
             threshold_deg: sc.threshold_deg,
@@ -454,9 +456,12 @@ fn sinks(
             ..Default::default()
         };
         if let Some(log) = &sc.log {
-            // the run's configuration beside its log: an offline estimate can replay it with other timing
+            // the run's configuration beside its log: an offline estimate can replay it with other timing; the
+            // run's identity in both, so that a log is never fitted or replayed with another run's
+            cfg.run_id = crate::sinks::self_check::new_run_id(&toml);
             let p = crate::sinks::self_check::run_config_path(log);
-            std::fs::write(&p, c.to_toml_string()).map_err(|e| RuntimeError::File {
+            let text = format!("{}\n{toml}", crate::sinks::self_check::run_id_line(cfg.run_id));
+            std::fs::write(&p, text).map_err(|e| RuntimeError::File {
                 path: p.clone(),
                 line: None,
                 msg: format!("writing: {e}"),
@@ -465,6 +470,28 @@ fn sinks(
         sinks.push(Box::new(crate::sinks::self_check::SelfCheckSink::with_timing(cfg, out, timing)?));
     }
     Ok((sinks, access))
+}
+
+/// A rolling-shutter readout is at most one frame period (the sensor reads the next frame's first row after
+/// this frame's last): checked against the frames it applies to, the session's rate in a replay, the cameras'
+/// live, before any sink writes a file. Names where the value came from.
+fn check_readout(c: &RuntimeConfig, session: Option<&Session>) -> Result<()> {
+    let (fps, rate_from) = match session {
+        Some(s) => (s.meta.fps, format!("the session's {} fps", s.meta.fps)),
+        None => (c.source.live.fps as f64, format!("[source.live] fps = {}", c.source.live.fps)),
+    };
+    let period_ms = 1000.0 / fps;
+    let (r, from) = match (c.motion.readout_ms, session) {
+        (Some(r), _) => (r, "[motion] readout_ms (--readout-ms)"),
+        (None, Some(_)) => return Ok(()), // session.toml's own readout is checked when the session opens
+        (None, None) => (c.source.live.readout_ms, "[source.live] readout_ms (--readout-ms)"),
+    };
+    if !(0.0..=period_ms).contains(&r) {
+        return Err(RuntimeError::Invalid(format!(
+            "{from}: {r} ms is out of range (0 ..= {period_ms:.3} ms, one frame period at {rate_from})"
+        )));
+    }
+    Ok(())
 }
 
 #[cfg(feature = "rerun")]

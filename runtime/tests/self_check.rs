@@ -247,3 +247,17 @@ fn critical_path_with_and_without_the_self_check() {
     let (a, b) = (median(&mut off), median(&mut on));
     println!("{engine}: end-to-end p50 without {a:.2} ms, with {b:.2} ms ({:+.1} %)", 100.0 * (b - a) / a);
 }
+
+/// A self-check log of the fixture against the truth, frame by frame (a diagnosis, not a gate):
+/// `SELF_CHECK_TRUTH_LOG=f.csv cargo test -p abvs-runtime --test self_check -- --ignored --nocapture truth_of`
+#[test]
+#[ignore]
+fn truth_of_a_fixture_log() {
+    let Ok(log) = std::env::var("SELF_CHECK_TRUTH_LOG") else { return };
+    for (seq, t, m) in truth_vs_log(&fixture(), Path::new(&log)) {
+        eprintln!(
+            "{seq:3} true {:8.4} {:8.4} {:8.4}  measured {:8.4} {:8.4} {:8.4}",
+            t[0], t[1], t[2], m[0], m[1], m[2]
+        );
+    }
+}

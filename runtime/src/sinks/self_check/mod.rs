@@ -104,6 +104,27 @@ pub struct SelfCheckConfig {
     /// Run the worker only on otherwise idle CPU time (Linux SCHED_IDLE; nice 19 where refused), so it never
     /// takes a core from the pipeline's stages; false keeps the pipeline's priority.
     pub background: bool,
+    /// The run's identity, on every row of both logs and in `<log>.run.toml` ([`new_run_id`]; 0 = none), so
+    /// that `abvs calib self-check` refuses logs and configurations of different runs.
+    pub run_id: u64,
+}
+
+/// A run identity for the logs: 48 bits (exact in a CSV number) of SHA-256 over the run's configuration, the
+/// wall-clock time and the process.
+pub fn new_run_id(config: &str) -> u64 {
+    use sha2::Digest;
+    let now = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_nanos());
+    let mut h = sha2::Sha256::new();
+    h.update(config.as_bytes());
+    h.update(now.to_le_bytes());
+    h.update(std::process::id().to_le_bytes());
+    let d = h.finalize();
+    d[..6].iter().fold(0u64, |a, b| (a << 8) | *b as u64).max(1)
+}
+
+/// The line of `<log>.run.toml` that names its run (a TOML comment: the file stays a configuration).
+pub fn run_id_line(run_id: u64) -> String {
+    format!("# self-check run_id = {run_id}")
 }
 
 impl Default for SelfCheckConfig {
@@ -118,6 +139,7 @@ impl Default for SelfCheckConfig {
             log: None,
             blocking: false,
             background: true,
+            run_id: 0,
         }
     }
 }
@@ -173,6 +195,38 @@ mod tests {
         }
         let got = fit_rotation(&ms, &cam, &m).unwrap().omega.map(f64::to_degrees);
         assert!((got - w.map(f64::to_degrees)).abs().max() < 0.02, "{got:?}");
+    }
+
+    /// A pair wider than MATCH_WIDTH_MAX is matched box-filtered and its matches come back in its own
+    /// pixels: a known sub-pixel shift of a 640 px texture reads the same as at 320.
+    #[test]
+    fn a_wide_pair_is_matched_at_a_coarser_level_in_its_own_pixels() {
+        let tex = |x: f64, y: f64| {
+            (128.0
+                + 50.0 * (0.19 * x + 0.05 * y).sin()
+                + 40.0 * (0.11 * y - 0.08 * x).cos()
+                + 20.0 * (0.26 * x + 0.2 * y).sin())
+            .clamp(1.0, 255.0)
+        };
+        let (w, h) = (640usize, 480usize);
+        let (sx, sy) = (-15.3, 0.6);
+        let left: Vec<u8> = (0..w * h).map(|i| tex((i % w) as f64, (i / w) as f64).round() as u8).collect();
+        let right: Vec<u8> = (0..w * h).map(|i| tex((i % w) as f64 - sx, (i / w) as f64 - sy).round() as u8).collect();
+        let mut matcher = Matcher::new(300, 4.0).unwrap();
+        let mut out = Vec::new();
+        matcher.find(&left, &right, w, h, 40.0, &mut out).unwrap();
+        assert!(out.len() > 50, "{} matches", out.len());
+        let med = |v: &mut Vec<f32>| {
+            v.sort_by(f32::total_cmp);
+            v[v.len() / 2]
+        };
+        let dx = med(&mut out.iter().map(|m| m.xr - m.xl).collect());
+        let dy = med(&mut out.iter().map(|m| m.dy()).collect());
+        // 0.05 px of the matched (half) level, as Lucas-Kanade's test at its own level; this texture's highest
+        // frequency is 0.5 rad/px there, where bilinear sampling pulls a 0.3 px shift by ~0.03 px (read 0.067)
+        assert!((dx - sx as f32).abs() < 0.1 && (dy - sy as f32).abs() < 0.1, "dx {dx} dy {dy}");
+        assert!(out.iter().all(|m| m.xl > 0.0 && m.xl < w as f32 && m.yl < h as f32), "in the pair's pixels");
+        assert!(out.iter().any(|m| m.xl > 400.0), "the whole width");
     }
 
     #[test]

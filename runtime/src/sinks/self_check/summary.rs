@@ -240,13 +240,15 @@ pub fn summary_line(v: &Value) -> String {
 /// The CSV log's header. `speed_*`: each camera's angular speed (deg/s); `accel_*`: how much its mean
 /// angular velocity changed from the 15 ms before the instant to the 15 ms after (deg/s; large: the eye
 /// accelerated while the rows exposed); `readout_ms`, `exposure_ms`, `readout_anchor`, `offset_*_ms`: the
-/// timing the run applied (offsets empty without a [`TimingContext`]).
+/// timing the run applied (offsets empty without a [`TimingContext`]); `row_bands`: the row bands the
+/// rolling-shutter correction used on the frame (0: the frame was corrected as a whole, at its instant: the
+/// correction was off or there was no readout); `run_id`: [`SelfCheckConfig::run_id`].
 pub const LOG_HEADER: &str = "seq,t_ns,l1_deg,l2_deg,l3_deg,r1_deg,r2_deg,r3_deg,matches,vertical_p50_px,\
                               vertical_p95_px,rot_x_deg,rot_y_deg,rot_z_deg,rot_sigma_x_deg,rot_sigma_y_deg,\
                               rot_sigma_z_deg,speed_l_deg_s,speed_r_deg_s,accel_l_deg_s,accel_r_deg_s,readout_ms,\
-                              exposure_ms,readout_anchor,offset_l_ms,offset_r_ms";
+                              exposure_ms,readout_anchor,offset_l_ms,offset_r_ms,row_bands,run_id";
 
-pub(super) fn log_row(c: &FrameCheck, job: &Job, timing: Option<&TimingContext>) -> String {
+pub(super) fn log_row(c: &FrameCheck, job: &Job, timing: Option<&TimingContext>, run_id: u64) -> String {
     let t = &c.theta;
     let f = |x: f64| if x.is_finite() { format!("{x:.6}") } else { String::new() };
     let (om, sg) = match &c.fit {
@@ -256,7 +258,7 @@ pub(super) fn log_row(c: &FrameCheck, job: &Job, timing: Option<&TimingContext>)
     let offsets = timing.map_or([f64::NAN; 2], |t| t.time_offset_ms);
     let accel = job.omega_wide_rad_s.map(|[a, b]| (b - a).norm().to_degrees());
     format!(
-        "{},{},{:.6},{:.6},{:.6},{:.6},{:.6},{:.6},{},{},{},{},{},{},{},{},{},{:.3},{:.3},{:.3},{:.3},{:.4},{:.4},{},{},{}",
+        "{},{},{:.6},{:.6},{:.6},{:.6},{:.6},{:.6},{},{},{},{},{},{},{},{},{},{:.3},{:.3},{:.3},{:.3},{:.4},{:.4},{},{},{},{},{}",
         c.seq,
         c.t_frame_ns,
         t[0][0],
@@ -282,6 +284,8 @@ pub(super) fn log_row(c: &FrameCheck, job: &Job, timing: Option<&TimingContext>)
         job.exposure_ms,
         job.readout_anchor,
         f(offsets[0]),
-        f(offsets[1])
+        f(offsets[1]),
+        job.band_rot[0].len().saturating_sub(1),
+        run_id
     )
 }

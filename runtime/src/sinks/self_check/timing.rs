@@ -91,7 +91,7 @@ pub fn match_timing(m: &Match, job: &Job, ctx: &TimingContext) -> Option<MatchTi
 
 /// The match log's header (`<log>.matches.csv`): one line per match of a checked frame.
 pub const MATCH_LOG_HEADER: &str =
-    "seq,xl,yl,xr,yr,row_l,row_r,dy_px,j_x,j_y,j_z,s_l_px_per_ms,s_r_px_per_ms,u_l_px_per_ms,u_r_px_per_ms";
+    "seq,xl,yl,xr,yr,row_l,row_r,dy_px,j_x,j_y,j_z,s_l_px_per_ms,s_r_px_per_ms,u_l_px_per_ms,u_r_px_per_ms,run_id";
 
 /// The match log of a per-frame log `log`: `x.csv` -> `x.matches.csv`.
 pub fn match_log_path(log: &std::path::Path) -> PathBuf {
@@ -105,9 +105,9 @@ pub fn run_config_path(log: &std::path::Path) -> PathBuf {
 }
 
 /// One line of the match log (`j`: the match's design row for the rotation error, px/rad).
-pub(super) fn match_row(seq: u64, m: &Match, t: &MatchTiming, j: &Vector3<f64>) -> String {
+pub(super) fn match_row(seq: u64, m: &Match, t: &MatchTiming, j: &Vector3<f64>, run_id: u64) -> String {
     format!(
-        "{seq},{:.3},{:.3},{:.3},{:.3},{:.5},{:.5},{:.4},{:.3},{:.3},{:.3},{:.6},{:.6},{:.6},{:.6}",
+        "{seq},{:.3},{:.3},{:.3},{:.3},{:.5},{:.5},{:.4},{:.3},{:.3},{:.3},{:.6},{:.6},{:.6},{:.6},{run_id}",
         m.xl,
         m.yl,
         m.xr,

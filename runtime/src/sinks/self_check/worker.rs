@@ -125,13 +125,13 @@ impl SelfCheckSink {
                         Ok(c) => {
                             sum.add(&c, &matches, &wcfg);
                             if let Some((w, p)) = &mut log {
-                                if let Err(e) = writeln!(w, "{}", log_row(&c, &job, timing.as_ref())) {
+                                if let Err(e) = writeln!(w, "{}", log_row(&c, &job, timing.as_ref(), wcfg.run_id)) {
                                     log::warn!("self-check log {}: {e}", p.display());
                                     log = None;
                                 }
                             }
                             if let (Some((w, p)), Some(ctx)) = (&mut match_log, &timing) {
-                                let r = write_matches(w, &job, ctx, &matches);
+                                let r = write_matches(w, &job, ctx, &matches, wcfg.run_id);
                                 if let Err(e) = r {
                                     log::warn!("self-check log {}: {e}", p.display());
                                     match_log = None;
@@ -158,10 +158,16 @@ impl SelfCheckSink {
 }
 
 /// Every match's timing evidence, one line each.
-fn write_matches(w: &mut impl Write, job: &Job, ctx: &TimingContext, matches: &[Match]) -> std::io::Result<()> {
+fn write_matches(
+    w: &mut impl Write,
+    job: &Job,
+    ctx: &TimingContext,
+    matches: &[Match],
+    run_id: u64,
+) -> std::io::Result<()> {
     for m in matches {
         if let Some(t) = match_timing(m, job, ctx) {
-            writeln!(w, "{}", match_row(job.seq, m, &t, &design_row(m, &job.cam, &job.rot)))?;
+            writeln!(w, "{}", match_row(job.seq, m, &t, &design_row(m, &job.cam, &job.rot), run_id))?;
         }
     }
     Ok(())
