@@ -16,7 +16,8 @@
 //! 0 without a disparity or where the match falls outside the right image
 //! ```
 //!
-//! Fitted by Newton's method on every Aloe pixel with ground truth (bad-2 as the label). The features were
+//! Fitted by Newton's method on every Aloe pixel with ground truth (bad-2 as the label;
+//! scripts/fit_census_confidence.py prints these weights and the mask's curve). The features were
 //! chosen by fitting on one half of the image and ranking the other; the margin, SGBM's acceptance and the
 //! depth edge carry most of it. Texture and the share of SGBM-accepted neighbours ranked Aloe a little better
 //! (bad-2 at SGBM_3WAY's density on the lower half 2.4 against 3.0 %) but only with negative weights (a flat
