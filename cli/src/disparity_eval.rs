@@ -267,6 +267,11 @@ fn bad2_at(curve: &[(f64, f64)], density: f64) -> Option<f64> {
     curve.iter().rev().find(|(dn, _)| *dn <= density).map(|(_, b)| *b)
 }
 
+/// The largest density on a density curve whose bad-2 among the kept is at most `bad` (0 if none).
+fn density_at(curve: &[(f64, f64)], bad: f64) -> f64 {
+    curve.iter().filter(|(_, b)| *b <= bad).map(|(dn, _)| *dn).fold(0.0, f64::max)
+}
+
 /// The engines at the input's resolution (the default mode).
 fn run_native(a: &EvalArgs, l: &Mat, r: &Mat) -> anyhow::Result<Vec<serde_json::Value>> {
     let (iw, ih) = (l.cols() as u32, l.rows() as u32);
@@ -310,6 +315,7 @@ fn run_native(a: &EvalArgs, l: &Mat, r: &Mat) -> anyhow::Result<Vec<serde_json::
             s["own_confidence"] = serde_json::json!({
                 "min_confidence": min,
                 "bad2_pct_of_valid_at_sgbm_density": bad2_at(&curve, sgbm_density),
+                "density_at_sgbm_bad2": density_at(&curve, sgbm_bad),
                 "mask_curve": mask_curve(&est.disparity, conf, &gt, max, &ts),
             });
             curves.push((format!("{} (own confidence)", est.engine), curve));
@@ -450,5 +456,8 @@ mod tests {
         let conf = [0.9, 0.1, 0.5, 0.0];
         let c = density_curve(&d, &conf, &gt, 100.0);
         assert_eq!(c, vec![(0.25, 0.0), (0.5, 0.0), (0.75, 100.0 / 3.0)]);
+        assert_eq!(density_at(&c, 10.0), 0.5);
+        assert_eq!(density_at(&c, 0.0), 0.5);
+        assert_eq!(density_at(&c[2..], 10.0), 0.0);
     }
 }

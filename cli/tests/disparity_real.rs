@@ -238,30 +238,40 @@ fn runtime_default_at_640x480(p: Pair) {
 
 /// Issue 41, counting only the pixels each publishes: the default validity mask (census-refine's own
 /// confidence at `[disparity] min_confidence`'s default) against SGBM_3WAY's own checks, in the same run.
-/// The issue's bars (bad-2 among the published at most SGBM_3WAY's at a density 5 points higher; at its
-/// density at most 0.8x) are NOT met yet: measured at 640x480, Aloe 0.733 / 4.48 % against SGBM_3WAY's
-/// 0.725 / 3.85 % (1.12x at its density), Motorcycle (held out) 0.808 / 7.25 % against 0.853 / 6.45 %
-/// (1.38x). What holds is asserted: the mask removes most of the dense map's bad pixels, keeps most of the
-/// image, and stays within 1.5x of SGBM_3WAY's bad-2 at SGBM_3WAY's density.
+/// The issue's bars: bad-2 among the published at most SGBM_3WAY's at a density at least 5 points higher,
+/// and at SGBM_3WAY's density at most 0.8x its bad-2 (read from the confidence's density curve). Met on Aloe,
+/// the pair the confidence was fitted on (measured 0.783 / 3.41 % against 0.725 / 3.85 %; 0.49x at its
+/// density; its bad-2 at density 0.795). NOT met on the held-out Motorcycle (measured 0.870 / 6.39 % against
+/// 0.853 / 6.45 %: its bad-2 at 1.7 points more density, not 5; 0.89x at its density): what holds there is
+/// asserted (no more bad-2 than SGBM_3WAY's at a higher density, at most 0.95x at its density).
 fn published_against_sgbm_3way(p: &Pair, ours: &serde_json::Value, sgbm: &serde_json::Value) {
     let f = |v: &serde_json::Value| v.as_f64().unwrap_or_else(|| panic!("{}: not a number: {v}", p.name));
     let (od, ob) = (f(&ours["published"]["density"]), f(&ours["published"]["bad2_pct_of_valid"]));
     let (sd, sb) = (f(&sgbm["published"]["density"]), f(&sgbm["published"]["bad2_pct_of_valid"]));
     let at = f(&ours["own_confidence"]["bad2_pct_of_valid_at_sgbm_density"]);
+    let dn_at = f(&ours["own_confidence"]["density_at_sgbm_bad2"]);
     // the dense map (threshold 0) is the one the bars above score
     let dense = &ours["own_confidence"]["mask_curve"][0];
     eprintln!(
         "{} at 640x480, published pixels: census-refine density {od:.3} bad-2 {ob:.2} % (dense {:.3} / {:.2} %), \
-         SGBM_3WAY {sd:.3} / {sb:.2} %; at SGBM_3WAY's density census-refine {at:.2} % ({:.3}x)",
+         SGBM_3WAY {sd:.3} / {sb:.2} %; at SGBM_3WAY's density census-refine {at:.2} % ({:.3}x); at its bad-2 \
+         density {dn_at:.3}",
         p.name,
         f(&dense[1]),
         f(&dense[2]),
         at / sb
     );
     assert_eq!(f(&dense[0]), 0.0);
-    assert!(ob <= 0.6 * f(&dense[2]), "{}: bad-2 among published {ob} % vs dense {}", p.name, dense[2]);
-    assert!(od >= 0.7 && od >= sd - 0.06, "{}: density {od} vs SGBM_3WAY's {sd}", p.name);
-    assert!(at <= 1.5 * sb, "{}: at SGBM_3WAY's density {at} % vs its {sb} %", p.name);
+    assert!(ob <= 0.5 * f(&dense[2]), "{}: bad-2 among published {ob} % vs dense {}", p.name, dense[2]);
+    // what a robot acts on: no more wrong pixels than SGBM_3WAY's among more published ones
+    assert!(ob <= sb && od > sd, "{}: {od} / {ob} % vs SGBM_3WAY's {sd} / {sb} %", p.name);
+    if p.name == "aloe" {
+        assert!(od >= sd + 0.05, "{}: density {od} vs SGBM_3WAY's {sd}", p.name);
+        assert!(dn_at >= sd + 0.05, "{}: at SGBM_3WAY's bad-2 density {dn_at} vs its {sd}", p.name);
+        assert!(at <= 0.8 * sb, "{}: at SGBM_3WAY's density {at} % vs its {sb} %", p.name);
+    } else {
+        assert!(at <= 0.95 * sb, "{}: at SGBM_3WAY's density {at} % vs its {sb} %", p.name);
+    }
 }
 
 /// Held out: nothing about the census refinement was chosen on it.

@@ -5,7 +5,7 @@ use std::path::Path;
 
 use abvs_camera::Camera;
 use abvs_eye::{Fick, Pose};
-use abvs_runtime::tasks::census_confidence::{mask, DEFAULT_MIN_CONFIDENCE};
+use abvs_runtime::tasks::census_confidence::{mask, nearest, Scorer, DEFAULT_MIN_CONFIDENCE};
 use abvs_runtime::tasks::depth::{DepthConfig, DepthFrame};
 use abvs_runtime::tasks::disparity::{DisparityEngine, OnnxEngine, SgbmEngine};
 use abvs_runtime::tasks::disparity_census::CensusRefineEngine;
@@ -20,7 +20,8 @@ fn extrinsic() -> Pose {
 fn bench(c: &mut Criterion) {
     let raw = Camera::ov8856().scaled(800, 600);
     let models = Path::new(env!("CARGO_MANIFEST_DIR")).join("../models/hitnet");
-    let img: Vec<u8> = (0..800 * 600).map(|i| ((i * 7919) % 251) as u8).collect();
+    // wrapping: the noise the release builds always drew (a debug build panicked on the overflow)
+    let img: Vec<u8> = (0..800 * 600i32).map(|i| (i.wrapping_mul(7919) % 251) as u8).collect();
     for (w, h, variant) in [(320u32, 240u32, "hitnet-s"), (640, 480, "hitnet-m")] {
         let out = RectifiedCamera::with_hfov(w, h, 100.0);
         let e = extrinsic();
@@ -72,6 +73,26 @@ fn bench(c: &mut Criterion) {
                     conf.copy_from_slice(c);
                     why.copy_from_slice(y);
                     mask(&conf, DEFAULT_MIN_CONFIDENCE, &mut disp, &mut why);
+                })
+            });
+        }
+        // the confidence's scoring alone at the search's resolution (half the engine's) and its nearest
+        // upsampling, on a noise answer: what it adds to the engine, beside the whole engine's pair above
+        {
+            let (sw, sh) = (w as usize / 2, h as usize / 2);
+            let n = sw * sh;
+            let refined: Vec<f32> = (0..n).map(|i| 8.0 + ((i * 7919) % 13) as f32 * 0.5).collect();
+            let net: Vec<f32> = refined.iter().map(|v| v + 0.3).collect();
+            let prior: Vec<f32> = (0..n).map(|i| if i % 3 == 0 { f32::NAN } else { refined[i] }).collect();
+            let stat: Vec<u8> = (0..n).map(|i| ((i * 31) % 256) as u8).collect();
+            let mut scorer = Scorer::new(sw, sh);
+            let (mut c, mut y) = (vec![0f32; n], vec![0u8; n]);
+            let (mut cu, mut yu) = (vec![0f32; (w * h) as usize], vec![0u8; (w * h) as usize]);
+            g.bench_function("census_confidence_scoring_only", |b| {
+                b.iter(|| {
+                    scorer.score(&l[..n], &stat, &refined, &net, Some(&prior), &mut c, &mut y);
+                    nearest(&c, (sw, sh), &mut cu, (w as usize, h as usize));
+                    nearest(&y, (sw, sh), &mut yu, (w as usize, h as usize));
                 })
             });
         }

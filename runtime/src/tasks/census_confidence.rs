@@ -1,47 +1,60 @@
 //! The census-refine engine's per-pixel confidence, from what one run of it computes anyway (no second run,
-//! unlike the left-right check of [`super::confidence`]):
+//! unlike the left-right check of [`super::confidence`]): a logistic model of whether the pixel is right to
+//! 2 px, fitted on the development pair (Aloe at 640x480) over these features of the search's pass:
 //!
-//! - whether SGBM's own checks (uniqueness, left-right, speckles) accepted the pixel as the search's start,
-//!   or the network filled it;
-//! - the census search's margin: how much better its winner is than the best offset beyond the winner's
-//!   neighbours, `(second - best) / second`, and whether the winner is an end of the search window (the
-//!   true match may lie beyond it);
-//! - texture: the mean absolute horizontal gradient in a 5x5 box of the left image;
-//! - agreement between the network's own answer and the refined one;
-//! - a depth edge: neighbours that differ by more than [`EDGE_PX`] (the answer is upsampled bilinearly,
-//!   which puts pixels between the two surfaces).
+//! - `acc`: whether SGBM's own checks (uniqueness, left-right, speckles) accepted the pixel as the search's
+//!   start (1), or the network filled it (0);
+//! - `m`: the census search's margin, how much better its winner is than the best offset beyond the winner's
+//!   neighbours, `(second - best) / second` in [0, 1];
+//! - `edge`: whether the winner is an end of the search window (the true match may lie beyond it);
+//! - `span`: how far the 4-neighbours' disparities spread (px): a depth edge, where the answer (upsampled
+//!   bilinearly) puts pixels between the two surfaces;
+//! - `agree`: |refined - network| (px, at most 20), the network's own answer against the refined one.
 //!
 //! ```text
-//! m = min(1, margin / MARGIN_FULL)     t = min(1, texture / TEXTURE_FULL)     a = exp(-|refined - network| / AGREE_PX)
-//! SGBM accepted:   c = 0.5 + 0.25 m + 0.25 a
-//! network filled:  c = 0.5 m t a          (without an SGBM prior, every pixel scores as accepted)
-//! times EDGE_FACTOR at a depth edge, times EDGE_FACTOR at the search window's end; 0 without a disparity or
-//! where the match falls outside the right image
+//! c = 1 / (1 + exp(-(B + W_ACC acc + W_MARGIN m + W_EDGE edge + W_SPAN ln(1 + span) + W_AGREE ln(1 + agree))))
+//! 0 without a disparity or where the match falls outside the right image
 //! ```
 //!
-//! Each pixel also gets the reason its confidence is not higher ([`reason`]): low texture, ambiguous, out of
-//! range, occluded. The constants and [`DEFAULT_MIN_CONFIDENCE`] were chosen on Aloe (opencv-doc) and the
-//! rendered fixture; Motorcycle is held out (cli/tests/disparity_real.rs).
+//! Fitted by Newton's method on every Aloe pixel with ground truth (bad-2 as the label;
+//! scripts/fit_census_confidence.py prints these weights and the mask's curve). The features were
+//! chosen by fitting on one half of the image and ranking the other; the margin, SGBM's acceptance and the
+//! depth edge carry most of it. Texture and the share of SGBM-accepted neighbours ranked Aloe a little better
+//! (bad-2 at SGBM_3WAY's density on the lower half 2.4 against 3.0 %) but only with negative weights (a flat
+//! region more confident than a textured one), which would publish the streaks of textureless walls: left
+//! out. A flat region's ambiguity is in its margin (m = 0 scores 0.47 without SGBM's acceptance, below the
+//! default threshold). Without an SGBM prior (the engine at its network's resolution) every pixel scores as
+//! accepted (not calibrated there). Motorcycle is held out (cli/tests/disparity_real.rs). Each pixel also gets
+//! the reason its confidence is not higher ([`reason`]): low texture, ambiguous, out of range, occluded /
+//! depth edge.
 use super::confidence::reason;
 use super::disparity_census::{AT_EDGE, MARGIN_ONE};
 
 /// The default threshold of the validity mask (`[disparity] min_confidence`, `--min-confidence`): published
 /// depth is NaN where the confidence is below it. 0 keeps every pixel (the dense output, bit for bit).
-/// Chosen on Aloe at 640x480 (`abvs disparity-eval --resolution 640x480`, JSON `own_confidence.mask_curve`):
-/// the threshold closest above SGBM_3WAY's density (0.725): density 0.733, bad-2 among the kept 4.48 %
-/// against SGBM_3WAY's 3.85 % (0.25: 0.833 / 8.02 %; 0.35: 0.788 / 6.65 %; dense: 17.25 %).
-pub const DEFAULT_MIN_CONFIDENCE: f32 = 0.4;
-/// The census margin that counts as fully unique.
-pub const MARGIN_FULL: f32 = 0.35;
-/// The texture (mean |I(x+1) - I(x-1)|, gray levels) that counts as fully textured.
-pub const TEXTURE_FULL: f32 = 8.0;
-/// Scale (px at the search's resolution) of the agreement between the network and the refined answer.
-pub const AGREE_PX: f32 = 1.0;
-/// A pixel whose 4-neighbours' disparities span more than this (px at the search's resolution) is on a
-/// depth edge.
-pub const EDGE_PX: f32 = 1.5;
-/// What a depth edge, or a winner at the search window's end, multiplies the confidence by.
-pub const EDGE_FACTOR: f32 = 0.5;
+/// Chosen on Aloe at 640x480 (`abvs disparity-eval --resolution 640x480 --json`, `own_confidence.mask_curve`)
+/// among the thresholds that publish at least 5 points more than SGBM_3WAY's density (0.725) at no more than
+/// its bad-2 (3.85 %): 0.7 gives 0.783 / 3.41 % (0.65: 0.795 / 3.88 %; 0.75: 0.769 / 2.93 %).
+pub const DEFAULT_MIN_CONFIDENCE: f32 = 0.7;
+/// The logistic model's bias (see the module docs; fitted on Aloe at 640x480).
+pub const B: f32 = -0.13;
+/// Weight of SGBM's acceptance.
+pub const W_ACC: f32 = 0.5969;
+/// Weight of the census margin.
+pub const W_MARGIN: f32 = 6.1314;
+/// Weight of a winner at the search window's end.
+pub const W_EDGE: f32 = -0.3952;
+/// Weight of ln(1 + the neighbours' span).
+pub const W_SPAN: f32 = -1.5108;
+/// Weight of ln(1 + |refined - network|).
+pub const W_AGREE: f32 = -0.1575;
+/// Below this texture (mean gray levels) a doubtful pixel's reason is low texture, not ambiguity.
+pub const TEXTURE_LOW: f32 = 4.0;
+/// Below this margin a pixel's reason is ambiguity (or low texture).
+pub const MARGIN_LOW: f32 = 0.175;
+/// Steps of the tables of ln(1 + v) for the span and the agreement (per px) and their reach (px).
+const LN_STEPS: f32 = 32.0;
+const LN_REACH: f32 = 64.0;
 
 /// Buffers of the scoring at one resolution, allocated once.
 pub struct Scorer {
@@ -49,12 +62,28 @@ pub struct Scorer {
     h: usize,
     /// Horizontal 5-box sums of |I(x+1) - I(x-1)| per row.
     rows: Vec<u16>,
+    /// W_MARGIN m of each margin byte; ln(1 + v) at 1 / LN_STEPS px (a logarithm per pixel costs more than
+    /// the rest of the scoring).
+    margin_term: [f32; 128],
+    ln1p: Vec<f32>,
 }
 
 impl Scorer {
     /// A scorer for `w` x `h` maps.
     pub fn new(w: usize, h: usize) -> Scorer {
-        Scorer { w, h, rows: vec![0; w * h] }
+        Scorer {
+            w,
+            h,
+            rows: vec![0; w * h],
+            margin_term: std::array::from_fn(|m| W_MARGIN * m as f32 / MARGIN_ONE as f32),
+            ln1p: (0..=(LN_STEPS * LN_REACH) as usize).map(|i| (i as f32 / LN_STEPS).ln_1p()).collect(),
+        }
+    }
+
+    /// ln(1 + v) for v >= 0 from the table (v beyond its reach: its end).
+    #[inline(always)]
+    fn ln1p(&self, v: f32) -> f32 {
+        self.ln1p[((v * LN_STEPS + 0.5) as usize).min(self.ln1p.len() - 1)]
     }
 
     /// Confidence and reason of each pixel of `refined` (this scorer's size): `img` the left image searched,
@@ -81,7 +110,6 @@ impl Scorer {
                 s = s + g((x + 3).min(w - 1)) - g(x.saturating_sub(2));
             }
         }
-        let margin_one = MARGIN_ONE as f32;
         for y in 0..h {
             let ys = [y.saturating_sub(2), y.saturating_sub(1), y, (y + 1).min(h - 1), (y + 2).min(h - 1)];
             let up = y.saturating_sub(1) * w;
@@ -97,17 +125,12 @@ impl Scorer {
                     (conf[i], why[i]) = (0.0, reason::OUTSIDE_RIGHT);
                     continue;
                 }
-                let tex: u32 = ys.iter().map(|&yy| self.rows[yy * w + x] as u32).sum();
-                let t = (tex as f32 / 25.0 / TEXTURE_FULL).min(1.0);
+                let tex: usize = ys.iter().map(|&yy| self.rows[yy * w + x] as usize).sum();
                 let s = stat[i];
-                let m = (((s & !AT_EDGE) as f32 / margin_one) / MARGIN_FULL).min(1.0);
-                let a = (-(d - net[i]).abs() / AGREE_PX).exp();
-                let a = if a.is_finite() { a } else { 0.0 };
-                // Without a prior (the engine at its network's resolution: no SGBM ran) nothing contradicts
-                // the network, so its pixels score as accepted ones; the mask then removes only ambiguous,
-                // edge and out-of-range ones. The "network filled" score was calibrated where SGBM declined.
+                let agree = (d - net[i]).abs();
+                let agree = if agree.is_finite() { agree.min(20.0) } else { 20.0 };
+                // no prior: nothing contradicts the network, its pixels score as accepted ones
                 let accepted = prior.is_none_or(|p| p[i].is_finite());
-                let mut c = if accepted { 0.5 + 0.25 * m + 0.25 * a } else { 0.5 * m * t * a };
                 let nb = [
                     refined[up + x],
                     refined[down + x],
@@ -117,21 +140,21 @@ impl Scorer {
                 let (lo, hi) = nb
                     .iter()
                     .fold((d, d), |(lo, hi), v| if v.is_finite() { (lo.min(*v), hi.max(*v)) } else { (lo, hi) });
-                let edge = hi - lo > EDGE_PX;
                 let beyond = s & AT_EDGE != 0;
-                if edge {
-                    c *= EDGE_FACTOR;
-                }
-                if beyond {
-                    c *= EDGE_FACTOR;
-                }
-                conf[i] = c;
+                let z = B
+                    + if accepted { W_ACC } else { 0.0 }
+                    + self.margin_term[(s & !AT_EDGE) as usize]
+                    + if beyond { W_EDGE } else { 0.0 }
+                    + W_SPAN * self.ln1p(hi - lo)
+                    + W_AGREE * self.ln1p(agree);
+                conf[i] = 1.0 / (1.0 + (-z).exp());
                 // the weakest evidence names the reason
-                why[i] = if !accepted && t < 0.5 {
-                    reason::LOW_TEXTURE
-                } else if beyond {
+                let m = (s & !AT_EDGE) as f32 / MARGIN_ONE as f32;
+                why[i] = if beyond {
                     reason::OUT_OF_RANGE
-                } else if m < 0.5 {
+                } else if m < MARGIN_LOW && (tex as f32) < 25.0 * TEXTURE_LOW {
+                    reason::LOW_TEXTURE
+                } else if m < MARGIN_LOW {
                     reason::AMBIGUOUS
                 } else {
                     reason::OCCLUDED
@@ -174,7 +197,8 @@ mod tests {
     use super::*;
 
     /// A textured row band whose search was unique, started from an accepted SGBM match: high confidence;
-    /// the same where the network filled a flat area with an ambiguous search: low, for low texture.
+    /// the same where the network filled a flat area with an ambiguous search: below the default threshold, for
+    /// low texture.
     #[test]
     fn accepted_unique_matches_score_high_and_flat_ambiguous_ones_low() {
         let (w, h) = (16usize, 8usize);
@@ -188,7 +212,7 @@ mod tests {
         let i = 3 * w + 6;
         assert!(conf[i] > 0.9, "{}", conf[i]);
         let j = 3 * w + 13;
-        assert!(conf[j] < 0.05, "{}", conf[j]);
+        assert!(conf[j] < DEFAULT_MIN_CONFIDENCE, "{}", conf[j]);
         assert_eq!(why[j], reason::LOW_TEXTURE);
         // the left columns whose match leaves the right image
         assert_eq!((conf[3 * w + 2], why[3 * w + 2]), (0.0, reason::OUTSIDE_RIGHT));

@@ -366,6 +366,17 @@ impl CensusRefineEngine {
         })
     }
 
+    /// The last frame's inputs of the confidence at the network's resolution (left and right images, search
+    /// outcome bytes, refined answer, the network's own answer, SGBM's accepted matches), where the engine
+    /// runs a prior: for fitting the confidence (runtime/examples/census_confidence_dump.rs).
+    #[doc(hidden)]
+    #[allow(clippy::type_complexity)]
+    pub fn internals(&self) -> Option<(&[u8], &[u8], &[u8], &[f32], &[f32], &[f32])> {
+        let (pass, refined) = self.coarse.as_ref()?;
+        let prior = self.prior.as_ref()?;
+        Some((&self.net_left, &self.net_right, &pass.stat, refined, &self.net_raw, &prior.disp))
+    }
+
     /// The engine without its confidence ([`DisparityEngine::confidence`] gives none): the baseline of the
     /// confidence's cost (runtime/benches/pipeline.rs).
     pub fn without_confidence(mut self) -> Self {
