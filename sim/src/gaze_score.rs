@@ -7,7 +7,8 @@
 //!   optical centre to the goal's point;
 //! - `settle_ms` {p50, max, n}: from the frame at which a look_at goal was taken to the first frame where both
 //!   eyes are within [`SETTLE_DEG`] of it (frame instants); `goals_unsettled`: goals never within it;
-//! - `pursuit_error_deg` {p50, max, n}: the same angle on frames in phase `pursuit`, against the pursued point
+//! - `pursuit_error_deg` {p50, max, n}: the same angle on the frames in phase `pursuit` that were not gated (the
+//!   saccade that catches the point up is), against the pursued point
 //!   at the frame's instant (the commanded point moved by the point's velocity, estimated from consecutive
 //!   frames, over the frame's lag behind the controller);
 //! - `frames_moving_ungated`: frames whose exposure saw the links move more than [`MOVING_DEG`] outside a
@@ -166,7 +167,8 @@ impl Sink for GazeScore {
                     }
                 }
                 Phase::Pursuit if g.commanded_m[0].is_finite() => {
-                    if let Some((p0, n0)) = c.prev {
+                    // (the saccade that catches the point up is gated: not the pursuit's error)
+                    if let (Some((p0, n0)), false) = (c.prev, m.gated) {
                         let dt = (now - n0) as f64 * 1e-9;
                         if dt > 0.0 {
                             // the pursued point at the frame's instant: the commanded one is the controller's now
