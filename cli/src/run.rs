@@ -58,6 +58,8 @@ pub fn run_config(c: &RuntimeConfig) -> anyhow::Result<ExitCode> {
 /// frames with that calibration, depth and gaze scored against its truth.
 fn run_sim(c: &RuntimeConfig) -> anyhow::Result<ExitCode> {
     let sc = &c.source.sim;
+    // the script first: a bad line is refused before any work
+    let script = sc.gaze_script.as_deref().map(GazeScript::load).transpose()?;
     let spec = HeadSpec::from_config(sc);
     let head = Head::new(&spec)?;
     let dir = sc
@@ -69,7 +71,6 @@ fn run_sim(c: &RuntimeConfig) -> anyhow::Result<ExitCode> {
     }
     head.calibrate(&dir, abvs_calib::methods::Method::Hybrid)
         .with_context(|| format!("calibrating the simulated units in {}", dir.display()))?;
-    let script = sc.gaze_script.as_deref().map(GazeScript::load).transpose()?;
     let source = SimSource::new(head, script)?;
     let (slot, feed, delay) = (source.goal_slot(), source.truth(), source.control_delay_ns());
     let truth = match c.sinks.truth_stride {

@@ -7,6 +7,7 @@
 //!   optical centre to the goal's point;
 //! - `settle_ms` {p50, max, n}: from the frame at which a look_at goal was taken to the first frame where both
 //!   eyes are within [`SETTLE_DEG`] of it (frame instants); `goals_unsettled`: goals never within it;
+//!   `goals_settled_late`: goals that took longer than their planned saccade + 2 frames;
 //! - `pursuit_error_deg` {p50, max, n}: the same angle on the frames in phase `pursuit` that were not gated (the
 //!   saccade that catches the point up is), against the pursued point
 //!   at the frame's instant (the commanded point moved by the point's velocity, estimated from consecutive
@@ -14,7 +15,8 @@
 //! - `frames_moving_ungated`: frames whose exposure saw the links move more than [`MOVING_DEG`] outside a
 //!   pursuit and that were not gated: every frame that overlaps a saccade must be;
 //! - `refused_motion_deg`: the largest true link motion from one frame to the next while the latest goal is
-//!   refused (the eyes must not move); `seq_gaps`: frames missing from the published sequence.
+//!   refused (the eyes must not move); `idle_theta_max_deg`: the largest true link angle from home before any
+//!   goal (the eyes hold home); `seq_gaps`: frames missing from the published sequence.
 //!
 //! Memory is bounded: running histograms (`hdrhistogram`), no per-frame lists.
 use std::sync::Arc;
@@ -60,8 +62,11 @@ pub struct GazeScore {
     pursuit: Histogram<u64>,
     current: Option<Current>,
     goals_unsettled: u64,
+    goals_settled_late: u64,
+    prev_t_frame_ns: Option<i64>,
     frames_moving_ungated: u64,
     refused_motion_deg: f64,
+    idle_theta_max_deg: f64,
     prev_theta: Option<[[f64; 3]; 2]>,
     prev_seq: Option<u64>,
     seq_gaps: u64,
@@ -80,8 +85,11 @@ impl GazeScore {
             pursuit: angle_hist(),
             current: None,
             goals_unsettled: 0,
+            goals_settled_late: 0,
+            prev_t_frame_ns: None,
             frames_moving_ungated: 0,
             refused_motion_deg: 0.0,
+            idle_theta_max_deg: 0.0,
             prev_theta: None,
             prev_seq: None,
             seq_gaps: 0,
@@ -128,6 +136,7 @@ impl Sink for GazeScore {
         };
         let g = out.motion.gaze;
         let m = out.motion;
+        let frame_ms = self.prev_t_frame_ns.map_or(0.0, |p| (t.t_frame_ns - p) as f64 * 1e-6);
         let last = m.t_start_ns[0].max(m.t_start_ns[1]) + m.readout_ns + m.exposure_ns;
         let now = last + self.control_delay_ns;
         if self.current.is_none_or(|c| c.id != g.goal_id) && g.goal_id != 0 {
@@ -148,7 +157,12 @@ impl Sink for GazeScore {
                 self.refused_motion_deg = self.refused_motion_deg.max(d);
             }
         }
+        if g.phase == Phase::Idle {
+            let far = t.theta_deg.iter().flatten().fold(0.0, |m: f64, x| m.max(x.abs()));
+            self.idle_theta_max_deg = self.idle_theta_max_deg.max(far);
+        }
         self.prev_theta = Some(t.theta_deg);
+        self.prev_t_frame_ns = Some(t.t_frame_ns);
         let record = |h: &mut Histogram<u64>, e: [f64; 2]| {
             for x in e {
                 h.saturating_record((x * 1e6).round().max(1.0) as u64);
@@ -160,7 +174,11 @@ impl Sink for GazeScore {
                     let e = Self::errors_deg(&t, &g.commanded_m);
                     if !c.settled && e[0].max(e[1]) <= SETTLE_DEG {
                         c.settled = true;
-                        self.settle_us.saturating_record((((t.t_frame_ns - c.taken_ns) as f64) * 1e-3).max(1.0) as u64);
+                        let took_ms = (t.t_frame_ns - c.taken_ns) as f64 * 1e-6;
+                        self.settle_us.saturating_record((took_ms * 1e3).max(1.0) as u64);
+                        if took_ms > g.planned_ms + 2.0 * frame_ms {
+                            self.goals_settled_late += 1;
+                        }
                     }
                     if g.phase == Phase::Settled {
                         record(&mut self.fixation, e);
@@ -193,8 +211,10 @@ impl Sink for GazeScore {
         j["settle_ms"] = summary(&self.settle_us, 1e-3);
         j["pursuit_error_deg"] = summary(&self.pursuit, 1e-6);
         j["goals_unsettled"] = serde_json::json!(self.goals_unsettled);
+        j["goals_settled_late"] = serde_json::json!(self.goals_settled_late);
         j["frames_moving_ungated"] = serde_json::json!(self.frames_moving_ungated);
         j["refused_motion_deg"] = serde_json::json!(self.refused_motion_deg);
+        j["idle_theta_max_deg"] = serde_json::json!(self.idle_theta_max_deg);
         j["seq_gaps"] = serde_json::json!(self.seq_gaps);
         j["frames_without_truth"] = serde_json::json!(self.no_truth);
         j["settle_within_deg"] = serde_json::json!(SETTLE_DEG);
