@@ -13,7 +13,8 @@
 //!   at the frame's instant (the commanded point moved by the point's velocity, estimated from consecutive
 //!   frames, over the frame's lag behind the controller);
 //! - `frames_moving_ungated`: frames whose exposure saw the links move more than [`MOVING_DEG`] outside a
-//!   pursuit and that were not gated: every frame that overlaps a saccade must be;
+//!   pursuit (a frame whose exposure the pursuit's last move covered included) and that were not gated: every
+//!   frame that overlaps a saccade must be;
 //! - `refused_motion_deg`: the largest true link motion from one frame to the next while the latest goal is
 //!   refused (the eyes must not move); `idle_theta_max_deg`: the largest true link angle from home before any
 //!   goal (the eyes hold home); `seq_gaps`: frames missing from the published sequence.
@@ -64,6 +65,7 @@ pub struct GazeScore {
     goals_unsettled: u64,
     goals_settled_late: u64,
     prev_t_frame_ns: Option<i64>,
+    prev_phase: Phase,
     frames_moving_ungated: u64,
     refused_motion_deg: f64,
     idle_theta_max_deg: f64,
@@ -87,6 +89,7 @@ impl GazeScore {
             goals_unsettled: 0,
             goals_settled_late: 0,
             prev_t_frame_ns: None,
+            prev_phase: Phase::Idle,
             frames_moving_ungated: 0,
             refused_motion_deg: 0.0,
             idle_theta_max_deg: 0.0,
@@ -145,7 +148,10 @@ impl Sink for GazeScore {
             self.current =
                 Some(Current { id: g.goal_id, taken_ns: t.t_frame_ns, settled: !look_at, look_at, prev: None });
         }
-        if t.travel_deg > MOVING_DEG && !m.gated && g.phase != Phase::Pursuit {
+        // (a pursuit's last move, sent at the previous frame, runs over this frame's exposure too)
+        let pursuing = g.phase == Phase::Pursuit || self.prev_phase == Phase::Pursuit;
+        self.prev_phase = g.phase;
+        if t.travel_deg > MOVING_DEG && !m.gated && !pursuing {
             self.frames_moving_ungated += 1;
         }
         if g.phase == Phase::Refused {
