@@ -27,6 +27,22 @@ pub struct RunArgs {
     /// With --live: calibration directory (stereo.yaml, eye0, eye1), as `abvs record` uses.
     #[arg(long)]
     pub calib: Option<PathBuf>,
+    /// Where frames come from: a recorded session (--session), the live eyes (--live), or `sim`: the
+    /// closed-loop simulation of the whole head (a simulated drive board executes the runtime's commands, every
+    /// frame rendered from the true link angles; virtual time, deterministic, lossless; `[source.sim]`).
+    #[arg(long, value_enum, conflicts_with_all = ["session", "live"])]
+    pub source: Option<SourceKind>,
+    /// With --source sim: picks the units, the rig and the scene.
+    #[arg(long, value_parser = crate::args::count(0u64, u64::MAX / 1_000_004))]
+    pub seed: Option<u64>,
+    /// With --source sim: timed gaze goals to play (format: docs/gaze.md, "Gaze scripts"); without, the eyes
+    /// hold home.
+    #[arg(long, value_name = "FILE")]
+    pub gaze_script: Option<PathBuf>,
+    /// With --source sim: where the simulated units' calibration is made once and reused (default: a
+    /// directory per seed and size under the temporary directory).
+    #[arg(long, value_name = "DIR")]
+    pub sim_calib: Option<PathBuf>,
     #[command(flatten)]
     pub devices: crate::record::DeviceArgs,
     /// Number of frames (at least 1; the session loops when shorter, timestamps kept increasing); default one pass.
@@ -221,6 +237,19 @@ pub fn effective_config(a: &RunArgs, m: &ArgMatches) -> anyhow::Result<RuntimeCo
     if a.live {
         c.source.kind = SourceKind::Live;
     }
+    if let Some(k) = a.source {
+        c.source.kind = k;
+    }
+    let sim = &mut c.source.sim;
+    if let Some(s) = a.seed {
+        sim.seed = s;
+    }
+    if given("gaze_script") {
+        sim.gaze_script = a.gaze_script.as_ref().map(abs);
+    }
+    if given("sim_calib") {
+        sim.calib_dir = a.sim_calib.as_ref().map(abs);
+    }
     if given("calib") {
         c.calibration.dir = a.calib.as_ref().map(abs);
     }
@@ -238,24 +267,30 @@ pub fn effective_config(a: &RunArgs, m: &ArgMatches) -> anyhow::Result<RuntimeCo
     if given("baud") {
         l.baud = d.baud;
     }
+    // (the camera flags describe the simulated head's cameras too)
+    let sim = &mut c.source.sim;
     if given("width") {
-        l.width = d.width;
+        (l.width, sim.width) = (d.width, d.width);
     }
     if given("height") {
-        l.height = d.height;
+        (l.height, sim.height) = (d.height, d.height);
     }
     if given("fps") {
-        l.fps = d.fps;
+        (l.fps, sim.fps) = (d.fps, f64::from(d.fps));
     }
     if given("fourcc") {
         l.fourcc = d.fourcc.clone();
     }
     if given("exposure_ms") {
         l.exposure_ms = d.exposure_ms;
+        if let Some(e) = d.exposure_ms {
+            sim.exposure_ms = e;
+        }
     }
     if given("readout_ms") {
         // the cameras' readout, and the per-row correction's for a replay as for live
         l.readout_ms = d.readout_ms;
+        sim.readout_ms = d.readout_ms;
         c.motion.readout_ms = Some(d.readout_ms);
     }
     if let Some(r) = a.rolling_shutter {

@@ -61,6 +61,24 @@ pub fn print(c: &RuntimeConfig, r: &Report) {
             println!("{}", band_line(b));
         }
     }
+    if let Some(g) = stats.extra.get("gaze").filter(|g| g.get("fixation_error_deg").is_some()) {
+        let f = |k: &str, q: &str| g[k][q].as_f64().map_or("-".to_string(), |x| format!("{x:.4}"));
+        let refused: u64 = g["refused"].as_object().map_or(0, |r| r.values().filter_map(|v| v.as_u64()).sum());
+        println!(
+            "gaze vs truth: {} goals ({} refused, {} settled), fixation error p50 {} max {} deg, settle p50 {} max {} \
+             ms, pursuit error p50 {} max {} deg, {} frames gated for saccades",
+            g["goals"].as_u64().unwrap_or(0),
+            refused,
+            g["settled"].as_u64().unwrap_or(0),
+            f("fixation_error_deg", "p50"),
+            f("fixation_error_deg", "max"),
+            f("settle_ms", "p50"),
+            f("settle_ms", "max"),
+            f("pursuit_error_deg", "p50"),
+            f("pursuit_error_deg", "max"),
+            g["frames_gated_saccade"].as_u64().unwrap_or(0),
+        );
+    }
     for k in ["zenoh", "mcap"] {
         if let Some(v) = stats.extra.get(k) {
             let n = |f: &str| v[f].as_u64().unwrap_or(0);

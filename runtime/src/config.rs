@@ -21,6 +21,9 @@ pub enum SourceKind {
     Session,
     /// The eye cameras (V4L2) and the drive board's encoder stream (serial).
     Live,
+    /// The closed-loop simulation of the whole head (`[source.sim]`): built by the toolkit (`abvs run --source
+    /// sim`, abvs-sim), which hands the runtime its source ([`crate::Runtime::with_source`]).
+    Sim,
 }
 
 /// Which forward kinematics the eyes use.
@@ -163,6 +166,80 @@ pub struct SourceConfig {
     /// `[source.live]`: the devices of a live run.
     #[serde(default)]
     pub live: LiveConfig,
+    /// `[source.sim]`: the simulated head (kind = "sim"; printed only when not the default).
+    #[serde(default, skip_serializing_if = "SimConfig::is_default")]
+    pub sim: SimConfig,
+}
+
+/// The closed-loop simulation of the whole head (kind = "sim"; abvs-sim's `head`): the simulated drive board
+/// executes the runtime's commands, every frame is rendered from the true link angles at each row's time, in
+/// virtual time (lockstep, deterministic, as fast as rendering allows; always lossless).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct SimConfig {
+    /// Picks both units (their true physics), the stereo rig, the board's origins and the scene.
+    pub seed: u64,
+    /// Timed gaze goals (format: docs/gaze.md, "Gaze scripts"); absent: the eyes hold home.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub gaze_script: Option<PathBuf>,
+    /// Rendered frame width (px).
+    pub width: u32,
+    /// Rendered frame height (px).
+    pub height: u32,
+    /// Frame rate (Hz, virtual time).
+    pub fps: f64,
+    /// Exposure of every row (ms).
+    pub exposure_ms: f64,
+    /// Rolling-shutter readout (ms), first row's start of exposure to the last row's.
+    pub readout_ms: f64,
+    /// Directory of the simulated units' calibration (stereo.yaml, eye0, eye1), made by the toolkit's
+    /// calibration from simulated measurements the first time and reused; absent: a directory per seed
+    /// under the system's temporary directory.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub calib_dir: Option<PathBuf>,
+}
+
+impl Default for SimConfig {
+    fn default() -> Self {
+        SimConfig {
+            seed: 1,
+            gaze_script: None,
+            width: 640,
+            height: 480,
+            fps: 25.0,
+            exposure_ms: 4.0,
+            readout_ms: 20.0,
+            calib_dir: None,
+        }
+    }
+}
+
+impl SimConfig {
+    fn is_default(&self) -> bool {
+        *self == SimConfig::default()
+    }
+
+    #[allow(clippy::neg_cmp_op_on_partial_ord)] // refuses NaN too
+    fn check(&self) -> std::result::Result<(), String> {
+        if !(16..=4096).contains(&self.width) || !(16..=4096).contains(&self.height) {
+            return Err(format!("source.sim.width/height: {}x{} is not a usable size", self.width, self.height));
+        }
+        if !(self.fps > 0.0 && self.fps <= 200.0) {
+            return Err(format!("source.sim.fps: {} must be in (0, 200]", self.fps));
+        }
+        let frame_ms = 1e3 / self.fps;
+        if !(0.0..=frame_ms).contains(&self.exposure_ms) {
+            return Err(format!("source.sim.exposure_ms: {} must be in [0, {frame_ms}]", self.exposure_ms));
+        }
+        if !(0.0..=frame_ms - 4.0).contains(&self.readout_ms) {
+            return Err(format!(
+                "source.sim.readout_ms: {} must be in [0, {}] (frame period - 4 ms)",
+                self.readout_ms,
+                frame_ms - 4.0
+            ));
+        }
+        Ok(())
+    }
 }
 
 fn yes() -> bool {
@@ -544,6 +621,7 @@ impl RuntimeConfig {
                 lossless: false,
                 paced: true,
                 live: LiveConfig::default(),
+                sim: SimConfig::default(),
             },
             calibration: CalibrationConfig { fk: FkSource::Calibrated, dir: None },
             disparity: DisparityConfig {
@@ -585,6 +663,8 @@ impl RuntimeConfig {
                 }
             };
             c.source.session.as_mut().map(fix);
+            c.source.sim.gaze_script.as_mut().map(fix);
+            c.source.sim.calib_dir.as_mut().map(fix);
             c.calibration.dir.as_mut().map(fix);
             c.disparity.model.as_mut().map(fix);
             c.sinks.stats_json.as_mut().map(fix);
@@ -656,6 +736,9 @@ impl RuntimeConfig {
         }
         self.gaze.rate_limit().check()?;
         self.motion.check()?;
+        if self.source.kind == SourceKind::Sim {
+            self.source.sim.check()?;
+        }
         let w = self.sinks.stats_window_s;
         if !(0.01..=86400.0).contains(&w) {
             return Err(format!("sinks.stats_window_s: {w} must be in [0.01, 86400]"));
@@ -670,6 +753,10 @@ impl RuntimeConfig {
             SourceKind::Live if self.calibration.fk == FkSource::Truth => {
                 Err("calibration.fk: `truth` needs a synthetic session, not live devices".into())
             }
+            SourceKind::Sim if self.calibration.fk == FkSource::Truth => Err(
+                "calibration.fk: `truth` is not offered in the simulation (it scores calibrated FK against the truth)"
+                    .into(),
+            ),
             _ => Ok(()),
         }
     }

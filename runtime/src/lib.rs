@@ -56,4 +56,4 @@ pub mod stats;
 pub mod tasks;
 
 pub use error::{Result, RuntimeError};
-pub use runtime::{Report, Runtime, RuntimeHandle};
+pub use runtime::{CustomSource, Report, Runtime, RuntimeHandle};

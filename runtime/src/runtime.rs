@@ -39,6 +39,19 @@ use crate::tasks::rectify::{camera_for_frames, RectifiedCamera};
 enum Input {
     Replay(ReplaySource),
     Live(LiveSource),
+    /// A source the caller built ([`Runtime::with_source`]).
+    Custom(Box<dyn crate::sources::PairSource>),
+}
+
+/// A source built outside the runtime (the toolkit's simulated head, `source.kind = "sim"`), for
+/// [`Runtime::with_source`].
+pub struct CustomSource {
+    /// The frames, encoders and board.
+    pub source: Box<dyn crate::sources::PairSource>,
+    /// The rolling-shutter readout its frames carry (ms).
+    pub readout_ms: f64,
+    /// What the report calls it.
+    pub name: String,
 }
 
 /// A deployment, assembled and ready to run: source, calibration, engine, sinks and bridges.
@@ -94,15 +107,39 @@ impl Runtime {
     /// frame: the configuration's values, its output paths, the calibration and model files, the engine, the
     /// bridges' shared memory; a live source's devices are opened last and the eyes homed.
     pub fn from_config(config: &RuntimeConfig) -> Result<Runtime> {
+        Self::assemble(config, None)
+    }
+
+    /// A deployment whose frames, encoders and drive board come from `source` (`source.kind = "sim"`: the
+    /// toolkit's simulated head, which runs in virtual time, so the run is lossless and never paced); the
+    /// calibration is `calibration.dir`'s, as for a live run.
+    pub fn with_source(config: &RuntimeConfig, source: CustomSource) -> Result<Runtime> {
+        if config.calibration.dir.is_none() {
+            return Err(RuntimeError::Invalid("configuration: calibration.dir: a custom source needs one".into()));
+        }
+        let mut c = config.clone();
+        c.source.lossless = true;
+        Self::assemble(&c, Some(source))
+    }
+
+    fn assemble(config: &RuntimeConfig, custom: Option<CustomSource>) -> Result<Runtime> {
         let c = config;
         c.check().map_err(|e| RuntimeError::Invalid(format!("configuration: {e}")))?;
         check_outputs(c)?;
-        let session = match c.source.kind {
-            SourceKind::Session => {
+        let session = match (c.source.kind, &custom) {
+            (_, Some(_)) => None,
+            (SourceKind::Session, None) => {
                 let dir = c.source.session.as_deref().expect("checked: kind = session has a session");
                 Some(Session::open(dir)?)
             }
-            SourceKind::Live => None,
+            (SourceKind::Live, None) => None,
+            (SourceKind::Sim, None) => {
+                return Err(RuntimeError::Invalid(
+                    "source.kind = \"sim\": the simulated head is the toolkit's (`abvs run --source sim`); a \
+                     program builds its source and calls Runtime::with_source"
+                        .into(),
+                ))
+            }
         };
         let (stereo, kin) = calibration(c, session.as_ref())?;
         let gaze_models = [kin.left.ik_model()?, kin.right.ik_model()?];
@@ -116,9 +153,10 @@ impl Runtime {
             motion.time_offset_s = measured.map(|t| t.per_eye().map(|t| t * 1e-3));
         }
         let offsets_s = motion.time_offset_s.unwrap_or_else(|| kin.encoder_latency_s());
-        let (fw, fh) = match &session {
-            Some(s) => (s.meta.width, s.meta.height),
-            None => (c.source.live.width, c.source.live.height),
+        let (fw, fh) = match (&session, &custom) {
+            (Some(s), _) => (s.meta.width, s.meta.height),
+            (None, Some(s)) => s.source.size(),
+            (None, None) => (c.source.live.width, c.source.live.height),
         };
         check_readout(c, session.as_ref())?;
         // the self-check's timing evidence needs the raw cameras at the frames' size (a size the calibration
@@ -128,8 +166,9 @@ impl Runtime {
             _ => None,
         };
         let (sinks, gaze_access) = sinks(c, &out, timing, &gaze)?;
-        let (input, readout_ms, source_name, description) = match session {
-            Some(session) => {
+        let (input, readout_ms, source_name, description) = match (session, custom) {
+            (_, Some(s)) => (Input::Custom(s.source), s.readout_ms, s.name.clone(), s.name),
+            (Some(session), None) => {
                 let (name, description) = (session.dir.display().to_string(), session.meta.description.clone());
                 let mut source = ReplaySource::open(session)?;
                 if let Some(r) = c.motion.readout_ms {
@@ -138,7 +177,7 @@ impl Runtime {
                 let readout_ms = source.readout_ns() as f64 * 1e-6;
                 (Input::Replay(source), readout_ms, name, description)
             }
-            None => {
+            (None, None) => {
                 let l = &c.source.live;
                 let readout_ms = c.motion.readout_ms.unwrap_or(l.readout_ms);
                 let source = LiveSource::open(l)?.with_readout_ns((readout_ms * 1e6).round() as i64);
@@ -192,7 +231,7 @@ impl Runtime {
     pub fn replay(&self) -> Option<&ReplaySource> {
         match &self.input {
             Input::Replay(r) => Some(r),
-            Input::Live(_) => None,
+            Input::Live(_) | Input::Custom(_) => None,
         }
     }
 
@@ -251,6 +290,7 @@ impl Runtime {
         let gaze = Some(GazeStage::new(ctl, gaze, kin.home_left_to_right).with_rate_limit(c.gaze.rate_limit()));
         let engine_name = engine.name().to_string();
         let replay = matches!(input, Input::Replay(_));
+        let custom = matches!(input, Input::Custom(_));
         // live frames come when the cameras deliver them: never paced
         let paced = replay && c.source.paced && !c.source.lossless;
         let cfg = PipelineConfig {
@@ -271,9 +311,11 @@ impl Runtime {
         let mut stats = match input {
             Input::Replay(s) => crate::pipeline::run_with_gaze(s, kin, cams, engine, sinks, cfg, gaze)?,
             Input::Live(s) => crate::pipeline::run_with_gaze(s, kin, cams, engine, sinks, cfg, gaze)?,
+            Input::Custom(s) => crate::pipeline::run_with_gaze(s, kin, cams, engine, sinks, cfg, gaze)?,
         };
         // an unpaced replay takes frames ahead of their times: no latency to report
-        stats.latency_measured = !replay || paced;
+        // (a custom source, the simulated head, runs in virtual time: its latency is not the computer's)
+        stats.latency_measured = (!replay && !custom) || paced;
         let (w, h) = (c.disparity.width, c.disparity.height);
         let extra = &mut stats.extra;
         extra.insert("session".into(), serde_json::json!(source_name));

@@ -29,7 +29,7 @@ use abvs_calib::model::save_model;
 use abvs_camera::{Camera, StereoCalibration};
 use abvs_eye::encoder::COUNTS_PER_REV;
 use abvs_eye::sim::{draw_unit, simulate_dataset, Commanded, SimSpec};
-use abvs_eye::unit::{Effect, EncoderTimeOffset};
+use abvs_eye::unit::{Effect, EncoderTimeOffset, UnitFk, UnitStream};
 use abvs_eye::{Fick, Pose, SpmGeometry, UnitModel};
 use abvs_render::{RayTable, RenderOptions, Scene, Surface, Texture, MAX_TIME_SAMPLES};
 use nalgebra::{Isometry3, Matrix3, Point3, Rotation3, Translation3, UnitQuaternion, Vector3};
@@ -137,6 +137,57 @@ pub fn scene(seed: u64) -> Result<Scene> {
         );
     }
     Ok(s)
+}
+
+/// Both units of a seed (every effect of effects.md on): what `abvs sim session --seed` and the simulated head
+/// (`crate::head`) draw.
+pub fn units_for(seed: u64) -> [UnitModel; 2] {
+    [draw_unit(seed * 2 + 11, &Effect::ALL), draw_unit(seed * 2 + 12, &Effect::ALL)]
+}
+
+/// The stereo rig at home drawn from `rng` (T_lH^rH, metres) and its calibration at `width` x `height` (the true
+/// one: issue 5 measures it).
+pub fn rig(rng: &mut ChaCha8Rng, width: u32, height: u32) -> (Pose, StereoCalibration) {
+    let r_home = Rotation3::from_euler_angles(
+        rng.gen_range(-0.008..0.008),
+        rng.gen_range(-0.008..0.008),
+        rng.gen_range(-0.005..0.005),
+    );
+    let t_home = Vector3::new(
+        -0.065 + rng.gen_range(-0.001..0.001),
+        rng.gen_range(-0.0005..0.0005),
+        rng.gen_range(-0.0005..0.0005),
+    );
+    let camera = Camera::ov8856().scaled(width, height);
+    let stereo = StereoCalibration {
+        left: camera,
+        right: camera,
+        rotation: r_home.into_inner(),
+        translation_mm: t_home * 1000.0,
+        rms_px: None,
+    };
+    (Pose::new(r_home.into_inner(), t_home), stereo)
+}
+
+/// One eye's FK calibrated as a user would: a simulated calibration dataset of `unit` (grid step `step_deg`,
+/// measurement noise from `data_seed`), fitted with `method`, saved as an FK model directory `dir`. The
+/// unit's encoder latency is copied: it is not in a static dataset (the discrepancy workflow measures it, issue 4).
+pub fn calibrate_unit(
+    unit: &UnitModel,
+    method: Method,
+    step_deg: f64,
+    data_seed: u64,
+    fit_seed: u64,
+    dir: &Path,
+) -> Result<()> {
+    let sim = SimSpec { commanded: Commanded::Step(step_deg), seed: data_seed, ..SimSpec::default() };
+    let (data, _) = simulate_dataset(unit, &sim, |_, _| {}).map_err(inv)?;
+    let cfg = FitConfig { seed: fit_seed, ..FitConfig::default() };
+    let mut parts = fit(method, &data, None, &cfg, &mut |_, _, _, _, _| {}).map_err(inv)?;
+    if let Some(u) = parts.unit.as_mut() {
+        u.effects.encoder_time_offset = unit.effects.encoder_time_offset.clone();
+    }
+    save_model(dir, &parts).map_err(|e| RuntimeError::File { path: dir.to_path_buf(), line: None, msg: e.to_string() })
 }
 
 /// What `abvs sim session` makes.
@@ -249,6 +300,103 @@ impl PoseTrack {
     }
 }
 
+/// When one frame exposes (s, on the session's clock): see the module doc's "Time".
+pub(crate) struct FrameTiming {
+    pub t_start: f64,
+    pub t_frame: f64,
+    pub readout: f64,
+    pub exposure: f64,
+    pub height: u32,
+}
+
+/// What both eyes of a head render through: the scene, the lens's rays and the rig at home.
+pub(crate) struct EyeView<'a> {
+    pub scene: &'a Scene,
+    pub rays: &'a RayTable,
+    pub camera: &'a Camera,
+    /// T_world^rH (world = left home camera frame, metres).
+    pub world_from_rhome: &'a Pose,
+}
+
+/// The render settings of eye `eye` (the right camera's gain and offset differ a little, as real ones do).
+pub(crate) fn eye_render_options(
+    eye: usize,
+    supersample: u32,
+    noise_sigma: f64,
+    seed: u64,
+    threads: usize,
+) -> RenderOptions {
+    RenderOptions {
+        supersample,
+        blur_sigma: 0.5,
+        vignetting: 0.35,
+        gain: if eye == 0 { 1.0 } else { 0.93 },
+        offset: if eye == 0 { 0.0 } else { 4.0 },
+        noise_sigma,
+        seed,
+        threads,
+        ..RenderOptions::default()
+    }
+}
+
+impl EyeView<'_> {
+    /// One eye's frame: the true unit's pose from its true link angles at every row's time samples
+    /// (`angles_at(t)`, deg), with rolling shutter and motion blur. The frame's own link angles `th_frame`
+    /// advance the unit's motion history (backlash); over the exposure window it is frozen at the frame, as the
+    /// truth and the runtime hold it.
+    #[allow(clippy::too_many_arguments)]
+    pub fn render(
+        &self,
+        eye: usize,
+        fk: &UnitFk,
+        stream: &mut UnitStream,
+        th_frame: &[f64; 3],
+        angles_at: &dyn Fn(f64) -> Result<[f64; 3]>,
+        ft: &FrameTiming,
+        opts: &RenderOptions,
+    ) -> Result<abvs_render::Rendered> {
+        let (camera, world_from_rhome) = (self.camera, self.world_from_rhome);
+        let (t_start, t_frame, readout, exposure) = (ft.t_start, ft.t_frame, ft.readout, ft.exposure);
+        let h1 = (ft.height - 1).max(1) as f64;
+        let world_from = |rel: Pose| {
+            let rel_m = Pose::new(rel.r, rel.t * 1e-3);
+            let world = if eye == 0 { rel_m } else { world_from_rhome.compose(&rel_m) };
+            Isometry3::from_parts(
+                Translation3::from(world.t),
+                UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix_unchecked(world.r)),
+            )
+        };
+        let g = [0.0, 1.0, 0.0];
+        fk.next(stream, th_frame, g).map_err(inv)?;
+        let (cond, mut warm) = fk.peek(stream, th_frame, g, None).map_err(inv)?;
+        let span = readout + exposure;
+        let n_nodes = if span > 0.0 { (span / PoseTrack::STEP_S).ceil() as usize + 1 } else { 1 };
+        let dt = if n_nodes > 1 { span / (n_nodes - 1) as f64 } else { 0.0 };
+        let mut nodes = Vec::with_capacity(n_nodes);
+        for i in 0..n_nodes {
+            let t = if n_nodes > 1 { t_start + i as f64 * dt } else { t_frame };
+            let (rel, r) = fk.pose_unchecked(&angles_at(t)?, &cond, Some(&warm)).map_err(inv)?;
+            warm = r;
+            nodes.push(world_from(rel));
+        }
+        let track = PoseTrack { t0: t_start, dt, nodes };
+        // time samples: the largest blur over the rows, at most half a pixel between samples
+        let blur_px = [0.0, 0.5, 1.0]
+            .iter()
+            .map(|f| {
+                let t = t_start + f * readout;
+                let (a, b) = (track.pose_at(t), track.pose_at(t + exposure));
+                a.rotation.angle_to(&b.rotation) * camera.fx.max(camera.fy)
+            })
+            .fold(0.0, f64::max);
+        let time_samples = if exposure > 0.0 { ((2.0 * blur_px).ceil() as usize + 1).min(MAX_TIME_SAMPLES) } else { 1 };
+        let ks = time_samples as f64;
+        let pose_at =
+            |y: usize, s: usize| track.pose_at(t_start + y as f64 * readout / h1 + (s as f64 + 0.5) / ks * exposure);
+        abvs_render::render_moving(self.scene, self.rays, &pose_at, time_samples, opts).map_err(inv)
+    }
+}
+
 /// Writes an 8-bit gray PNG. Rendered frames carry sensor noise, which LZ77 matching cannot exploit: the
 /// fast (Huffman-oriented) deflate with adaptive filters stores them ~10 % smaller than zlib at its best
 /// (optipng's choice too: filter 5, Huffman-only), and sessions are shipped (the fixture) and replayed.
@@ -287,34 +435,15 @@ pub fn generate(spec: &SessionSpec, dir: &Path, progress: &mut dyn FnMut(&str, u
         line: None,
         msg: e.to_string(),
     };
-    let mut units: [UnitModel; 2] =
-        [draw_unit(spec.seed * 2 + 11, &Effect::ALL), draw_unit(spec.seed * 2 + 12, &Effect::ALL)];
+    let mut units = units_for(spec.seed);
     if let Some(t) = spec.time_offset_ms {
         for u in &mut units {
             u.effects.encoder_time_offset = EncoderTimeOffset { enabled: true, latency_ms: t };
         }
     }
-    // stereo rig at home: T_lH^rH (metres inside, mm in the file)
-    let r_home = Rotation3::from_euler_angles(
-        rng.gen_range(-0.008..0.008),
-        rng.gen_range(-0.008..0.008),
-        rng.gen_range(-0.005..0.005),
-    );
-    let t_home = Vector3::new(
-        -0.065 + rng.gen_range(-0.001..0.001),
-        rng.gen_range(-0.0005..0.0005),
-        rng.gen_range(-0.0005..0.0005),
-    );
-    let home_l_to_r = Pose::new(r_home.into_inner(), t_home);
+    let (home_l_to_r, stereo) = rig(&mut rng, spec.width, spec.height);
     let world_from_rhome = home_l_to_r.inverse();
-    let camera = Camera::ov8856().scaled(spec.width, spec.height);
-    let stereo = StereoCalibration {
-        left: camera,
-        right: camera,
-        rotation: r_home.into_inner(),
-        translation_mm: t_home * 1000.0,
-        rms_px: None,
-    };
+    let camera = stereo.left;
     let cam_err = |e: abvs_camera::CameraError| inv(e);
     stereo.write_yaml(dir.join("calib/stereo.yaml")).map_err(cam_err)?;
     stereo.write_yaml(dir.join("truth/stereo.yaml")).map_err(cam_err)?;
@@ -364,7 +493,6 @@ pub fn generate(spec: &SessionSpec, dir: &Path, progress: &mut dyn FnMut(&str, u
     let mut streams = [fks[0].stream(), fks[1].stream()];
     let (readout, exposure) = (spec.readout_ms * 1e-3, spec.exposure_ms * 1e-3);
     let exposure_ns = (spec.exposure_ms * 1e6).round() as i64;
-    let h1 = (spec.height - 1).max(1) as f64;
     let mut frames = Vec::new();
     let mut truth_rows = String::from("seq,l1,l2,l3,r1,r2,r3\n");
     let mut truth_row_nodes = String::from("seq,node,l1,l2,l3,r1,r2,r3\n");
@@ -387,57 +515,17 @@ pub fn generate(spec: &SessionSpec, dir: &Path, progress: &mut dyn FnMut(&str, u
         }
         let mut names = [String::new(), String::new()];
         for eye in 0..2 {
-            let world_from = |rel: Pose| {
-                let rel_m = Pose::new(rel.r, rel.t * 1e-3);
-                let world = if eye == 0 { rel_m } else { world_from_rhome.compose(&rel_m) };
-                Isometry3::from_parts(
-                    Translation3::from(world.t),
-                    UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix_unchecked(world.r)),
-                )
-            };
-            // the frame's own pose advances the eye's stream (motion history for backlash); the camera over the
-            // frame's exposure window is posed with that history frozen (as the truth and the runtime do)
-            let g = [0.0, 1.0, 0.0];
-            fks[eye].next(&mut streams[eye], &th[eye], g).map_err(inv)?;
-            let (cond, mut warm) = fks[eye].peek(&streams[eye], &th[eye], g, None).map_err(inv)?;
-            let span = readout + exposure;
-            let n_nodes = if span > 0.0 { (span / PoseTrack::STEP_S).ceil() as usize + 1 } else { 1 };
-            let dt = if n_nodes > 1 { span / (n_nodes - 1) as f64 } else { 0.0 };
-            let mut nodes = Vec::with_capacity(n_nodes);
-            for i in 0..n_nodes {
-                let t = if n_nodes > 1 { t_start + i as f64 * dt } else { t_frame };
-                let (rel, r) = fks[eye].pose_unchecked(&readings(eye, t)?, &cond, Some(&warm)).map_err(inv)?;
-                warm = r;
-                nodes.push(world_from(rel));
-            }
-            let track = PoseTrack { t0: t_start, dt, nodes };
-            // time samples: the largest blur over the rows, at most half a pixel between samples
-            let blur_px = [0.0, 0.5, 1.0]
-                .iter()
-                .map(|f| {
-                    let t = t_start + f * readout;
-                    let (a, b) = (track.pose_at(t), track.pose_at(t + exposure));
-                    a.rotation.angle_to(&b.rotation) * camera.fx.max(camera.fy)
-                })
-                .fold(0.0, f64::max);
-            let time_samples =
-                if exposure > 0.0 { ((2.0 * blur_px).ceil() as usize + 1).min(MAX_TIME_SAMPLES) } else { 1 };
-            let ks = time_samples as f64;
-            let pose_at = |y: usize, s: usize| {
-                track.pose_at(t_start + y as f64 * readout / h1 + (s as f64 + 0.5) / ks * exposure)
-            };
-            let opts = RenderOptions {
-                supersample: spec.supersample,
-                blur_sigma: 0.5,
-                vignetting: 0.35,
-                gain: if eye == 0 { 1.0 } else { 0.93 },
-                offset: if eye == 0 { 0.0 } else { 4.0 },
-                noise_sigma: spec.noise_sigma,
-                seed: spec.seed * 1_000_003 + (k * 2 + eye) as u64,
-                threads: spec.threads,
-                ..RenderOptions::default()
-            };
-            let img = abvs_render::render_moving(&scene, &rays, &pose_at, time_samples, &opts).map_err(inv)?;
+            let opts = eye_render_options(
+                eye,
+                spec.supersample,
+                spec.noise_sigma,
+                spec.seed * 1_000_003 + (k * 2 + eye) as u64,
+                spec.threads,
+            );
+            let angles_at = |t: f64| readings(eye, t);
+            let view = EyeView { scene: &scene, rays: &rays, camera: &camera, world_from_rhome: &world_from_rhome };
+            let timing = FrameTiming { t_start, t_frame, readout, exposure, height: spec.height };
+            let img = view.render(eye, &fks[eye], &mut streams[eye], &th[eye], &angles_at, &timing, &opts)?;
             let name = format!("frames/{}_{k:06}.png", if eye == 0 { "left" } else { "right" });
             let p = dir.join(&name);
             save_png(&img.gray_image(), &p).map_err(|e| io(&p, &e))?;
@@ -459,20 +547,8 @@ pub fn generate(spec: &SessionSpec, dir: &Path, progress: &mut dyn FnMut(&str, u
     let method = spec.fk_method;
     for (eye, unit) in units.iter().enumerate() {
         progress("calibrate", eye, 2);
-        let sim = SimSpec {
-            commanded: Commanded::Step(spec.calib_step_deg),
-            seed: spec.seed * 7 + eye as u64,
-            ..SimSpec::default()
-        };
-        let (data, _) = simulate_dataset(unit, &sim, |_, _| {}).map_err(inv)?;
-        let cfg = FitConfig { seed: spec.seed, ..FitConfig::default() };
-        let mut parts = fit(method, &data, None, &cfg, &mut |_, _, _, _, _| {}).map_err(inv)?;
-        if let Some(u) = parts.unit.as_mut() {
-            // encoder latency is not in a static dataset: it comes from the discrepancy workflow (issue 4)
-            u.effects.encoder_time_offset = unit.effects.encoder_time_offset.clone();
-        }
         let d = dir.join(format!("calib/eye{eye}"));
-        save_model(&d, &parts).map_err(|e| io(&d, &e))?;
+        calibrate_unit(unit, method, spec.calib_step_deg, spec.seed * 7 + eye as u64, spec.seed, &d)?;
     }
     progress("calibrate", 2, 2);
 

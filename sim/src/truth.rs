@@ -116,6 +116,8 @@ pub struct TruthSink {
     by_speed: [SpeedBand; 5],
     /// The frame's row nodes as quaternions (reused: nothing is allocated per frame).
     row_nodes: Vec<(UnitQuaternion<f64>, Vector3<f64>)>,
+    /// The simulated head's truth, frame by frame as it renders (`poses` then holds the frame being scored).
+    feed: Option<std::sync::Arc<crate::head::TruthFeed>>,
 }
 
 impl TruthSink {
@@ -182,7 +184,27 @@ impl TruthSink {
             unscored: 0,
             by_speed: std::array::from_fn(|_| SpeedBand::new()),
             row_nodes: Vec::new(),
+            feed: None,
         }))
+    }
+
+    /// The truth of the simulated head ([`crate::head::SimSource`]): its scene and lens, the poses from its
+    /// feed by seq as it renders them.
+    pub fn for_head(source: &crate::head::SimSource, stride: usize) -> Result<TruthSink> {
+        let head = source.head();
+        let camera = abvs_runtime::pipeline::camera_for_frames(&head.stereo.left, head.spec.width, head.spec.height)?;
+        Ok(TruthSink {
+            scene: crate::synth::scene(head.spec.seed)?,
+            camera,
+            poses: Vec::with_capacity(1),
+            stride: stride.max(1),
+            err: DepthError::default(),
+            by_confidence: None,
+            unscored: 0,
+            by_speed: std::array::from_fn(|_| SpeedBand::new()),
+            row_nodes: Vec::new(),
+            feed: Some(source.truth()),
+        })
     }
 
     /// What was measured so far (sums over the frames scored).
@@ -250,6 +272,12 @@ impl Sink for TruthSink {
     }
 
     fn consume(&mut self, out: &Published) -> Result<()> {
+        if let Some(feed) = &self.feed {
+            self.poses.clear();
+            if let Some(t) = feed.get(out.session_seq) {
+                self.poses.push((t.seq, t.left_rel, t.left_rows));
+            }
+        }
         let Some(k) = self.true_pose(out.session_seq) else {
             self.unscored += 1;
             return Ok(());

@@ -83,7 +83,11 @@ impl Stage for GazeStage {
     }
 
     fn process(&mut self, w: &mut Work) -> Result<()> {
-        let now = monotonic_ns();
+        let m = &w.motion;
+        let first = m.t_start_ns[0].min(m.t_start_ns[1]);
+        let last = m.t_start_ns[0].max(m.t_start_ns[1]) + m.readout_ns + m.exposure_ns;
+        // a simulated head runs in virtual time: its board says when the controller acts on this frame
+        let now = self.board.as_ref().and_then(|b| b.virtual_now_ns(last)).unwrap_or_else(monotonic_ns);
         let goal = self.gate.next(&self.mailbox, now);
         let refused_before: u64 = self.ctl.counts.refused.iter().sum();
         self.ctl.step(now, &w.theta, goal.map(|g| g.0), self.board.as_deref_mut());
@@ -99,9 +103,6 @@ impl Stage for GazeStage {
         if let Some(pose) = &w.pose {
             (s.measured_m, s.vergence_m) = measured_fixation(pose, &self.home_left_to_right);
         }
-        let m = &w.motion;
-        let first = m.t_start_ns[0].min(m.t_start_ns[1]);
-        let last = m.t_start_ns[0].max(m.t_start_ns[1]) + m.readout_ns + m.exposure_ns;
         if self.ctl.overlaps_saccade(first, last) {
             // known from the plan, before the encoders show the speed: the speed gate stays as it was
             w.motion.gated = true;
@@ -110,6 +111,9 @@ impl Stage for GazeStage {
         }
         w.motion.gaze = s;
         self.mailbox.set_state(s);
+        if let Some(b) = self.board.as_mut() {
+            b.frame_done(w.seq);
+        }
         Ok(())
     }
 

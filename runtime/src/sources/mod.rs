@@ -37,3 +37,22 @@ pub trait EncoderFeed: Send {
     /// for samples still on the wire).
     fn feed(&mut self, t_ns: i64, tracks: &mut [EncoderTrack; 2]);
 }
+
+/// A source chosen at run time (e.g. the toolkit's simulated head, [`crate::Runtime::with_source`]).
+impl PairSource for Box<dyn PairSource> {
+    fn size(&self) -> (u32, u32) {
+        (**self).size()
+    }
+    fn start(&mut self, now_ns: i64) -> Box<dyn EncoderFeed> {
+        (**self).start(now_ns)
+    }
+    fn next_frame(&mut self, limit: Option<u64>) -> Option<SourcePair<'_>> {
+        (**self).next_frame(limit)
+    }
+    fn finish(&mut self, stats: &mut RunStats) {
+        (**self).finish(stats)
+    }
+    fn board(&mut self) -> Option<Box<dyn board::BoardLink>> {
+        (**self).board()
+    }
+}
