@@ -104,6 +104,77 @@ pub struct RuntimeConfig {
     /// `[bridges]`: publishing to other processes.
     #[serde(default)]
     pub bridges: BridgesConfig,
+    /// `[fovea]`: depth at the raw frames' native scale around the fixation point (`tasks::fovea`).
+    #[serde(default)]
+    pub fovea: FoveaSettings,
+}
+
+/// `[fovea]`: depth at the raw frames' native scale where the eyes look (`tasks::fovea`): on by default, a
+/// window of `width` x `height` raw-scale pixels on its own lane; the main map is the same either way.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct FoveaSettings {
+    /// Compute and publish the fovea.
+    pub enabled: bool,
+    /// Window width (px at the raw frames' scale).
+    pub width: u32,
+    /// Window height (px).
+    pub height: u32,
+    /// Widest disparity search (px at the fovea's scale, a multiple of 16).
+    pub max_range_px: u32,
+    /// Fixations (the closest approach of both optical axes) nearer than this are not used (m).
+    pub min_distance_m: f64,
+    /// Fixations farther than this are not used (m): the window goes to the image centre instead.
+    pub max_distance_m: f64,
+    /// Distance along the image centre's ray without a usable fixation (m).
+    pub default_distance_m: f64,
+}
+
+impl Default for FoveaSettings {
+    fn default() -> Self {
+        let f = crate::tasks::fovea::FoveaConfig::default();
+        FoveaSettings {
+            enabled: true,
+            width: f.width,
+            height: f.height,
+            max_range_px: f.max_range_px,
+            min_distance_m: f.min_distance_m,
+            max_distance_m: f.max_distance_m,
+            default_distance_m: f.default_distance_m,
+        }
+    }
+}
+
+impl FoveaSettings {
+    /// What the pipeline runs, `None` when off.
+    pub fn fovea_config(&self) -> Option<crate::tasks::fovea::FoveaConfig> {
+        self.enabled.then_some(crate::tasks::fovea::FoveaConfig {
+            width: self.width,
+            height: self.height,
+            max_range_px: self.max_range_px,
+            min_distance_m: self.min_distance_m,
+            max_distance_m: self.max_distance_m,
+            default_distance_m: self.default_distance_m,
+        })
+    }
+
+    #[allow(clippy::neg_cmp_op_on_partial_ord)] // refuses NaN too
+    fn check(&self) -> std::result::Result<(), String> {
+        if !(16..=4096).contains(&self.width) || !(16..=4096).contains(&self.height) {
+            return Err(format!("fovea.width/height: {}x{} is not a usable window", self.width, self.height));
+        }
+        if !(16..=256).contains(&self.max_range_px) || self.max_range_px % 16 != 0 {
+            return Err(format!("fovea.max_range_px: {} must be a multiple of 16 in 16..=256", self.max_range_px));
+        }
+        let (a, b, d) = (self.min_distance_m, self.max_distance_m, self.default_distance_m);
+        if !(a > 0.0 && a < b && b <= 100.0) {
+            return Err(format!("fovea.min_distance_m / max_distance_m: {a} / {b} must satisfy 0 < min < max <= 100"));
+        }
+        if !(d > 0.0 && d <= 100.0) {
+            return Err(format!("fovea.default_distance_m: {d} must be in (0, 100]"));
+        }
+        Ok(())
+    }
 }
 
 /// `[source]`: where frames and encoder counts come from.
@@ -518,6 +589,7 @@ impl RuntimeConfig {
             motion: MotionSettings::default(),
             sinks: SinksConfig::default(),
             bridges: BridgesConfig::default(),
+            fovea: FoveaSettings::default(),
         }
     }
 
@@ -607,6 +679,7 @@ impl RuntimeConfig {
             return Err(format!("bridges.zenoh.domain: {} must be in 0..=232 (ROS 2 domain ids)", z.domain));
         }
         self.motion.check()?;
+        self.fovea.check()?;
         let w = self.sinks.stats_window_s;
         if !(0.01..=86400.0).contains(&w) {
             return Err(format!("sinks.stats_window_s: {w} must be in [0.01, 86400]"));
