@@ -19,6 +19,7 @@ use abvs_render::Scene;
 use nalgebra::{Point3, UnitQuaternion, Vector2, Vector3};
 
 use abvs_runtime::error::{Result, RuntimeError};
+use abvs_runtime::messages::FoveaFrame;
 use abvs_runtime::pipeline::{Published, Sink};
 use abvs_runtime::session::{Session, SessionMeta};
 use abvs_runtime::sinks::stats::{DepthError, RunStats};
@@ -116,6 +117,40 @@ pub struct TruthSink {
     by_speed: [SpeedBand; 5],
     /// The frame's row nodes as quaternions (reused: nothing is allocated per frame).
     row_nodes: Vec<(UnitQuaternion<f64>, Vector3<f64>)>,
+    /// The fovea's error and the main map's over the same rays (runs with a fovea; made at its first frame).
+    fovea: Option<Box<[FoveaScore; 2]>>,
+}
+
+/// One map's error over the fovea's scored rays: sums and the point-error histogram (fixed size).
+struct FoveaScore {
+    err: DepthError,
+    dist: SpeedBand,
+}
+
+impl FoveaScore {
+    fn new() -> Self {
+        FoveaScore { err: DepthError::default(), dist: SpeedBand::new() }
+    }
+
+    fn add(&mut self, est: &Vector3<f64>, origin: &Vector3<f64>, hit: &Vector3<f64>, r_true: f64) {
+        let abs_rel = ((est - origin).norm() - r_true).abs() / r_true;
+        let sq = (est - hit).norm_squared();
+        self.err.abs_rel_sum += abs_rel;
+        self.err.sq_sum += sq;
+        self.err.points += 1;
+        self.dist.abs_rel_sum += abs_rel;
+        self.dist.points += 1;
+        self.dist.add_distance(sq.sqrt() * 1e3);
+    }
+
+    fn json(&self) -> serde_json::Value {
+        let mut v = self.err.json();
+        let p50 = self.dist.point_mm_p50();
+        v["point_mm_p50"] =
+            if p50.is_finite() { serde_json::json!((p50 * 1e3).round() / 1e3) } else { serde_json::Value::Null };
+        v["valid"] = v["valid_fraction"].clone();
+        v
+    }
 }
 
 impl TruthSink {
@@ -182,6 +217,7 @@ impl TruthSink {
             unscored: 0,
             by_speed: std::array::from_fn(|_| SpeedBand::new()),
             row_nodes: Vec::new(),
+            fovea: None,
         }))
     }
 
@@ -193,6 +229,45 @@ impl TruthSink {
     /// The index in `poses` of a frame of the session, by its seq.
     fn true_pose(&self, seq: u64) -> Option<usize> {
         self.poses.binary_search_by_key(&seq, |(s, _, _)| *s).ok()
+    }
+}
+
+impl TruthSink {
+    /// Scores the fovea and the main map along the same rays: every `stride`-th window pixel's ray, where the
+    /// truth's surface is hit; the fovea's point at its depth, the main map's at the depth of its nearest
+    /// pixel along the same ray (the main map upsampled to the fovea, nearest neighbour). Valid fractions are
+    /// over the same pixels.
+    fn score_fovea(&mut self, out: &Published, f: &FoveaFrame, frame_pose: &Pose, rows: Option<&RowRotations>) {
+        let scores = self.fovea.get_or_insert_with(|| Box::new([FoveaScore::new(), FoveaScore::new()]));
+        let (fc, mc) = (&f.cam, out.cam);
+        let cam_from_rect = out.rect.rect_from_left.transpose();
+        // rectified -> left home camera
+        let (r, t) = (out.pose.rel_left.r * cam_from_rect, out.pose.rel_left.t);
+        let (fw, mw) = (fc.width as usize, mc.width as usize);
+        for i in (0..f.depth.depth.len()).step_by(self.stride) {
+            let (u, v) = ((i % fw) as f64, (i / fw) as f64);
+            let Some(raw) = source_pixel(&self.camera, fc, &cam_from_rect, rows, u, v) else { continue };
+            let Some(dir) = self.camera.unproject(&Vector2::new(raw.x, raw.y)) else { continue };
+            let true_pose = pose_at_row(frame_pose, &self.row_nodes, raw.y, self.camera.height);
+            let Some(hit) = self.scene.cast(&Point3::from(true_pose.t), &(true_pose.r * dir)) else { continue };
+            let (origin, hit) = (true_pose.t, hit.point.coords);
+            let r_true = (hit - origin).norm();
+            let ray = Vector3::new((u - fc.cx) / fc.f, (v - fc.cy) / fc.f, 1.0);
+            let at = |z: f64| r * (ray * z) + t;
+            scores[0].err.pixels += 1;
+            scores[1].err.pixels += 1;
+            let z = f.depth.depth[i];
+            if z.is_finite() {
+                scores[0].add(&at(z as f64), &origin, &hit, r_true);
+            }
+            let (um, vm) = ((ray.x * mc.f + mc.cx).round(), (ray.y * mc.f + mc.cy).round());
+            if um >= 0.0 && vm >= 0.0 && um < mc.width as f64 && vm < mc.height as f64 {
+                let zm = out.depth.depth[vm as usize * mw + um as usize];
+                if zm.is_finite() {
+                    scores[1].add(&at(zm as f64), &origin, &hit, r_true);
+                }
+            }
+        }
     }
 }
 
@@ -299,6 +374,9 @@ impl Sink for TruthSink {
                 e.points += 1;
             }
         }
+        if let Some(f) = out.fovea {
+            self.score_fovea(out, f, &frame_pose, rows.as_ref());
+        }
         Ok(())
     }
 
@@ -320,6 +398,10 @@ impl Sink for TruthSink {
             );
         }
         stats.extra.insert("truth_frames_unscored".into(), serde_json::json!(self.unscored));
+        if let Some(f) = &self.fovea {
+            stats.extra.insert("depth_error_fovea".into(), f[0].json());
+            stats.extra.insert("depth_error_fovea_main".into(), f[1].json());
+        }
         let num =
             |x: f64| if x.is_finite() { serde_json::json!((x * 1e6).round() / 1e6) } else { serde_json::Value::Null };
         let bands: Vec<serde_json::Value> = self
