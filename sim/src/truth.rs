@@ -117,9 +117,14 @@ pub struct TruthSink {
     by_speed: [SpeedBand; 5],
     /// The frame's row nodes as quaternions (reused: nothing is allocated per frame).
     row_nodes: Vec<(UnitQuaternion<f64>, Vector3<f64>)>,
-    /// The fovea's error and the main map's over the same rays (runs with a fovea; made at its first frame).
-    fovea: Option<Box<[FoveaScore; 2]>>,
+    /// The fovea's error and the main map's over the same rays (runs with a fovea; made at its first frame):
+    /// all frames, then by fixation distance ([`FIXATION_BANDS_M`]).
+    fovea: Option<Box<[[FoveaScore; 2]; 1 + FIXATION_BANDS_M.len()]>>,
 }
+
+/// Lower edges of the fixation-distance bands of `depth_error_fovea_by_distance` (m, the fovea's fixation
+/// from the midpoint of the optical centres); nearer fixations are in no band.
+pub const FIXATION_BANDS_M: [f64; 6] = [0.3, 0.5, 0.75, 1.0, 1.5, 2.0];
 
 /// One map's error over the fovea's scored rays: sums and the point-error histogram (fixed size).
 struct FoveaScore {
@@ -238,7 +243,12 @@ impl TruthSink {
     /// pixel along the same ray (the main map upsampled to the fovea, nearest neighbour). Valid fractions are
     /// over the same pixels.
     fn score_fovea(&mut self, out: &Published, f: &FoveaFrame, frame_pose: &Pose, rows: Option<&RowRotations>) {
-        let scores = self.fovea.get_or_insert_with(|| Box::new([FoveaScore::new(), FoveaScore::new()]));
+        let all =
+            self.fovea.get_or_insert_with(|| Box::new(std::array::from_fn(|_| [FoveaScore::new(), FoveaScore::new()])));
+        let band = FIXATION_BANDS_M.iter().rposition(|lo| f.fixation_distance_m >= *lo).map(|b| b + 1);
+        let (first, rest) = all.split_at_mut(1);
+        let scores = &mut first[0];
+        let mut by_band = band.map(|b| &mut rest[b - 1]);
         let (fc, mc) = (&f.cam, out.cam);
         let cam_from_rect = out.rect.rect_from_left.transpose();
         // rectified -> left home camera
@@ -254,17 +264,18 @@ impl TruthSink {
             let r_true = (hit - origin).norm();
             let ray = Vector3::new((u - fc.cx) / fc.f, (v - fc.cy) / fc.f, 1.0);
             let at = |z: f64| r * (ray * z) + t;
-            scores[0].err.pixels += 1;
-            scores[1].err.pixels += 1;
             let z = f.depth.depth[i];
-            if z.is_finite() {
-                scores[0].add(&at(z as f64), &origin, &hit, r_true);
-            }
             let (um, vm) = ((ray.x * mc.f + mc.cx).round(), (ray.y * mc.f + mc.cy).round());
-            if um >= 0.0 && vm >= 0.0 && um < mc.width as f64 && vm < mc.height as f64 {
-                let zm = out.depth.depth[vm as usize * mw + um as usize];
+            let inside = um >= 0.0 && vm >= 0.0 && um < mc.width as f64 && vm < mc.height as f64;
+            let zm = if inside { out.depth.depth[vm as usize * mw + um as usize] } else { f32::NAN };
+            for s in std::iter::once(&mut *scores).chain(by_band.as_deref_mut()) {
+                s[0].err.pixels += 1;
+                s[1].err.pixels += 1;
+                if z.is_finite() {
+                    s[0].add(&at(z as f64), &origin, &hit, r_true);
+                }
                 if zm.is_finite() {
-                    scores[1].add(&at(zm as f64), &origin, &hit, r_true);
+                    s[1].add(&at(zm as f64), &origin, &hit, r_true);
                 }
             }
         }
@@ -399,8 +410,17 @@ impl Sink for TruthSink {
         }
         stats.extra.insert("truth_frames_unscored".into(), serde_json::json!(self.unscored));
         if let Some(f) = &self.fovea {
-            stats.extra.insert("depth_error_fovea".into(), f[0].json());
-            stats.extra.insert("depth_error_fovea_main".into(), f[1].json());
+            stats.extra.insert("depth_error_fovea".into(), f[0][0].json());
+            stats.extra.insert("depth_error_fovea_main".into(), f[0][1].json());
+            let bands: Vec<serde_json::Value> = f[1..]
+                .iter()
+                .enumerate()
+                .map(|(i, b)| {
+                    let hi = FIXATION_BANDS_M.get(i + 1).map_or(serde_json::Value::Null, |h| serde_json::json!(h));
+                    serde_json::json!({ "fixation_m": [FIXATION_BANDS_M[i], hi], "fovea": b[0].json(), "main": b[1].json() })
+                })
+                .collect();
+            stats.extra.insert("depth_error_fovea_by_distance".into(), serde_json::Value::Array(bands));
         }
         let num =
             |x: f64| if x.is_finite() { serde_json::json!((x * 1e6).round() / 1e6) } else { serde_json::Value::Null };
