@@ -81,6 +81,9 @@ struct Started {
     focal: f64,
     maps: [RectifyMaps; 2],
     sgbm: SgbmEngine,
+    /// The pair and the disparity at the matched width: the window plus `max_range_px` columns on its left,
+    /// so that SGBM, which gives the first `range` columns no match, still answers the whole window.
+    ext: (Vec<u8>, Vec<u8>, Vec<f32>),
     hist: Vec<u32>,
 }
 
@@ -183,11 +186,14 @@ impl Stage for FoveaStage {
         let cam_r = camera_for_frames(&self.cams.1, rw, rh)?;
         // the raw frames' focal length: native scale at the image centre
         let focal = (cam_l.fx + cam_l.fy + cam_r.fx + cam_r.fy) / 4.0;
-        let out = RectifiedCamera::with_hfov(c.width, c.height, 60.0);
+        let ew = c.width + c.max_range_px;
+        let out = RectifiedCamera::with_hfov(ew, c.height, 60.0);
         let maps = [RectifyMaps::new(out, self.grid_step)?, RectifyMaps::new(out, self.grid_step)?];
-        let sgbm = SgbmEngine::new(c.width, c.height, c.max_range_px as f64)?;
+        let sgbm = SgbmEngine::new(ew, c.height, c.max_range_px as f64)?;
+        let n = (ew * c.height) as usize;
+        let ext = (vec![0u8; n], vec![0u8; n], vec![f32::NAN; n]);
         let hist_len = (ctx.out.width as f64 * HIST_BINS_PER_PX) as usize + 1;
-        self.started = Some(Started { cam_l, cam_r, main: ctx.out, focal, maps, sgbm, hist: vec![0; hist_len] });
+        self.started = Some(Started { cam_l, cam_r, main: ctx.out, focal, maps, sgbm, ext, hist: vec![0; hist_len] });
         Ok(())
     }
 
@@ -263,23 +269,33 @@ impl Stage for FoveaStage {
             let nodes = &motion.band_rot[eye];
             (!nodes.is_empty()).then_some(RowRotations { nodes, rows: s.cam_l.height })
         };
-        s.maps[0].out = cam;
-        s.maps[1].out = RectifiedCamera { cx: cam.cx + start, ..cam };
+        // matched `pad` columns wider on the left (see `Started::ext`), then cropped to the window
+        let pad = cfg.max_range_px as usize;
+        let ext_cam = RectifiedCamera { width: cam.width + pad as u32, cx: cam.cx + pad as f64, ..cam };
+        s.maps[0].out = ext_cam;
+        s.maps[1].out = RectifiedCamera { cx: ext_cam.cx + start, ..ext_cam };
         s.maps[0].build_rows(&s.cam_l, &rect.rect_from_left, rows(0).as_ref());
         s.maps[1].build_rows(&s.cam_r, &rect.rect_from_right, rows(1).as_ref());
         let (rw, rh) = (s.cam_l.width, s.cam_l.height);
-        s.maps[0].remap(raw_left, rw, rh, &mut f.left)?;
-        s.maps[1].remap(raw_right, rw, rh, &mut f.right)?;
-        for (v, x) in f.valid.iter_mut().zip(s.maps[0].map_x()) {
-            *v = (*x >= 0.0) as u8;
-        }
+        let (el, er, ed) = &mut s.ext;
+        s.maps[0].remap(raw_left, rw, rh, el)?;
+        s.maps[1].remap(raw_right, rw, rh, er)?;
         if s.sgbm.max_disparity() as u32 != range {
             s.sgbm.set_range(range as i32)?;
         }
-        s.sgbm.compute(&f.left, &f.right, &mut f.disparity)?;
-        let off = start as f32;
-        for d in f.disparity.iter_mut() {
-            *d += off;
+        s.sgbm.compute(el, er, ed)?;
+        let (w, ew, off) = (cam.width as usize, ext_cam.width as usize, start as f32);
+        let map_x = s.maps[0].map_x();
+        for v in 0..cam.height as usize {
+            let (o, e) = (v * w..(v + 1) * w, v * ew + pad..(v + 1) * ew);
+            f.left[o.clone()].copy_from_slice(&el[e.clone()]);
+            f.right[o.clone()].copy_from_slice(&er[e.clone()]);
+            for ((d, val), (de, x)) in
+                f.disparity[o.clone()].iter_mut().zip(&mut f.valid[o]).zip(ed[e.clone()].iter().zip(&map_x[e]))
+            {
+                *d = de + off;
+                *val = (*x >= 0.0) as u8;
+            }
         }
         let FoveaFrame { disparity, valid, left, depth, .. } = &mut *f;
         depth.compute(disparity, |i| valid[i] != 0, left, &cam, rect, &pose.rel_left, &dcfg);
