@@ -9,6 +9,12 @@ with a ``FrameHeader`` user header and an event service notified after every sam
                                        0 = invalid; only with `abvs run --confidence`; the header is the
                                        depth sample's (match the two by ``header.seq``)
     {prefix}/cloud       [CloudPoint]  valid points only: x, y, z (m, left home camera frame), rgba
+    {prefix}/fovea/depth [f32]         the fovea (on by default, `abvs run --fovea off|WxH`): depth at the
+                                       raw frames' native scale in a window around the fixation point; the
+                                       header's intrinsics are the window's (native focal length, principal
+                                       point placing it in the main map's rectified plane), flags bit 2 =
+                                       the image centre at the default distance, not a measured fixation
+    {prefix}/fovea/cloud [CloudPoint]  the fovea's valid points (left home camera frame)
 
 and the gaze services (runtime/src/bridges/iceoryx/gaze.rs), through ``Gaze``::
 
@@ -114,7 +120,13 @@ SERVICE = {
     "max_nodes": 20,
 }
 
-_PAYLOAD = {"depth": ctypes.c_float, "confidence": ctypes.c_float, "cloud": CloudPoint}
+_PAYLOAD = {
+    "depth": ctypes.c_float,
+    "confidence": ctypes.c_float,
+    "cloud": CloudPoint,
+    "fovea/depth": ctypes.c_float,
+    "fovea/cloud": CloudPoint,
+}
 
 
 class GazeGoal(ctypes.Structure):
@@ -303,7 +315,7 @@ class Frame:
         h = self.header
         # the sample's own element count (the Slice's len() is the publisher's maximum)
         n = sample.header.number_of_elements
-        if topic in ("depth", "confidence"):
+        if topic in ("depth", "confidence", "fovea/depth"):
             if n != h.width * h.height:
                 raise ValueError(f"{topic} sample of {n} values for a {h.width}x{h.height} header")
             raw = (ctypes.c_float * n).from_address(payload.as_ptr())
@@ -332,11 +344,12 @@ class Frame:
 
 
 class Subscriber:
-    """Receives ``topic`` ("depth", "confidence" or "cloud") of the runtime publishing under ``prefix``."""
+    """Receives ``topic`` ("depth", "confidence", "cloud", "fovea/depth" or "fovea/cloud") of the runtime
+    publishing under ``prefix``."""
 
     def __init__(self, topic="depth", prefix="abvs"):
         if topic not in _PAYLOAD:
-            raise ValueError(f"topic {topic!r}: expected 'depth', 'confidence' or 'cloud'")
+            raise ValueError(f"topic {topic!r}: expected one of {', '.join(_PAYLOAD)}")
         iox2.set_log_level_from_env_or(iox2.LogLevel.Error)
         self.topic = topic
         s = SERVICE

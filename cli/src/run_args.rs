@@ -177,6 +177,10 @@ pub struct RunArgs {
     /// (`--readout-ms` overrides the session's or the cameras' rolling-shutter readout the same way.)
     #[arg(long, value_name = "MS", allow_negative_numbers = true, value_parser = crate::args::finite_in(-1000.0, 1000.0))]
     pub time_offset_ms: Option<f64>,
+    /// The fovea: depth at the raw frames' native scale around the fixation point, a window of WxH raw pixels
+    /// (on by default at 320x240; `off`: the main map alone, published as before) [default: 320x240].
+    #[arg(long, value_name = "off|WxH")]
+    pub fovea: Option<String>,
     /// Self-check every N-th frame (at least 1; implies --self-check).
     #[arg(long, value_parser = crate::args::count(1u64, u64::MAX))]
     pub self_check_every: Option<u64>,
@@ -411,6 +415,17 @@ pub fn effective_config(a: &RunArgs, m: &ArgMatches) -> anyhow::Result<RuntimeCo
     }
     if given("service_prefix") {
         c.bridges.iceoryx.service_prefix = a.service_prefix.clone();
+    }
+    if let Some(f) = &a.fovea {
+        if f == "off" {
+            c.fovea.enabled = false;
+        } else {
+            let (w, h) =
+                f.split_once('x').with_context(|| format!("--fovea `{f}`: expected off or WxH, e.g. 320x240"))?;
+            c.fovea.enabled = true;
+            c.fovea.width = w.parse().with_context(|| format!("--fovea `{f}`: width"))?;
+            c.fovea.height = h.parse().with_context(|| format!("--fovea `{f}`: height"))?;
+        }
     }
     c.check().map_err(|e| anyhow::anyhow!("configuration: {e}"))?;
     Ok(c)

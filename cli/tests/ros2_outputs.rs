@@ -91,7 +91,7 @@ fn python_iceoryx2_subscriber_receives_the_frames() {
     let _one = one_run();
     let d = tempfile::tempdir().unwrap();
     let p = prefix("iox");
-    let (child, out) = start_check(&["iox", &p, "confidence"]);
+    let (child, out) = start_check(&["iox", &p, "confidence", "fovea"]);
     let s = run(d.path(), &p, &["--confidence"]);
     let r = finish_check(child, out);
     let n = published(&s) as f64;
@@ -106,6 +106,13 @@ fn python_iceoryx2_subscriber_receives_the_frames() {
     let with_depth = r["confidence_with_depth"].as_f64().unwrap();
     assert!(with_depth >= 0.9 * n, "{r}");
     assert_eq!(r["confidence_same_header"], r["confidence_with_depth"], "{r}");
+    // the fovea (on by default): its depth and cloud, the depth's valid count in its header, at the raw frames'
+    // focal length (800x600 frames: above the 320x240 main map's)
+    let fovea = &r["fovea_frames"];
+    assert!(fovea[0].as_f64().unwrap() >= 0.95 * n && fovea[1].as_f64().unwrap() >= 0.95 * n, "{r}");
+    assert_eq!(r["fovea_bad"], serde_json::json!([]), "{r}");
+    let (ff, mf) = (r["fovea_focal"][0].as_f64().unwrap(), r["main_focal"][0].as_f64().unwrap());
+    assert!(r["fovea_focal"].as_array().unwrap().len() == 1 && ff > 2.0 * mf, "{r}");
 }
 
 #[test]

@@ -55,7 +55,11 @@ class IoxCollector:
     """Receives the iceoryx2 topics on threads: depth shapes, headers, (optionally) clouds by stamp and the
     confidence (shape, range, header by seq)."""
 
-    def __init__(self, prefix, keep_clouds, confidence=False):
+    def __init__(self, prefix, keep_clouds, confidence=False, fovea=False):
+        self.fovea = [abvs.Subscriber(t, prefix) for t in ("fovea/depth", "fovea/cloud")] if fovea else []
+        self.fovea_frames = [0, 0]
+        self.fovea_bad = []
+        self.fovea_focal = set()
         self.depth = abvs.Subscriber("depth", prefix)
         self.cloud = abvs.Subscriber("cloud", prefix)
         self.confidence = abvs.Subscriber("confidence", prefix) if confidence else None
@@ -73,6 +77,8 @@ class IoxCollector:
         self.threads = [threading.Thread(target=self.run_depth), threading.Thread(target=self.run_cloud)]
         if confidence:
             self.threads.append(threading.Thread(target=self.run_confidence))
+        for k in range(len(self.fovea)):
+            self.threads.append(threading.Thread(target=self.run_fovea, args=(k,)))
         for t in self.threads:
             t.start()
 
@@ -106,6 +112,23 @@ class IoxCollector:
                 self.confidence_headers[h.seq] = (h.t_frame_ns, h.width, h.height, h.valid)
                 self.confidence_frames += 1
 
+    def run_fovea(self, k):
+        while not self.stop.is_set():
+            f = self.fovea[k].receive(0.2)
+            if f is None:
+                continue
+            with f:
+                h = f.header
+                if k == 0:
+                    if f.data.shape != (h.height, h.width) or f.data.dtype != np.float32:
+                        self.fovea_bad.append(["shape", list(f.data.shape), h.height, h.width])
+                    elif int(np.isfinite(f.data).sum()) != h.valid:
+                        self.fovea_bad.append(["valid", h.seq, int(np.isfinite(f.data).sum()), h.valid])
+                    self.fovea_focal.add(round(h.intrinsics[0], 3))
+                elif len(f.data) != h.valid:
+                    self.fovea_bad.append(["cloud", h.seq, len(f.data), h.valid])
+                self.fovea_frames[k] += 1
+
     def run_cloud(self):
         while not self.stop.is_set():
             f = self.cloud.receive(0.2)
@@ -124,6 +147,8 @@ class IoxCollector:
         self.cloud.close()
         if self.confidence is not None:
             self.confidence.close()
+        for f in self.fovea:
+            f.close()
 
 
 def quat_matrix(q):
@@ -171,7 +196,7 @@ def cmd_layout():
 
 def cmd_iox(prefix, *topics):
     done = stdin_closed()
-    c = IoxCollector(prefix, keep_clouds=False, confidence="confidence" in topics)
+    c = IoxCollector(prefix, keep_clouds=False, confidence="confidence" in topics, fovea="fovea" in topics)
     print("ready", flush=True)
     done.wait()
     time.sleep(0.5)  # samples still on their way
@@ -189,6 +214,10 @@ def cmd_iox(prefix, *topics):
         # confidence samples whose depth sample (same seq) came too, and of those, with the same header
         "confidence_with_depth": sum(s in c.depth_by_seq for s in c.confidence_headers),
         "confidence_same_header": sum(c.depth_by_seq.get(s) == v for s, v in c.confidence_headers.items()),
+        "fovea_frames": c.fovea_frames,
+        "fovea_bad": c.fovea_bad[:5],
+        "fovea_focal": sorted(c.fovea_focal),
+        "main_focal": sorted({round(i[0], 3) for _, i, _ in c.headers.values()}),
     }))
 
 

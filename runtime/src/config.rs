@@ -110,6 +110,9 @@ pub struct RuntimeConfig {
     /// `[gaze]`: limits on the goals that point the eyes, whoever sends them.
     #[serde(default)]
     pub gaze: GazeSettings,
+    /// `[fovea]`: depth at the raw frames' native scale around the fixation point (`tasks::fovea`).
+    #[serde(default)]
+    pub fovea: FoveaSettings,
 }
 
 /// `[gaze]`: limits on pointing the eyes that hold for every sender (docs/gaze.md, "Who may move the eyes").
@@ -134,6 +137,74 @@ impl GazeSettings {
     /// The rate limit the gaze stage runs with.
     pub fn rate_limit(&self) -> crate::gaze::RateLimit {
         crate::gaze::RateLimit { max_goals_per_s: self.max_goals_per_s, goal_burst: self.goal_burst }
+    }
+}
+
+/// `[fovea]`: depth at the raw frames' native scale where the eyes look (`tasks::fovea`): on by default, a
+/// window of `width` x `height` raw-scale pixels on its own lane; the main map is the same either way.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct FoveaSettings {
+    /// Compute and publish the fovea.
+    pub enabled: bool,
+    /// Window width (px at the raw frames' scale).
+    pub width: u32,
+    /// Window height (px).
+    pub height: u32,
+    /// Widest disparity search (px at the fovea's scale, a multiple of 16).
+    pub max_range_px: u32,
+    /// Fixations (the closest approach of both optical axes) nearer than this are not used (m).
+    pub min_distance_m: f64,
+    /// Fixations farther than this are not used (m): the window goes to the image centre instead.
+    pub max_distance_m: f64,
+    /// Distance along the image centre's ray without a usable fixation (m).
+    pub default_distance_m: f64,
+}
+
+impl Default for FoveaSettings {
+    fn default() -> Self {
+        let f = crate::tasks::fovea::FoveaConfig::default();
+        FoveaSettings {
+            enabled: true,
+            width: f.width,
+            height: f.height,
+            max_range_px: f.max_range_px,
+            min_distance_m: f.min_distance_m,
+            max_distance_m: f.max_distance_m,
+            default_distance_m: f.default_distance_m,
+        }
+    }
+}
+
+impl FoveaSettings {
+    /// What the pipeline runs, `None` when off.
+    pub fn fovea_config(&self) -> Option<crate::tasks::fovea::FoveaConfig> {
+        self.enabled.then_some(crate::tasks::fovea::FoveaConfig {
+            width: self.width,
+            height: self.height,
+            max_range_px: self.max_range_px,
+            min_distance_m: self.min_distance_m,
+            max_distance_m: self.max_distance_m,
+            default_distance_m: self.default_distance_m,
+        })
+    }
+
+    #[allow(clippy::neg_cmp_op_on_partial_ord)] // refuses NaN too
+    fn check(&self) -> std::result::Result<(), String> {
+        if !(16..=4096).contains(&self.width) || !(16..=4096).contains(&self.height) {
+            return Err(format!("fovea.width/height: {}x{} is not a usable window", self.width, self.height));
+        }
+        if !(16..=256).contains(&self.max_range_px) || self.max_range_px % 16 != 0 {
+            return Err(format!("fovea.max_range_px: {} must be a multiple of 16 in 16..=256", self.max_range_px));
+        }
+        let (a, b, d) = (self.min_distance_m, self.max_distance_m, self.default_distance_m);
+        if !(a > 0.0 && a < b && b <= 100.0) {
+            return Err(format!("fovea.min_distance_m / max_distance_m: {a} / {b} must satisfy 0 < min < max <= 100"));
+        }
+        if !(d > 0.0 && d <= 100.0) {
+            return Err(format!("fovea.default_distance_m: {d} must be in (0, 100]"));
+        }
+        Ok(())
     }
 }
 
@@ -641,6 +712,7 @@ impl RuntimeConfig {
             sinks: SinksConfig::default(),
             bridges: BridgesConfig::default(),
             gaze: GazeSettings::default(),
+            fovea: FoveaSettings::default(),
         }
     }
 
@@ -739,6 +811,7 @@ impl RuntimeConfig {
         if self.source.kind == SourceKind::Sim {
             self.source.sim.check()?;
         }
+        self.fovea.check()?;
         let w = self.sinks.stats_window_s;
         if !(0.01..=86400.0).contains(&w) {
             return Err(format!("sinks.stats_window_s: {w} must be in [0.01, 86400]"));

@@ -311,6 +311,82 @@ impl DepthFrame {
     }
 }
 
+// ---------------------------------------------------------------- the fovea
+
+/// The foveal depth of one frame (`tasks::fovea`): a window of the rectified plane at the source frames'
+/// native focal length, centred on the fixation point, with its own depth and cloud. The window is where
+/// its intrinsics put it: its pixel (u, v) looks along ((u - cx) / f, (v - cy) / f, 1) in the same rectified
+/// frame as the main map ([`Rectification`]).
+pub struct FoveaFrame {
+    /// The left window's intrinsics (native focal length; principal point placing the fixation at the centre).
+    pub cam: RectifiedCamera,
+    /// The right window's principal point is `cam.cx + offset_px`: the search starts there, and the full
+    /// disparity is the matched one plus this offset.
+    pub offset_px: f64,
+    /// Disparities searched (px at the fovea's scale): `[offset_px, offset_px + range)`.
+    pub search_px: [f64; 2],
+    /// The fixation point (m, left home camera frame) the window is centred on.
+    pub fixation_m: [f64; 3],
+    /// Its distance from the midpoint of both optical centres (m).
+    pub fixation_distance_m: f64,
+    /// Whether the fixation was measured (both optical axes meet in front, within range); otherwise the image
+    /// centre at the default distance.
+    pub measured: bool,
+    /// Whether the search range came from the main map's disparities in the window (else the fixation's).
+    pub from_main: bool,
+    /// Rectified left window (gray, row-major).
+    pub left: Vec<u8>,
+    /// Rectified right window.
+    pub right: Vec<u8>,
+    /// 1 where the left window pixel sees the raw image.
+    pub valid: Vec<u8>,
+    /// Full disparity (px at the fovea's scale), NaN where there is none.
+    pub disparity: Vec<f32>,
+    /// Depth and cloud of the window (left home camera frame).
+    pub depth: DepthFrame,
+    /// Whether the fovea stage filled this frame.
+    pub ready: bool,
+}
+
+impl FoveaFrame {
+    /// Buffers for a `width` x `height` window.
+    pub fn new(width: u32, height: u32) -> Self {
+        let n = (width * height) as usize;
+        FoveaFrame {
+            cam: RectifiedCamera { width, height, f: 1.0, cx: 0.0, cy: 0.0 },
+            offset_px: 0.0,
+            search_px: [0.0; 2],
+            fixation_m: [f64::NAN; 3],
+            fixation_distance_m: f64::NAN,
+            measured: false,
+            from_main: false,
+            left: vec![0; n],
+            right: vec![0; n],
+            valid: vec![0; n],
+            disparity: vec![f32::NAN; n],
+            depth: DepthFrame::new(width, height),
+            ready: false,
+        }
+    }
+
+    /// Copies `other` (a window of the same size) into this one's buffers: no allocation.
+    pub fn copy_from(&mut self, other: &FoveaFrame) {
+        (self.cam, self.offset_px, self.search_px) = (other.cam, other.offset_px, other.search_px);
+        (self.fixation_m, self.fixation_distance_m) = (other.fixation_m, other.fixation_distance_m);
+        (self.measured, self.from_main, self.ready) = (other.measured, other.from_main, other.ready);
+        self.left.copy_from_slice(&other.left);
+        self.right.copy_from_slice(&other.right);
+        self.valid.copy_from_slice(&other.valid);
+        self.disparity.copy_from_slice(&other.disparity);
+        let (d, o, n) = (&mut self.depth, &other.depth, other.depth.n_points);
+        d.depth.copy_from_slice(&o.depth);
+        d.points[..n].copy_from_slice(&o.points[..n]);
+        d.intensity[..n].copy_from_slice(&o.intensity[..n]);
+        d.pixel[..n].copy_from_slice(&o.pixel[..n]);
+        d.n_points = n;
+    }
+}
+
 // ---------------------------------------------------------------- the pooled frame, the published frame
 
 /// One frame's messages as it moves through the stage graph. Allocated at start-up and recycled: a stage
@@ -349,6 +425,8 @@ pub struct Work {
     /// it is working on: a buffer per pooled frame would double the pool's memory (1.6 MB a frame at
     /// 320x240) for a message that never crosses a queue. Empty everywhere else.
     pub depth: DepthFrame,
+    /// The foveal depth (`tasks::fovea`), when the graph has the fovea stage (it sizes the pooled frames).
+    pub fovea: Option<Box<FoveaFrame>>,
 }
 
 impl Work {
@@ -371,6 +449,7 @@ impl Work {
             confidence: Vec::new(),
             reason: Vec::new(),
             depth: DepthFrame::empty(),
+            fovea: None,
         })
     }
 
@@ -400,6 +479,9 @@ impl Work {
         self.raw_right.copy_from_slice(f.right);
         self.pose = None;
         self.rectified.rect = None;
+        if let Some(f) = &mut self.fovea {
+            f.ready = false;
+        }
     }
 
     /// What the sinks see of this frame, once every stage ran (`None` before).
@@ -418,6 +500,7 @@ impl Work {
             disparity: &self.disparity,
             confidence: (!self.confidence.is_empty()).then_some(&self.confidence[..]),
             motion: &self.motion,
+            fovea: self.fovea.as_deref().filter(|f| f.ready),
         })
     }
 }
@@ -450,4 +533,6 @@ pub struct Published<'a> {
     pub confidence: Option<&'a [f32]>,
     /// The frame's motion: eye speeds, blur, and whether it was gated (depth all NaN, empty cloud).
     pub motion: &'a FrameMotion,
+    /// The foveal depth, when the run computes one (gated with the frame: NaN, empty cloud).
+    pub fovea: Option<&'a FoveaFrame>,
 }

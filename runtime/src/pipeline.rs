@@ -27,6 +27,8 @@ use crate::tasks::align::AlignStage;
 pub use crate::tasks::confidence::CheckConfig;
 use crate::tasks::depth::{DepthConfig, DepthStage};
 use crate::tasks::disparity::{DisparityEngine, DisparityStage};
+pub use crate::tasks::fovea::FoveaConfig;
+use crate::tasks::fovea::FoveaStage;
 use crate::tasks::kinematics::{KinematicsStage, StereoKinematics};
 pub use crate::tasks::motion::MotionConfig;
 pub use crate::tasks::rectify::camera_for_frames;
@@ -79,6 +81,9 @@ pub struct PipelineConfig {
     pub stop: Option<Arc<AtomicBool>>,
     /// Counters for another thread to read while the run goes ([`Progress`]).
     pub progress: Option<Arc<Progress>>,
+    /// The fovea ([`crate::tasks::fovea`]), on a lane of its own between disparity and output; `None` runs
+    /// the graph without it (the main outputs are the same either way).
+    pub fovea: Option<FoveaConfig>,
 }
 
 impl Default for PipelineConfig {
@@ -98,6 +103,7 @@ impl Default for PipelineConfig {
             window: Duration::from_secs(60),
             stop: None,
             progress: None,
+            fovea: None,
         }
     }
 }
@@ -140,6 +146,7 @@ pub fn graph_with_gaze<S: PairSource>(
     cfg: &PipelineConfig,
     gaze: Option<GazeStage>,
 ) -> Result<Graph<S>> {
+    let fovea = cfg.fovea.map(|f| FoveaStage::new(f, cams, kin.home_left_to_right, cfg.grid_step, cfg.depth));
     let kinematics = KinematicsStage::new(kin).with_motion(cfg.motion);
     let mut stages: Vec<Box<dyn Stage>> =
         vec![Box::new(AlignStage::new(kinematics.encoder_latency_s()).with_motion(cfg.motion)), Box::new(kinematics)];
@@ -153,8 +160,17 @@ pub fn graph_with_gaze<S: PairSource>(
     stages.push(Box::new(RectifyStage::new(cams, cfg.grid_step)));
     stages.push(Box::new(DisparityStage::with_check(engine, cfg.check)?.with_min_confidence(cfg.min_confidence)?));
     stages.push(Box::new(DepthStage::new(cfg.depth)));
-    Graph::from_description(source, cfg.out, description, stages, sinks)
+    let mut g = Graph::from_description(source, cfg.out, description, stages, sinks)?;
+    if let Some(f) = fovea {
+        // a lane of its own before the output: it reads the main map's disparity and overlaps the next frame's
+        let at = g.lanes.len() - 1;
+        g.lanes.insert(at, Lane { name: FOVEA_LANE, stages: vec![Box::new(f)] });
+    }
+    Ok(g)
 }
+
+/// The fovea's lane (and its latency histogram and CPU in the statistics).
+pub const FOVEA_LANE: &str = "fovea";
 
 /// Runs a replay through the whole pipeline and returns its statistics.
 pub fn run_replay(

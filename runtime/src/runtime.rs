@@ -304,6 +304,7 @@ impl Runtime {
             window: Duration::from_secs_f64(c.sinks.stats_window_s),
             check: c.disparity.check_config(),
             min_confidence: c.disparity.min_confidence as f32,
+            fovea: c.fovea.fovea_config(),
             stop,
             progress,
             ..Default::default()
@@ -449,10 +450,14 @@ fn sinks(
     if c.bridges.iceoryx.enabled {
         let cfg = c.bridge_config();
         // the publishers first: their nodes remove (and count) what a killed runtime left behind
-        sinks.push(Box::new(if c.disparity.confidence || c.disparity.engine.scores_pixels() {
+        let publish = if c.disparity.confidence || c.disparity.engine.scores_pixels() {
             PublishSink::with_confidence(cfg.clone())?
         } else {
             PublishSink::new(cfg.clone())?
+        };
+        sinks.push(Box::new(match c.fovea.fovea_config() {
+            Some(f) => publish.with_fovea(f.width, f.height)?,
+            None => publish,
         }));
         // gaze goals in, the state of every frame out (`{prefix}/gaze/goal`, `{prefix}/gaze/state`)
         sinks.push(Box::new(

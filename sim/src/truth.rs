@@ -19,6 +19,7 @@ use abvs_render::Scene;
 use nalgebra::{Point3, UnitQuaternion, Vector2, Vector3};
 
 use abvs_runtime::error::{Result, RuntimeError};
+use abvs_runtime::messages::FoveaFrame;
 use abvs_runtime::pipeline::{Published, Sink};
 use abvs_runtime::session::{Session, SessionMeta};
 use abvs_runtime::sinks::stats::{DepthError, RunStats};
@@ -118,6 +119,45 @@ pub struct TruthSink {
     row_nodes: Vec<(UnitQuaternion<f64>, Vector3<f64>)>,
     /// The simulated head's truth, frame by frame as it renders (`poses` then holds the frame being scored).
     feed: Option<std::sync::Arc<crate::head::TruthFeed>>,
+    /// The fovea's error and the main map's over the same rays (runs with a fovea; made at its first frame):
+    /// all frames, then by fixation distance ([`FIXATION_BANDS_M`]).
+    fovea: Option<Box<[[FoveaScore; 2]; 1 + FIXATION_BANDS_M.len()]>>,
+}
+
+/// Lower edges of the fixation-distance bands of `depth_error_fovea_by_distance` (m, the fovea's fixation
+/// from the midpoint of the optical centres); nearer fixations are in no band.
+pub const FIXATION_BANDS_M: [f64; 6] = [0.3, 0.5, 0.75, 1.0, 1.5, 2.0];
+
+/// One map's error over the fovea's scored rays: sums and the point-error histogram (fixed size).
+struct FoveaScore {
+    err: DepthError,
+    dist: SpeedBand,
+}
+
+impl FoveaScore {
+    fn new() -> Self {
+        FoveaScore { err: DepthError::default(), dist: SpeedBand::new() }
+    }
+
+    fn add(&mut self, est: &Vector3<f64>, origin: &Vector3<f64>, hit: &Vector3<f64>, r_true: f64) {
+        let abs_rel = ((est - origin).norm() - r_true).abs() / r_true;
+        let sq = (est - hit).norm_squared();
+        self.err.abs_rel_sum += abs_rel;
+        self.err.sq_sum += sq;
+        self.err.points += 1;
+        self.dist.abs_rel_sum += abs_rel;
+        self.dist.points += 1;
+        self.dist.add_distance(sq.sqrt() * 1e3);
+    }
+
+    fn json(&self) -> serde_json::Value {
+        let mut v = self.err.json();
+        let p50 = self.dist.point_mm_p50();
+        v["point_mm_p50"] =
+            if p50.is_finite() { serde_json::json!((p50 * 1e3).round() / 1e3) } else { serde_json::Value::Null };
+        v["valid"] = v["valid_fraction"].clone();
+        v
+    }
 }
 
 impl TruthSink {
@@ -185,6 +225,7 @@ impl TruthSink {
             by_speed: std::array::from_fn(|_| SpeedBand::new()),
             row_nodes: Vec::new(),
             feed: None,
+            fovea: None,
         }))
     }
 
@@ -215,6 +256,51 @@ impl TruthSink {
     /// The index in `poses` of a frame of the session, by its seq.
     fn true_pose(&self, seq: u64) -> Option<usize> {
         self.poses.binary_search_by_key(&seq, |(s, _, _)| *s).ok()
+    }
+}
+
+impl TruthSink {
+    /// Scores the fovea and the main map along the same rays: every `stride`-th window pixel's ray, where the
+    /// truth's surface is hit; the fovea's point at its depth, the main map's at the depth of its nearest
+    /// pixel along the same ray (the main map upsampled to the fovea, nearest neighbour). Valid fractions are
+    /// over the same pixels.
+    fn score_fovea(&mut self, out: &Published, f: &FoveaFrame, frame_pose: &Pose, rows: Option<&RowRotations>) {
+        let all =
+            self.fovea.get_or_insert_with(|| Box::new(std::array::from_fn(|_| [FoveaScore::new(), FoveaScore::new()])));
+        let band = FIXATION_BANDS_M.iter().rposition(|lo| f.fixation_distance_m >= *lo).map(|b| b + 1);
+        let (first, rest) = all.split_at_mut(1);
+        let scores = &mut first[0];
+        let mut by_band = band.map(|b| &mut rest[b - 1]);
+        let (fc, mc) = (&f.cam, out.cam);
+        let cam_from_rect = out.rect.rect_from_left.transpose();
+        // rectified -> left home camera
+        let (r, t) = (out.pose.rel_left.r * cam_from_rect, out.pose.rel_left.t);
+        let (fw, mw) = (fc.width as usize, mc.width as usize);
+        for i in (0..f.depth.depth.len()).step_by(self.stride) {
+            let (u, v) = ((i % fw) as f64, (i / fw) as f64);
+            let Some(raw) = source_pixel(&self.camera, fc, &cam_from_rect, rows, u, v) else { continue };
+            let Some(dir) = self.camera.unproject(&Vector2::new(raw.x, raw.y)) else { continue };
+            let true_pose = pose_at_row(frame_pose, &self.row_nodes, raw.y, self.camera.height);
+            let Some(hit) = self.scene.cast(&Point3::from(true_pose.t), &(true_pose.r * dir)) else { continue };
+            let (origin, hit) = (true_pose.t, hit.point.coords);
+            let r_true = (hit - origin).norm();
+            let ray = Vector3::new((u - fc.cx) / fc.f, (v - fc.cy) / fc.f, 1.0);
+            let at = |z: f64| r * (ray * z) + t;
+            let z = f.depth.depth[i];
+            let (um, vm) = ((ray.x * mc.f + mc.cx).round(), (ray.y * mc.f + mc.cy).round());
+            let inside = um >= 0.0 && vm >= 0.0 && um < mc.width as f64 && vm < mc.height as f64;
+            let zm = if inside { out.depth.depth[vm as usize * mw + um as usize] } else { f32::NAN };
+            for s in std::iter::once(&mut *scores).chain(by_band.as_deref_mut()) {
+                s[0].err.pixels += 1;
+                s[1].err.pixels += 1;
+                if z.is_finite() {
+                    s[0].add(&at(z as f64), &origin, &hit, r_true);
+                }
+                if zm.is_finite() {
+                    s[1].add(&at(zm as f64), &origin, &hit, r_true);
+                }
+            }
+        }
     }
 }
 
@@ -327,6 +413,9 @@ impl Sink for TruthSink {
                 e.points += 1;
             }
         }
+        if let Some(f) = out.fovea {
+            self.score_fovea(out, f, &frame_pose, rows.as_ref());
+        }
         Ok(())
     }
 
@@ -348,6 +437,19 @@ impl Sink for TruthSink {
             );
         }
         stats.extra.insert("truth_frames_unscored".into(), serde_json::json!(self.unscored));
+        if let Some(f) = &self.fovea {
+            stats.extra.insert("depth_error_fovea".into(), f[0][0].json());
+            stats.extra.insert("depth_error_fovea_main".into(), f[0][1].json());
+            let bands: Vec<serde_json::Value> = f[1..]
+                .iter()
+                .enumerate()
+                .map(|(i, b)| {
+                    let hi = FIXATION_BANDS_M.get(i + 1).map_or(serde_json::Value::Null, |h| serde_json::json!(h));
+                    serde_json::json!({ "fixation_m": [FIXATION_BANDS_M[i], hi], "fovea": b[0].json(), "main": b[1].json() })
+                })
+                .collect();
+            stats.extra.insert("depth_error_fovea_by_distance".into(), serde_json::Value::Array(bands));
+        }
         let num =
             |x: f64| if x.is_finite() { serde_json::json!((x * 1e6).round() / 1e6) } else { serde_json::Value::Null };
         let bands: Vec<serde_json::Value> = self

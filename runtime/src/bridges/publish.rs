@@ -16,6 +16,8 @@ pub struct PublishSink {
     cloud: Publisher<CloudPoint>,
     /// The services' configuration (a subscriber opens them with the same).
     pub config: BridgeConfig,
+    /// The fovea's depth and cloud (`{prefix}/fovea/...`), when the run computes one.
+    fovea: Option<(Publisher<f32>, Publisher<CloudPoint>)>,
 }
 
 impl PublishSink {
@@ -45,8 +47,25 @@ impl PublishSink {
             confidence: if confidence { Some(Publisher::confidence(&config).map_err(err)?) } else { None },
             cloud: Publisher::new(&config).map_err(err)?,
             config,
+            fovea: None,
         })
     }
+
+    /// Also the fovea's depth and cloud, on services sized for its `width` x `height` window.
+    pub fn with_fovea(mut self, width: u32, height: u32) -> Result<PublishSink> {
+        let err = |e: crate::bridges::iceoryx::BridgeError| RuntimeError::Invalid(e.to_string());
+        let cfg = BridgeConfig { max_width: width, max_height: height, ..self.config.clone() };
+        self.fovea = Some((Publisher::fovea(&cfg).map_err(err)?, Publisher::fovea(&cfg).map_err(err)?));
+        Ok(self)
+    }
+}
+
+/// The cloud's points with their gray level.
+fn cloud_points<'a>(pts: &'a [glam::Vec3], gray: &'a [u8]) -> impl Iterator<Item = CloudPoint> + 'a {
+    pts.iter().zip(gray).map(|(p, g)| {
+        let g = *g as u32;
+        CloudPoint { x: p.x, y: p.y, z: p.z, rgba: 0xff00_0000 | g << 16 | g << 8 | g }
+    })
 }
 
 /// P = [alpha, beta, gamma (deg), x, y, z (mm)] of a runtime pose (metres).
@@ -92,6 +111,23 @@ impl Sink for PublishSink {
                 }
             })
             .map_err(err)?;
+        if let (Some((depth, cloud)), Some(f)) = (&mut self.fovea, out.fovea) {
+            h.intrinsics = [f.cam.f, f.cam.f, f.cam.cx, f.cam.cy];
+            (h.width, h.height, h.valid) = (f.cam.width, f.cam.height, f.depth.n_points as u32);
+            if !f.measured {
+                h.flags |= crate::bridges::iceoryx::FLAG_FOVEA_DEFAULT_FIXATION;
+            }
+            depth.publish_depth(&h, |s| s.extend_from_slice(&f.depth.depth)).map_err(err)?;
+            let n = f.depth.n_points;
+            let (pts, gray) = (&f.depth.points[..n], &f.depth.intensity[..n]);
+            cloud
+                .publish_cloud(&h, n, |s| {
+                    for p in cloud_points(pts, gray) {
+                        s.push(p);
+                    }
+                })
+                .map_err(err)?;
+        }
         Ok(())
     }
 
@@ -100,6 +136,9 @@ impl Sink for PublishSink {
         let mut p = serde_json::json!({ "depth": d, "cloud": c });
         if let Some(k) = &self.confidence {
             p["confidence"] = serde_json::json!(k.stats());
+        }
+        if let Some((d, c)) = &self.fovea {
+            p["fovea"] = serde_json::json!({ "depth": d.stats(), "cloud": c.stats() });
         }
         stats.extra.insert("publish".into(), p);
     }

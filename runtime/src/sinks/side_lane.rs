@@ -21,7 +21,7 @@ use glam::Vec3;
 use serde::Serialize;
 
 use crate::error::{Result, RuntimeError};
-use crate::messages::{DepthFrame, FrameMotion, Published, Rectification, RectifiedCamera, StereoPose};
+use crate::messages::{DepthFrame, FoveaFrame, FrameMotion, Published, Rectification, RectifiedCamera, StereoPose};
 use crate::sinks::Sink;
 use crate::stats::RunStats;
 
@@ -43,6 +43,9 @@ pub struct PublishedCopy {
     confidence: Vec<f32>,
     has_confidence: bool,
     motion: FrameMotion,
+    /// The fovea's buffers (when the run has one) and whether this frame carries it.
+    fovea: Option<Box<FoveaFrame>>,
+    has_fovea: bool,
 }
 
 fn copy_into<T: Copy>(dst: &mut Vec<T>, src: &[T]) {
@@ -61,6 +64,17 @@ fn resident<T: Copy + Default>(n: usize) -> Vec<T> {
     std::hint::black_box(&mut v);
     v.clear();
     v
+}
+
+/// A fovea's buffers with every page written (non-zero: zeroed pages would map lazily, as `resident` says).
+fn resident_fovea(w: u32, h: u32) -> FoveaFrame {
+    let mut f = FoveaFrame::new(w, h);
+    for b in [&mut f.left, &mut f.right, &mut f.valid, &mut f.depth.intensity] {
+        b.fill(1);
+    }
+    f.depth.points.fill(Vec3::ONE);
+    f.depth.pixel.fill(1);
+    f
 }
 
 impl PublishedCopy {
@@ -88,6 +102,8 @@ impl PublishedCopy {
             confidence: resident(out.confidence.map_or(0, <[f32]>::len)),
             has_confidence: false,
             motion: FrameMotion::new(),
+            fovea: out.fovea.map(|f| Box::new(resident_fovea(f.cam.width, f.cam.height))),
+            has_fovea: false,
         };
         c.fill(out);
         c
@@ -110,6 +126,13 @@ impl PublishedCopy {
         self.has_confidence = out.confidence.is_some();
         copy_into(&mut self.confidence, out.confidence.unwrap_or_default());
         self.motion.copy_from(out.motion);
+        self.has_fovea = false;
+        if let (Some(dst), Some(src)) = (self.fovea.as_deref_mut(), out.fovea) {
+            if (dst.cam.width, dst.cam.height) == (src.cam.width, src.cam.height) {
+                dst.copy_from(src);
+                self.has_fovea = true;
+            }
+        }
     }
 
     /// The copy as the frame the pipeline published.
@@ -128,6 +151,7 @@ impl PublishedCopy {
             disparity: &self.disparity,
             confidence: self.has_confidence.then_some(&self.confidence[..]),
             motion: &self.motion,
+            fovea: self.fovea.as_deref().filter(|_| self.has_fovea),
         }
     }
 
@@ -367,6 +391,7 @@ mod tests {
             disparity: &disp,
             confidence: None,
             motion: &motion,
+            fovea: None,
         };
         sink.consume(&p).unwrap();
     }

@@ -103,6 +103,15 @@ pub const FRAME_ID: &str = "left_home_camera";
 /// arrives was lost instead: its `seq` is missing.
 pub const FLAG_MOTION_GATED: u32 = 1;
 
+/// Header flag of the fovea's services (`{prefix}/fovea/depth`, `{prefix}/fovea/cloud`): the window is on the
+/// image centre at the default distance, not on a measured fixation (`tasks::fovea`).
+pub const FLAG_FOVEA_DEFAULT_FIXATION: u32 = 2;
+
+/// The fovea's topics sit under this one: `{prefix}/fovea/depth` and `{prefix}/fovea/cloud`. Their headers
+/// carry the fovea's own intrinsics (native focal length; the principal point places the window in the main
+/// map's rectified plane) and size.
+pub const FOVEA_TOPIC: &str = "fovea";
+
 /// User header of both services: what the sample is, when it was seen and sent, and the geometry it was
 /// computed with. iceoryx2 matches types by name, size and alignment: the name `abvs::FrameHeader/1` (and
 /// `abvs::CloudPoint/1`) must change with the layout, so an old subscriber is refused instead of misreading.

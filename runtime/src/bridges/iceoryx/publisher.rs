@@ -48,6 +48,12 @@ impl<T: BridgePayload> Publisher<T> {
 
     /// A publisher of `T` on another topic than the payload's own (`{prefix}/{topic}`), elements a fill
     /// leaves set to `invalid`.
+    /// The fovea's service of this payload: `{prefix}/fovea/depth` or `{prefix}/fovea/cloud` ([`FOVEA_TOPIC`]);
+    /// `config` sized for the fovea's window.
+    pub fn fovea(config: &BridgeConfig) -> Result<Self, BridgeError> {
+        Self::for_topic(config, &format!("{FOVEA_TOPIC}/{}", T::TOPIC), T::INVALID)
+    }
+
     pub(super) fn for_topic(config: &BridgeConfig, topic: &str, invalid: T) -> Result<Self, BridgeError> {
         config.check()?;
         let service = config.service_name(topic);

@@ -85,6 +85,11 @@ impl<T: BridgePayload> Subscriber<T> {
         Self::for_topic(config, T::TOPIC)
     }
 
+    /// Opens the fovea's service of this payload (`{prefix}/fovea/depth`, `{prefix}/fovea/cloud`).
+    pub fn fovea(config: &BridgeConfig) -> Result<Self, BridgeError> {
+        Self::for_topic(config, &format!("{FOVEA_TOPIC}/{}", T::TOPIC))
+    }
+
     fn for_topic(config: &BridgeConfig, topic: &str) -> Result<Self, BridgeError> {
         config.check()?;
         let service = config.service_name(topic);

@@ -1,0 +1,364 @@
+//! The fovea: depth at the source frames' native scale where the eyes look.
+//!
+//! Every frame, after the main map's disparity, the stage takes the fixation point from the frame's poses
+//! (encoders and calibrated FK: [`measured_fixation`], the closest approach of both optical axes, the gaze
+//! stage's measure). When that point is in front and between [`FoveaConfig::min_distance_m`] and
+//! [`FoveaConfig::max_distance_m`] the window is centred on it; otherwise on the rectified image centre at
+//! [`FoveaConfig::default_distance_m`]. The window (default 320x240) is a crop of the main map's rectified
+//! plane at the raw frames' focal length (the main map is that plane at the processing resolution), remapped
+//! from the raw frames with the rectify stage's maps and the frame's per-row rotations (rolling shutter).
+//!
+//! The search is narrow: the main map's disparities over the window (5th to 95th percentile, scaled to the
+//! fovea and widened by a margin) or, where the main map has too few there, the fixation's disparity
+//! +- half the range. The right window's principal point is moved by the range's start, so that SGBM searches
+//! `[0, range)` without losing the window's left columns to a large disparity. SGBM_3WAY (the runtime's own
+//! engine at 5x5 blocks) matches the pair; the depth stage's arithmetic makes depth and cloud. A frame the
+//! motion gate stopped publishes an invalid fovea (NaN, empty cloud) and costs no match.
+use abvs_camera::Camera;
+use abvs_eye::Pose;
+use nalgebra::Vector3;
+
+use crate::error::{Result, RuntimeError};
+use crate::gaze::stage::measured_fixation;
+use crate::messages::{FoveaFrame, RectifiedCamera, Work};
+use crate::stage::{Stage, StageContext};
+use crate::tasks::depth::DepthConfig;
+use crate::tasks::disparity::{DisparityEngine, SgbmEngine};
+use crate::tasks::motion::RowRotations;
+use crate::tasks::rectify::{camera_for_frames, RectifyMaps};
+
+/// What the fovea computes and where it looks by default.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FoveaConfig {
+    /// Window width (px at the raw frames' scale).
+    pub width: u32,
+    /// Window height (px).
+    pub height: u32,
+    /// Widest disparity search (px at the fovea's scale; a multiple of 16).
+    pub max_range_px: u32,
+    /// Fixations nearer than this (m, from the midpoint of the optical centres) are not used.
+    pub min_distance_m: f64,
+    /// Fixations farther than this (nearly parallel axes: the meeting point is noise) are not used.
+    pub max_distance_m: f64,
+    /// Distance along the image centre's ray used without a usable fixation (m).
+    pub default_distance_m: f64,
+}
+
+impl Default for FoveaConfig {
+    fn default() -> Self {
+        FoveaConfig {
+            width: 320,
+            height: 240,
+            max_range_px: 64,
+            min_distance_m: 0.15,
+            max_distance_m: 3.0,
+            default_distance_m: 1.0,
+        }
+    }
+}
+
+/// Bins per pixel of the histogram of the main map's disparities over the window.
+const HIST_BINS_PER_PX: f64 = 4.0;
+/// Fewer main-map disparities than this fraction of the window's pixels (at the main scale): the search
+/// is centred on the fixation instead.
+const MIN_MAIN_FRACTION: f64 = 0.05;
+
+/// The fovea stage (see the module doc). Runs on a lane of its own between disparity and output.
+pub struct FoveaStage {
+    cfg: FoveaConfig,
+    depth: DepthConfig,
+    cams: (Camera, Camera),
+    grid_step: u32,
+    home_left_to_right: Pose,
+    started: Option<Started>,
+    counts: Counts,
+}
+
+struct Started {
+    cam_l: Camera,
+    cam_r: Camera,
+    main: RectifiedCamera,
+    focal: f64,
+    maps: [RectifyMaps; 2],
+    sgbm: SgbmEngine,
+    /// The pair and the disparity at the matched width: the window plus `max_range_px` columns on its left,
+    /// so that SGBM, which gives the first `range` columns no match, still answers the whole window.
+    ext: (Vec<u8>, Vec<u8>, Vec<f32>),
+    hist: Vec<u32>,
+}
+
+#[derive(Default)]
+struct Counts {
+    frames: u64,
+    measured: u64,
+    from_main: u64,
+    gated: u64,
+    points: u64,
+    range_sum: f64,
+    cpu_ns: i64,
+    wall_ns: i64,
+}
+
+impl FoveaStage {
+    /// The stage for both eyes' lenses (as calibrated), the home extrinsic T_lH^rH (m), the rectify stage's
+    /// map grid and the main map's depth range.
+    pub fn new(
+        cfg: FoveaConfig,
+        cams: (Camera, Camera),
+        home_left_to_right: Pose,
+        grid_step: u32,
+        depth: DepthConfig,
+    ) -> Self {
+        FoveaStage { cfg, depth, cams, grid_step, home_left_to_right, started: None, counts: Counts::default() }
+    }
+}
+
+/// The window's intrinsics for a fixation at `p` (rectified left frame, m): `focal`, the fixation at the
+/// window's centre.
+pub fn window(width: u32, height: u32, focal: f64, p: &Vector3<f64>) -> RectifiedCamera {
+    RectifiedCamera {
+        width,
+        height,
+        f: focal,
+        cx: (width as f64 - 1.0) / 2.0 - focal * p.x / p.z,
+        cy: (height as f64 - 1.0) / 2.0 - focal * p.y / p.z,
+    }
+}
+
+/// The disparity search `[start, start + range)` (px at the fovea's scale) from the main map's disparities
+/// over the window (a histogram of `HIST_BINS_PER_PX` bins per main-map pixel), or around `d_fix`.
+/// `scale` = fovea focal / main focal, `lim` = the disparities of the depth range (near, far).
+fn search_range(
+    hist: &[u32],
+    n: u64,
+    window_px: f64,
+    scale: f64,
+    d_fix: f64,
+    max_range: u32,
+    lim: [f64; 2],
+) -> (f64, u32, bool) {
+    let pct = |q: f64| -> f64 {
+        let target = (q * n as f64).ceil().max(1.0) as u64;
+        let mut acc = 0u64;
+        for (i, &c) in hist.iter().enumerate() {
+            acc += c as u64;
+            if acc >= target {
+                return (i as f64 + 0.5) / HIST_BINS_PER_PX;
+            }
+        }
+        hist.len() as f64 / HIST_BINS_PER_PX
+    };
+    let max_range = max_range.max(16) / 16 * 16;
+    let from_main = n as f64 >= MIN_MAIN_FRACTION * window_px;
+    let (mut lo, mut hi, centre) = if from_main {
+        // the main map's error is about a pixel of its own: a margin of two of them at the fovea's scale
+        let margin = (2.0 * scale).max(4.0);
+        (pct(0.05) * scale - margin, pct(0.95) * scale + margin, pct(0.5) * scale)
+    } else {
+        let half = max_range as f64 / 2.0;
+        (d_fix - half, d_fix + half, d_fix)
+    };
+    lo = lo.max(lim[1] - 1.0);
+    hi = hi.min(lim[0] + 1.0).max(lo + 16.0);
+    let range = (((hi - lo).ceil() as u32).div_ceil(16) * 16).clamp(16, max_range);
+    if hi - lo > range as f64 {
+        // wider than the widest search: centred on the median, within the depth range
+        lo = (centre - range as f64 / 2.0).max(lim[1] - 1.0);
+    }
+    (lo.floor(), range, from_main)
+}
+
+impl Stage for FoveaStage {
+    fn name(&self) -> &'static str {
+        "fovea"
+    }
+
+    fn prepare_work(&self, w: &mut Work) {
+        w.fovea = Some(Box::new(FoveaFrame::new(self.cfg.width, self.cfg.height)));
+    }
+
+    fn start(&mut self, ctx: &mut StageContext) -> Result<()> {
+        let c = &self.cfg;
+        if !(16..=4096).contains(&c.width) || !(16..=4096).contains(&c.height) {
+            return Err(RuntimeError::Invalid(format!("fovea: {}x{} is not a usable window", c.width, c.height)));
+        }
+        let (rw, rh) = ctx.raw;
+        let cam_l = camera_for_frames(&self.cams.0, rw, rh)?;
+        let cam_r = camera_for_frames(&self.cams.1, rw, rh)?;
+        // the raw frames' focal length: native scale at the image centre
+        let focal = (cam_l.fx + cam_l.fy + cam_r.fx + cam_r.fy) / 4.0;
+        let ew = c.width + c.max_range_px;
+        let out = RectifiedCamera::with_hfov(ew, c.height, 60.0);
+        let maps = [RectifyMaps::new(out, self.grid_step)?, RectifyMaps::new(out, self.grid_step)?];
+        let sgbm = SgbmEngine::new(ew, c.height, c.max_range_px as f64)?;
+        let n = (ew * c.height) as usize;
+        let ext = (vec![0u8; n], vec![0u8; n], vec![f32::NAN; n]);
+        let hist_len = (ctx.out.width as f64 * HIST_BINS_PER_PX) as usize + 1;
+        self.started = Some(Started { cam_l, cam_r, main: ctx.out, focal, maps, sgbm, ext, hist: vec![0; hist_len] });
+        Ok(())
+    }
+
+    fn process(&mut self, w: &mut Work) -> Result<()> {
+        let (cpu0, wall0) = (crate::cpu::thread_cpu_ns(), crate::messages::monotonic_ns());
+        let s = self.started.as_mut().ok_or_else(|| RuntimeError::Invalid("fovea: not started".into()))?;
+        let Work { fovea, pose, rectified, motion, disparity, raw_left, raw_right, .. } = w;
+        let f =
+            fovea.as_deref_mut().ok_or_else(|| RuntimeError::Invalid("fovea: a frame without its buffers".into()))?;
+        let (Some(pose), Some(rect)) = (pose.as_ref(), rectified.rect.as_ref()) else {
+            return Err(RuntimeError::Invalid("fovea: a frame without pose or rectification".into()));
+        };
+        let (cfg, dcfg) = (self.cfg, self.depth);
+        // where the eyes look, in the rectified left frame
+        let to_rect = rect.rect_from_left * pose.rel_left.r.transpose();
+        let (p_home, dist) = measured_fixation(pose, &self.home_left_to_right);
+        let p = to_rect * (Vector3::from(p_home) - pose.rel_left.t);
+        #[allow(clippy::neg_cmp_op_on_partial_ord)] // NaN is not measured either
+        let measured = dist >= cfg.min_distance_m && dist <= cfg.max_distance_m && p.z > 0.05;
+        let (p, p_home) = if measured {
+            (p, p_home)
+        } else {
+            let p = Vector3::new(0.0, 0.0, cfg.default_distance_m);
+            let h = to_rect.transpose() * p + pose.rel_left.t;
+            (p, [h.x, h.y, h.z])
+        };
+        let cam = window(cfg.width, cfg.height, s.focal, &p);
+        let fb = s.focal * rect.baseline_m;
+        let d_fix = fb / p.z;
+        // the main map's disparities over the window
+        let m = s.main;
+        let scale = s.focal / m.f;
+        let to_main = |u: f64, cf: f64, cm: f64| (u - cf) / scale + cm;
+        let (u0, u1) = (to_main(0.0, cam.cx, m.cx).floor(), to_main(cam.width as f64 - 1.0, cam.cx, m.cx).ceil());
+        let (v0, v1) = (to_main(0.0, cam.cy, m.cy).floor(), to_main(cam.height as f64 - 1.0, cam.cy, m.cy).ceil());
+        let clampx = |x: f64, n: u32| x.clamp(0.0, n as f64 - 1.0) as usize;
+        let (u0, u1, v0, v1) = (clampx(u0, m.width), clampx(u1, m.width), clampx(v0, m.height), clampx(v1, m.height));
+        s.hist.fill(0);
+        let mut n = 0u64;
+        let last = s.hist.len() - 1;
+        for v in v0..=v1 {
+            for &d in &disparity[v * m.width as usize + u0..=v * m.width as usize + u1] {
+                if d > 0.0 {
+                    s.hist[((d as f64 * HIST_BINS_PER_PX) as usize).min(last)] += 1;
+                    n += 1;
+                }
+            }
+        }
+        let window_px = (cam.width as f64 / scale) * (cam.height as f64 / scale);
+        let lim = [fb / dcfg.min_m as f64, fb / dcfg.max_m as f64];
+        let (start, range, from_main) = search_range(&s.hist, n, window_px, scale, d_fix, cfg.max_range_px, lim);
+        f.cam = cam;
+        f.offset_px = start;
+        f.search_px = [start, start + range as f64];
+        f.fixation_m = p_home;
+        f.fixation_distance_m = if measured { dist } else { p.norm() };
+        f.measured = measured;
+        f.from_main = from_main;
+        self.counts.frames += 1;
+        self.counts.measured += measured as u64;
+        if motion.gated {
+            f.disparity.fill(f32::NAN);
+            f.depth.depth.fill(f32::NAN);
+            f.depth.n_points = 0;
+            f.ready = true;
+            self.counts.gated += 1;
+            return Ok(());
+        }
+        self.counts.from_main += from_main as u64;
+        self.counts.range_sum += range as f64;
+        // both windows, each raw row through its own rotation (as the rectify stage does)
+        let rows = |eye: usize| {
+            let nodes = &motion.band_rot[eye];
+            (!nodes.is_empty()).then_some(RowRotations { nodes, rows: s.cam_l.height })
+        };
+        // matched `pad` columns wider on the left (see `Started::ext`), then cropped to the window
+        let pad = cfg.max_range_px as usize;
+        let ext_cam = RectifiedCamera { width: cam.width + pad as u32, cx: cam.cx + pad as f64, ..cam };
+        s.maps[0].out = ext_cam;
+        s.maps[1].out = RectifiedCamera { cx: ext_cam.cx + start, ..ext_cam };
+        s.maps[0].build_rows(&s.cam_l, &rect.rect_from_left, rows(0).as_ref());
+        s.maps[1].build_rows(&s.cam_r, &rect.rect_from_right, rows(1).as_ref());
+        let (rw, rh) = (s.cam_l.width, s.cam_l.height);
+        let (el, er, ed) = &mut s.ext;
+        s.maps[0].remap(raw_left, rw, rh, el)?;
+        s.maps[1].remap(raw_right, rw, rh, er)?;
+        if s.sgbm.max_disparity() as u32 != range {
+            s.sgbm.set_range(range as i32)?;
+        }
+        s.sgbm.compute(el, er, ed)?;
+        let (w, ew, off) = (cam.width as usize, ext_cam.width as usize, start as f32);
+        let map_x = s.maps[0].map_x();
+        for v in 0..cam.height as usize {
+            let (o, e) = (v * w..(v + 1) * w, v * ew + pad..(v + 1) * ew);
+            f.left[o.clone()].copy_from_slice(&el[e.clone()]);
+            f.right[o.clone()].copy_from_slice(&er[e.clone()]);
+            for ((d, val), (de, x)) in
+                f.disparity[o.clone()].iter_mut().zip(&mut f.valid[o]).zip(ed[e.clone()].iter().zip(&map_x[e]))
+            {
+                *d = de + off;
+                *val = (*x >= 0.0) as u8;
+            }
+        }
+        let FoveaFrame { disparity, valid, left, depth, .. } = &mut *f;
+        depth.compute(disparity, |i| valid[i] != 0, left, &cam, rect, &pose.rel_left, &dcfg);
+        f.ready = true;
+        self.counts.points += f.depth.n_points as u64;
+        self.counts.cpu_ns += crate::cpu::thread_cpu_ns() - cpu0;
+        self.counts.wall_ns += crate::messages::monotonic_ns() - wall0;
+        Ok(())
+    }
+
+    fn failure(&self, e: &RuntimeError) -> &'static str {
+        crate::stage::timing_failure(e).unwrap_or("fovea failed")
+    }
+
+    fn finish(&mut self, stats: &mut crate::stats::RunStats) {
+        let c = &self.counts;
+        let matched = (c.frames - c.gated).max(1) as f64;
+        let focal = self.started.as_ref().map_or(f64::NAN, |s| s.focal);
+        stats.extra.insert(
+            "fovea".into(),
+            serde_json::json!({
+                "window": [self.cfg.width, self.cfg.height],
+                "focal_px": focal,
+                "frames": c.frames,
+                "measured_fixation": c.measured,
+                "range_from_main": c.from_main,
+                "gated": c.gated,
+                "mean_range_px": c.range_sum / matched,
+                "mean_points": c.points as f64 / matched,
+                "cpu_ms_per_frame": c.cpu_ns as f64 * 1e-6 / matched,
+                "wall_ms_per_frame": c.wall_ns as f64 * 1e-6 / matched,
+            }),
+        );
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_search_follows_the_main_map_or_else_the_fixation() {
+        // main map: disparities 10..12 px at its scale over the window, fovea at 2.5x
+        let mut hist = vec![0u32; 4 * 640 + 1];
+        for b in 40..48 {
+            hist[b] = 100;
+        }
+        let lim = [400.0, 5.0];
+        let (start, range, from_main) = search_range(&hist, 800, 4000.0, 2.5, 80.0, 64, lim);
+        assert!(from_main);
+        assert!(start <= 25.0 - 5.0 && start + range as f64 >= 30.0 + 5.0, "{start} {range}");
+        assert_eq!(range % 16, 0);
+        // too few main-map disparities: around the fixation's
+        let (start, range, from_main) = search_range(&hist, 100, 40000.0, 2.5, 80.0, 64, lim);
+        assert!(!from_main);
+        assert_eq!((start, range), (48.0, 64));
+        // a spread wider than the widest search: centred on the median
+        let mut wide = vec![0u32; 4 * 640 + 1];
+        wide[4] = 100;
+        wide[400] = 100;
+        let (start, range, _) = search_range(&wide, 200, 4000.0, 2.5, 80.0, 64, lim);
+        assert_eq!(range, 64);
+        assert!((4.0..250.0).contains(&start), "{start}");
+    }
+}
