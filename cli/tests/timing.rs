@@ -110,7 +110,9 @@ fn timing_is_measured_from_the_images_and_closes_the_loop() {
     assert_eq!(t["rounds"][0]["encoder_time_offset_ms"]["value"], t0["encoder_time_offset_ms"]["value"]);
     let (o, so) = value(&t, "encoder_time_offset_ms");
     let (r, sr) = value(&t, "readout_ms");
-    assert!((o - offset).abs() <= 0.3 && (o - offset).abs() <= 3.0 * so, "offset {o} +- {so} vs {offset}: {t:#}");
+    // 0.4 ms: since the self-check matches a 640-wide pair at half size (the fixture's false alarm, issue 37)
+    // this seed reads 2.70 +- 0.21 ms (it read within 0.3 ms matching at full size); within 3 sigma either way
+    assert!((o - offset).abs() <= 0.4 && (o - offset).abs() <= 3.0 * so, "offset {o} +- {so} vs {offset}: {t:#}");
     assert!((r - readout).abs() <= 3.0 && (r - readout).abs() <= 3.0 * sr, "readout {r} +- {sr} vs {readout}: {t:#}");
     let meta = std::fs::read_to_string(s.join("session.toml")).unwrap();
     assert!(meta.contains("time_offset_ms") && meta.contains("scene_seed"), "{meta}");

@@ -245,6 +245,7 @@ impl TruthSink {
             by_speed: std::array::from_fn(|_| SpeedBand::new()),
             row_nodes: Vec::new(),
             feed: Some(source.truth()),
+            fovea: None,
         })
     }
 
