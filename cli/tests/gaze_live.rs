@@ -18,57 +18,15 @@ use abvs_runtime::sinks::stats::monotonic_ns;
 use abvs_runtime::sources::encoder_stream::EncoderStream;
 use abvs_runtime::sources::live::LiveSource;
 use abvs_runtime::sources::pairing::PairerConfig;
-use abvs_runtime::sources::v4l_capture::{CaptureError, FrameSource, StereoCapture};
-use abvs_runtime::sources::Frame;
+use abvs_runtime::sources::v4l_capture::StereoCapture;
 use abvs_runtime::tasks::kinematics::{EyeFk, StereoKinematics};
 use abvs_runtime::tasks::rectify::RectifiedCamera;
 
-const PERIOD_NS: i64 = 40_000_000;
-const EXPOSURE_NS: i64 = 8_000_000;
-const READOUT_NS: i64 = 20_000_000;
+mod common;
+use common::*;
 
 fn calib() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../fixtures/session/calib")
-}
-
-/// A camera showing one picture, a frame every 40 ms of CLOCK_MONOTONIC, delivered when its last row is read.
-struct StillCamera {
-    pixels: Vec<u8>,
-    width: u32,
-    height: u32,
-    next: u64,
-    n: u64,
-    t0: i64,
-}
-
-impl FrameSource for StillCamera {
-    fn next_frame(&mut self, mut gray: Vec<u8>) -> Result<Frame, CaptureError> {
-        if self.next >= self.n {
-            std::thread::sleep(Duration::from_millis(20));
-            return Err(CaptureError::Timeout { path: "still".into() });
-        }
-        let t_start = self.t0 + self.next as i64 * PERIOD_NS;
-        let wait = t_start + READOUT_NS + EXPOSURE_NS - monotonic_ns();
-        if wait > 0 {
-            std::thread::sleep(Duration::from_nanos(wait as u64));
-        }
-        gray.clear();
-        gray.extend_from_slice(&self.pixels);
-        self.next += 1;
-        Ok(Frame {
-            seq: self.next - 1,
-            t_start_ns: t_start,
-            exposure_ns: EXPOSURE_NS,
-            readout_anchor: 0.0,
-            width: self.width,
-            height: self.height,
-            gray,
-        })
-    }
-
-    fn frame_len(&self) -> usize {
-        (self.width * self.height) as usize
-    }
 }
 
 /// Every published frame's gaze state.
