@@ -55,6 +55,10 @@ fn the_fovea_beats_the_main_map_over_the_same_rays_and_leaves_the_main_map_as_it
     // at the raw frames' scale (f 392 px against the main map's 134 px) the fovea's points are closer
     assert!(fov.0 < 0.03 && fov.2 > 0.7, "fovea {fov:?}");
     assert!(fov.1 < 0.6 * main.1 && fov.0 < main.0, "fovea {fov:?} vs main {main:?}");
+    // where the narrow search has no answer the main map's stands: never sparser than the main map there
+    assert!(fov.2 >= main.2, "valid: fovea {fov:?} vs main {main:?}");
+    let filled = f["filled_from_main_fraction"].as_f64().unwrap();
+    assert!((0.0..0.5).contains(&filled), "{f}");
     // a smaller window: its own size, the same main map
     let small = run(&["--fovea", "160x120"]);
     assert_eq!(small["fovea"]["window"], serde_json::json!([160, 120]));

@@ -12,7 +12,10 @@
 //! fovea and widened by a margin) or, where the main map has too few there, the fixation's disparity
 //! +- half the range. The right window's principal point is moved by the range's start, so that SGBM searches
 //! `[0, range)` without losing the window's left columns to a large disparity. SGBM_3WAY (the runtime's own
-//! engine at 5x5 blocks) matches the pair; the depth stage's arithmetic makes depth and cloud. A frame the
+//! engine at 5x5 blocks) matches the pair. A window pixel it leaves without an answer takes the main map's
+//! (nearest main pixel, scaled), so the fovea is never sparser than the main map where they overlap; the
+//! stats JSON's `fovea.filled_from_main_fraction` says how much. The depth stage's arithmetic makes depth
+//! and cloud. A frame the
 //! motion gate stopped publishes an invalid fovea (NaN, empty cloud) and costs no match.
 use abvs_camera::Camera;
 use abvs_eye::Pose;
@@ -94,6 +97,8 @@ struct Counts {
     from_main: u64,
     gated: u64,
     points: u64,
+    /// Window pixels the narrow search left without an answer, given the main map's.
+    filled_from_main: u64,
     range_sum: f64,
     cpu_ns: i64,
     wall_ns: i64,
@@ -298,6 +303,34 @@ impl Stage for FoveaStage {
                 *val = (*x >= 0.0) as u8;
             }
         }
+        // Where the narrow search gave no answer (SGBM's uniqueness check, the window's left columns beyond its
+        // range), the main map's answer at the nearest main pixel along the same ray, scaled to the fovea: the
+        // fovea never publishes fewer depths than the main map over its window, only finer ones.
+        let mut filled = 0u64;
+        let mw = m.width as usize;
+        for v in 0..cam.height as usize {
+            let vm = to_main(v as f64, cam.cy, m.cy).round();
+            if !(0.0..m.height as f64).contains(&vm) {
+                continue;
+            }
+            let row = vm as usize * mw;
+            for u in 0..w {
+                let i = v * w + u;
+                if f.valid[i] == 0 || f.disparity[i].is_finite() {
+                    continue;
+                }
+                let um = to_main(u as f64, cam.cx, m.cx).round();
+                if !(0.0..m.width as f64).contains(&um) {
+                    continue;
+                }
+                let d = disparity[row + um as usize];
+                if d > 0.0 {
+                    f.disparity[i] = (d as f64 * scale) as f32;
+                    filled += 1;
+                }
+            }
+        }
+        self.counts.filled_from_main += filled;
         let FoveaFrame { disparity, valid, left, depth, .. } = &mut *f;
         depth.compute(disparity, |i| valid[i] != 0, left, &cam, rect, &pose.rel_left, &dcfg);
         f.ready = true;
@@ -326,6 +359,7 @@ impl Stage for FoveaStage {
                 "gated": c.gated,
                 "mean_range_px": c.range_sum / matched,
                 "mean_points": c.points as f64 / matched,
+                "filled_from_main_fraction": c.filled_from_main as f64 / (matched * (self.cfg.width * self.cfg.height) as f64),
                 "cpu_ms_per_frame": c.cpu_ns as f64 * 1e-6 / matched,
                 "wall_ms_per_frame": c.wall_ns as f64 * 1e-6 / matched,
             }),
