@@ -12,10 +12,12 @@
 //! fovea and widened by a margin) or, where the main map has too few there, the fixation's disparity
 //! +- half the range. The right window's principal point is moved by the range's start, so that SGBM searches
 //! `[0, range)` without losing the window's left columns to a large disparity. SGBM_3WAY (the runtime's own
-//! engine at 5x5 blocks) matches the pair. A window pixel it leaves without an answer takes the main map's
-//! (nearest main pixel, scaled), so the fovea is never sparser than the main map where they overlap; the
-//! stats JSON's `fovea.filled_from_main_fraction` says how much. The depth stage's arithmetic makes depth
-//! and cloud. A frame the
+//! engine at 5x5 blocks) matches the pair. A window pixel it leaves without an answer, or whose answer leaves
+//! the main map's by more than two main-map pixels, takes the main map's (nearest main pixel, scaled), and a
+//! pixel the main map's validity mask rejected has no depth: the fovea has the main map's valid pixels over
+//! its window, refined, never contradicted (the stats JSON's `fovea.filled_from_main_fraction`,
+//! `overruled_by_main_fraction` and `masked_by_main_fraction` say how often). The depth stage's arithmetic
+//! makes depth and cloud. A frame the
 //! motion gate stopped publishes an invalid fovea (NaN, empty cloud) and costs no match.
 use abvs_camera::Camera;
 use abvs_eye::Pose;
@@ -99,6 +101,10 @@ struct Counts {
     points: u64,
     /// Window pixels the narrow search left without an answer, given the main map's.
     filled_from_main: u64,
+    /// Window pixels whose narrow-search answer left the main map's by more than its error.
+    overruled_by_main: u64,
+    /// Window pixels the main map's validity mask left without depth (its confidence below the threshold).
+    masked_by_main: u64,
     range_sum: f64,
     cpu_ns: i64,
     wall_ns: i64,
@@ -303,11 +309,16 @@ impl Stage for FoveaStage {
                 *val = (*x >= 0.0) as u8;
             }
         }
-        // Where the narrow search gave no answer (SGBM's uniqueness check, the window's left columns beyond its
-        // range), the main map's answer at the nearest main pixel along the same ray, scaled to the fovea: the
-        // fovea never publishes fewer depths than the main map over its window, only finer ones.
-        let mut filled = 0u64;
-        let mw = m.width as usize;
+        // The main map's answer at the nearest main pixel along the same ray, scaled to the fovea, stands where
+        // the narrow search gave none (SGBM's uniqueness check) and where the search's answer leaves the main
+        // map's by more than the main map's own error (two of its pixels: a match on the wrong structure, often
+        // at the edge of the search, or one out of the depth range). Where the main map's validity mask (`min_confidence`) has no depth, the
+        // fovea has none either: those are the pixels no engine matches reliably (low texture, occlusions).
+        // So the fovea publishes the main map's depths over its window, refined, never contradicted.
+        let (mut filled, mut overruled, mut masked) = (0u64, 0u64, 0u64);
+        let (mw, tol) = (m.width as usize, (2.0 * scale) as f32);
+        // a refinement that leaves the depth range (a far wall's few pixels of disparity) keeps the main map's
+        let (d_lo, d_hi) = (lim[1] as f32, lim[0] as f32);
         for v in 0..cam.height as usize {
             let vm = to_main(v as f64, cam.cy, m.cy).round();
             if !(0.0..m.height as f64).contains(&vm) {
@@ -316,20 +327,29 @@ impl Stage for FoveaStage {
             let row = vm as usize * mw;
             for u in 0..w {
                 let i = v * w + u;
-                if f.valid[i] == 0 || f.disparity[i].is_finite() {
-                    continue;
-                }
                 let um = to_main(u as f64, cam.cx, m.cx).round();
-                if !(0.0..m.width as f64).contains(&um) {
+                if f.valid[i] == 0 || !(0.0..m.width as f64).contains(&um) {
                     continue;
                 }
                 let d = disparity[row + um as usize];
                 if d > 0.0 {
-                    f.disparity[i] = (d as f64 * scale) as f32;
-                    filled += 1;
+                    let main = (d as f64 * scale) as f32;
+                    let fd = f.disparity[i];
+                    if !fd.is_finite() {
+                        f.disparity[i] = main;
+                        filled += 1;
+                    } else if (fd - main).abs() > tol || !(d_lo..=d_hi).contains(&fd) {
+                        f.disparity[i] = main;
+                        overruled += 1;
+                    }
+                } else if f.disparity[i].is_finite() {
+                    f.disparity[i] = f32::NAN;
+                    masked += 1;
                 }
             }
         }
+        self.counts.overruled_by_main += overruled;
+        self.counts.masked_by_main += masked;
         self.counts.filled_from_main += filled;
         let FoveaFrame { disparity, valid, left, depth, .. } = &mut *f;
         depth.compute(disparity, |i| valid[i] != 0, left, &cam, rect, &pose.rel_left, &dcfg);
@@ -360,6 +380,8 @@ impl Stage for FoveaStage {
                 "mean_range_px": c.range_sum / matched,
                 "mean_points": c.points as f64 / matched,
                 "filled_from_main_fraction": c.filled_from_main as f64 / (matched * (self.cfg.width * self.cfg.height) as f64),
+                "overruled_by_main_fraction": c.overruled_by_main as f64 / (matched * (self.cfg.width * self.cfg.height) as f64),
+                "masked_by_main_fraction": c.masked_by_main as f64 / (matched * (self.cfg.width * self.cfg.height) as f64),
                 "cpu_ms_per_frame": c.cpu_ns as f64 * 1e-6 / matched,
                 "wall_ms_per_frame": c.wall_ns as f64 * 1e-6 / matched,
             }),
