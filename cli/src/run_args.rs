@@ -149,6 +149,10 @@ pub struct RunArgs {
     /// Do not publish over iceoryx2.
     #[arg(long)]
     pub no_publish: bool,
+    /// Turn the gaze service off (`[gaze] enabled = false`): no goals taken, no gaze state published; the
+    /// depth is the same as with it on and no goals (for the paired benchmark of its cost).
+    #[arg(long)]
+    pub no_gaze: bool,
     /// iceoryx2 service name prefix (services {prefix}/depth, {prefix}/cloud, with --confidence
     /// {prefix}/confidence).
     #[arg(long, default_value = "abvs")]
@@ -412,6 +416,9 @@ pub fn effective_config(a: &RunArgs, m: &ArgMatches) -> anyhow::Result<RuntimeCo
     z.distro = a.ros_distro.unwrap_or(z.distro);
     if a.no_publish {
         c.bridges.iceoryx.enabled = false;
+    }
+    if a.no_gaze {
+        c.gaze.enabled = false;
     }
     if given("service_prefix") {
         c.bridges.iceoryx.service_prefix = a.service_prefix.clone();

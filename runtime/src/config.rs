@@ -119,6 +119,11 @@ pub struct RuntimeConfig {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct GazeSettings {
+    /// The gaze service: the controller's stage after kinematics, the iceoryx2 `{prefix}/gaze/goal` and
+    /// `{prefix}/gaze/state` services and Zenoh's `/abvs/gaze/state` (default on). Off (`--no-gaze`), the
+    /// runtime only looks: no goal is taken, no state published, and the depth is bit-identical to a run with
+    /// it on and no goals (the switch exists so that a paired benchmark can measure the service's cost).
+    pub enabled: bool,
     /// Goals the controller executes per second at most, sustained (a token bucket; a goal over the limit
     /// waits, the newest one only, and one replaced while it waits is counted as `rate_limited`).
     pub max_goals_per_s: f64,
@@ -129,7 +134,7 @@ pub struct GazeSettings {
 impl Default for GazeSettings {
     fn default() -> Self {
         let l = crate::gaze::RateLimit::default();
-        GazeSettings { max_goals_per_s: l.max_goals_per_s, goal_burst: l.goal_burst }
+        GazeSettings { enabled: true, max_goals_per_s: l.max_goals_per_s, goal_burst: l.goal_burst }
     }
 }
 
@@ -807,6 +812,12 @@ impl RuntimeConfig {
             return Err("bridges.zenoh.insecure: only meaningful with accept_gaze_goals = true".into());
         }
         self.gaze.rate_limit().check()?;
+        if !self.gaze.enabled && z.accept_gaze_goals {
+            return Err("bridges.zenoh.accept_gaze_goals: needs the gaze service (gaze.enabled = false)".into());
+        }
+        if !self.gaze.enabled && self.source.kind == SourceKind::Sim {
+            return Err("gaze.enabled = false: the simulated head runs in lockstep with the gaze stage".into());
+        }
         self.motion.check()?;
         if self.source.kind == SourceKind::Sim {
             self.source.sim.check()?;

@@ -204,7 +204,8 @@ impl Runtime {
     }
 
     /// Points the eyes of this runtime once it runs (goals are taken from its first frame; without a drive
-    /// board, a replay, they are refused with `no_board`).
+    /// board, a replay, they are refused with `no_board`; with `[gaze] enabled = false` none is taken and
+    /// [`GazeHandle::state`] stays `None`).
     pub fn gaze(&self) -> GazeHandle {
         GazeHandle::new(self.gaze.clone())
     }
@@ -287,7 +288,11 @@ impl Runtime {
             gaze_access: _,
         } = self;
         let ctl = GazeController::new(GazeConfig::default(), gaze_models, &kin.home_left_to_right, kin.gravity);
-        let gaze = Some(GazeStage::new(ctl, gaze, kin.home_left_to_right).with_rate_limit(c.gaze.rate_limit()));
+        // off: the standard graph, without the gaze stage (the depth is the same as on without goals)
+        let gaze = c
+            .gaze
+            .enabled
+            .then(|| GazeStage::new(ctl, gaze, kin.home_left_to_right).with_rate_limit(c.gaze.rate_limit()));
         let engine_name = engine.name().to_string();
         let replay = matches!(input, Input::Replay(_));
         let custom = matches!(input, Input::Custom(_));
@@ -460,10 +465,12 @@ fn sinks(
             None => publish,
         }));
         // gaze goals in, the state of every frame out (`{prefix}/gaze/goal`, `{prefix}/gaze/state`)
-        sinks.push(Box::new(
-            crate::bridges::iceoryx::gaze::GazeBridge::new(&cfg, gaze.clone())
-                .map_err(|e| RuntimeError::Invalid(e.to_string()))?,
-        ));
+        if c.gaze.enabled {
+            sinks.push(Box::new(
+                crate::bridges::iceoryx::gaze::GazeBridge::new(&cfg, gaze.clone())
+                    .map_err(|e| RuntimeError::Invalid(e.to_string()))?,
+            ));
+        }
     }
     // ROS 2 outputs: lossless runs wait for them, live ones drop their oldest queued frame
     if let Some(p) = &c.sinks.mcap.file {
@@ -472,13 +479,24 @@ fn sinks(
     let z = &c.bridges.zenoh;
     let zc = crate::bridges::zenoh_gaze::config(z)?;
     // checked before any session opens: goals over the network need authentication or access control
-    let access = crate::bridges::zenoh_gaze::goal_access(z, &zc, c.bridges.iceoryx.enabled)?;
+    let access = if c.gaze.enabled {
+        crate::bridges::zenoh_gaze::goal_access(z, &zc, c.bridges.iceoryx.enabled)?
+    } else {
+        "gaze: off ([gaze] enabled = false): no goals are taken, no gaze state is published".to_string()
+    };
     if z.enabled || z.accept_gaze_goals {
         // one session (one peer, one identity for the access control) for the outputs and the gaze topics
         let session =
             ::zenoh::open(zc).wait().map_err(|e| RuntimeError::Invalid(format!("zenoh: opening the session: {e}")))?;
         // the gaze topics first: they finish before the outputs close the session
-        sinks.push(Box::new(crate::bridges::zenoh_gaze::ZenohGaze::new(session.clone(), z, gaze.clone(), z.enabled)?));
+        if c.gaze.enabled {
+            sinks.push(Box::new(crate::bridges::zenoh_gaze::ZenohGaze::new(
+                session.clone(),
+                z,
+                gaze.clone(),
+                z.enabled,
+            )?));
+        }
         if z.enabled {
             let w = crate::bridges::zenoh::ZenohWriter::on_session(session, z)?;
             sinks.push(Box::new(crate::sinks::ros2_out::Ros2OutSink::new("zenoh", w, z.queue, c.source.lossless)?));

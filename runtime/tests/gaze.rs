@@ -23,6 +23,8 @@ struct Board {
     homed: bool,
     last_ns: Option<i64>,
     sent: Vec<([[i64; 3]; 2], u32)>,
+    /// The port refuses every write (a board unplugged after homing).
+    fail: bool,
 }
 
 impl BoardLink for Board {
@@ -33,13 +35,16 @@ impl BoardLink for Board {
         self.last_ns
     }
     fn send_move(&mut self, target_counts: [[i64; 3]; 2], duration_us: u32) -> Result<(), String> {
+        if self.fail {
+            return Err("writing to the board: broken pipe".into());
+        }
         self.sent.push((target_counts, duration_us));
         Ok(())
     }
 }
 
 fn live_board() -> Board {
-    Board { homed: true, last_ns: Some(NOW - 1_000_000), sent: vec![] }
+    Board { homed: true, last_ns: Some(NOW - 1_000_000), sent: vec![], fail: false }
 }
 
 fn calib() -> std::path::PathBuf {
@@ -93,9 +98,16 @@ fn every_bad_goal_is_refused_by_name_and_nothing_moves() {
     assert_eq!(c.state(0).reason, Some(Refusal::EncodersSilent));
     c.step(NOW, &th, Some(good), None);
     assert_eq!(c.state(0).reason, Some(Refusal::NoBoard));
+    // a write that fails is refused by name: the goal is not taken as under way
+    let mut broken = Board { fail: true, ..live_board() };
+    c.step(NOW, &th, Some(good), Some(&mut broken));
+    let s = c.state(0);
+    assert_eq!((s.phase, s.reason), (Phase::Refused, Some(Refusal::SendFailed)));
+    assert!(s.commanded_m.iter().all(|v| v.is_nan()) && s.planned_ms == 0.0);
+    assert!(!c.overlaps_saccade(NOW - 50_000_000, NOW + 50_000_000), "no saccade gates frames after a failed send");
     assert!(board.sent.is_empty() && unhomed.sent.is_empty() && silent.sent.is_empty() && never.sent.is_empty());
     let j = c.counts.json();
-    assert_eq!(j["goals"], 10);
+    assert_eq!(j["goals"], 11);
     assert_eq!(j["accepted"], 0);
     for (name, n) in [
         ("non_finite", 2),
@@ -105,6 +117,7 @@ fn every_bad_goal_is_refused_by_name_and_nothing_moves() {
         ("not_homed", 1),
         ("encoders_silent", 2),
         ("no_board", 1),
+        ("send_failed", 1),
         ("near_singular", 0),
     ] {
         assert_eq!(j["refused"][name], n, "{name}: {j}");

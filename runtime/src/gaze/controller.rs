@@ -375,3 +375,28 @@ impl GazeController {
         self.commanded_m = p.pursuit.point_at(t_s).map(|v| v * 1e-3);
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The calibrated IK's refusals (abvs_fk::ik, abvs_fk::gaze) reach the state by name: near a singularity,
+    /// behind the eye, too near, and anything else as unreachable.
+    #[test]
+    fn the_iks_refusals_are_named() {
+        let e = |why: &str| abvs_fk::FkError::Unreachable { target_deg: [1.0, 2.0, 3.0], why: why.into() };
+        let cases = [
+            (
+                "near-singular: the model's d(orientation)/d(theta) has inverse condition number 0.0010",
+                Refusal::NearSingular,
+            ),
+            ("no nominal IK to start from (unreachable or near-singular): out of range", Refusal::NearSingular),
+            ("behind the eye (z <= 0 in its home camera frame)", Refusal::BehindEyes),
+            ("42.0 mm from the optical centre (at least 50 mm)", Refusal::TooNear),
+            ("no convergence in 40 iterations (residual 0.3 deg)", Refusal::Unreachable),
+        ];
+        for (why, want) in cases {
+            assert_eq!(classify(&e(why)), want, "{why}");
+        }
+    }
+}

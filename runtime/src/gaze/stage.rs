@@ -26,6 +26,10 @@ pub struct GazeStage {
     gate: GoalGate,
     /// The source of the goal last taken.
     source: Option<super::GoalSource>,
+    /// This stage's own CPU time (its thread's clock around `process`, ns) and the frames it ran on: what the
+    /// gaze service costs the rectify lane (`gaze_cpu` in the statistics).
+    cpu_ns: i64,
+    frames: u64,
 }
 
 impl GazeStage {
@@ -38,6 +42,8 @@ impl GazeStage {
             home_left_to_right,
             gate: GoalGate::new(RateLimit::default()),
             source: None,
+            cpu_ns: 0,
+            frames: 0,
         }
     }
 
@@ -83,6 +89,35 @@ impl Stage for GazeStage {
     }
 
     fn process(&mut self, w: &mut Work) -> Result<()> {
+        let t0 = crate::cpu::thread_cpu_ns();
+        self.step(w);
+        self.cpu_ns += crate::cpu::thread_cpu_ns() - t0;
+        self.frames += 1;
+        Ok(())
+    }
+
+    fn failure(&self, _e: &crate::error::RuntimeError) -> &'static str {
+        "gaze failed"
+    }
+
+    fn finish(&mut self, stats: &mut RunStats) {
+        let mut j = self.ctl.counts.json();
+        let (posted, superseded) = self.mailbox.counts();
+        j["posted"] = serde_json::json!(posted);
+        j["superseded"] = serde_json::json!(superseded);
+        j["peak_deg_s"] = serde_json::json!(self.ctl.config().peak_deg_s);
+        j["min_distance_m"] = serde_json::json!(self.ctl.config().min_distance_m);
+        (j["sources"], j["rate_limit"]) = self.gate.json(&self.mailbox);
+        stats.extra.insert("gaze".into(), j);
+        // apart from `gaze`: CPU time differs run to run, the gaze statistics of a simulated run do not
+        let us = self.cpu_ns as f64 * 1e-3 / self.frames.max(1) as f64;
+        stats.extra.insert("gaze_cpu".into(), serde_json::json!({"frames": self.frames, "stage_us_per_frame": us}));
+    }
+}
+
+impl GazeStage {
+    /// One frame: the goal, the controller, the measured fixation, the saccade gate, the state.
+    fn step(&mut self, w: &mut Work) {
         let m = &w.motion;
         let first = m.t_start_ns[0].min(m.t_start_ns[1]);
         let last = m.t_start_ns[0].max(m.t_start_ns[1]) + m.readout_ns + m.exposure_ns;
@@ -114,21 +149,5 @@ impl Stage for GazeStage {
         if let Some(b) = self.board.as_mut() {
             b.frame_done(w.seq);
         }
-        Ok(())
-    }
-
-    fn failure(&self, _e: &crate::error::RuntimeError) -> &'static str {
-        "gaze failed"
-    }
-
-    fn finish(&mut self, stats: &mut RunStats) {
-        let mut j = self.ctl.counts.json();
-        let (posted, superseded) = self.mailbox.counts();
-        j["posted"] = serde_json::json!(posted);
-        j["superseded"] = serde_json::json!(superseded);
-        j["peak_deg_s"] = serde_json::json!(self.ctl.config().peak_deg_s);
-        j["min_distance_m"] = serde_json::json!(self.ctl.config().min_distance_m);
-        (j["sources"], j["rate_limit"]) = self.gate.json(&self.mailbox);
-        stats.extra.insert("gaze".into(), j);
     }
 }

@@ -164,6 +164,9 @@ pub struct GazeBridge {
     received: u64,
     published: u64,
     failures: u64,
+    /// Its own CPU time on the output lane (ns) and the frames: the gaze service's cost there.
+    cpu_ns: i64,
+    frames: u64,
     _goal_service: GoalService,
     _state_service: StateService,
     _node: Node<Ipc>,
@@ -186,6 +189,8 @@ impl GazeBridge {
             received: 0,
             published: 0,
             failures: 0,
+            cpu_ns: 0,
+            frames: 0,
             _goal_service: gs,
             _state_service: ss,
             _node: node,
@@ -199,6 +204,26 @@ impl crate::sinks::Sink for GazeBridge {
     }
 
     fn consume(&mut self, out: &Published) -> crate::Result<()> {
+        let t0 = crate::cpu::thread_cpu_ns();
+        self.exchange(out);
+        self.cpu_ns += crate::cpu::thread_cpu_ns() - t0;
+        self.frames += 1;
+        Ok(())
+    }
+
+    fn finish(&mut self, stats: &mut RunStats) {
+        let us = self.cpu_ns as f64 * 1e-3 / self.frames.max(1) as f64;
+        stats.extra.insert(
+            "gaze_iceoryx2".into(),
+            serde_json::json!({"goals_received": self.received, "states_published": self.published,
+                "failures": self.failures, "cpu_us_per_frame": us}),
+        );
+    }
+}
+
+impl GazeBridge {
+    /// Drains the goals into the mailbox and publishes the frame's state.
+    fn exchange(&mut self, out: &Published) {
         while let Ok(Some(s)) = self.goals.receive() {
             self.received += 1;
             self.mailbox.post_from(s.payload().goal(), GoalSource::Iceoryx2);
@@ -208,13 +233,5 @@ impl crate::sinks::Sink for GazeBridge {
             Ok(Ok(_)) => self.published += 1,
             _ => self.failures += 1,
         }
-        Ok(())
-    }
-
-    fn finish(&mut self, stats: &mut RunStats) {
-        stats.extra.insert(
-            "gaze_iceoryx2".into(),
-            serde_json::json!({"goals_received": self.received, "states_published": self.published, "failures": self.failures}),
-        );
     }
 }
