@@ -467,7 +467,8 @@ fn sinks(
     }
     // ROS 2 outputs: lossless runs wait for them, live ones drop their oldest queued frame
     if let Some(p) = &c.sinks.mcap.file {
-        sinks.push(Box::new(crate::sinks::mcap_log::sink(p, c.sinks.mcap.queue, c.source.lossless)?));
+        let fovea = c.fovea.fovea_config().is_some();
+        sinks.push(Box::new(crate::sinks::mcap_log::sink(p, c.sinks.mcap.queue, c.source.lossless, fovea)?));
     }
     let z = &c.bridges.zenoh;
     let zc = crate::bridges::zenoh_gaze::config(z)?;
@@ -480,7 +481,7 @@ fn sinks(
         // the gaze topics first: they finish before the outputs close the session
         sinks.push(Box::new(crate::bridges::zenoh_gaze::ZenohGaze::new(session.clone(), z, gaze.clone(), z.enabled)?));
         if z.enabled {
-            let w = crate::bridges::zenoh::ZenohWriter::on_session(session, z)?;
+            let w = crate::bridges::zenoh::ZenohWriter::on_session(session, z, c.fovea.fovea_config().is_some())?;
             sinks.push(Box::new(crate::sinks::ros2_out::Ros2OutSink::new("zenoh", w, z.queue, c.source.lossless)?));
         }
     }
