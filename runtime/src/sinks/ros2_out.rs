@@ -93,6 +93,9 @@ pub struct Ros2OutStats {
     /// CPU time per frame of the copy on the pipeline's output thread (ms, thread CPU clock): the part of
     /// the output's cost that the sink's own thread (`abvs-<name>`, in the stats' `cpu`) does not show.
     pub copy_cpu_ms_per_frame: f64,
+    /// Arrays the copy found still held by the writer (a new buffer allocated instead): 0 when the writer
+    /// lets go of them after each frame, as Zenoh and MCAP do.
+    pub arrays_reallocated: u64,
     /// The first error, when a frame failed.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub last_error: Option<String>,
@@ -112,6 +115,7 @@ pub struct Ros2OutSink {
     frames_in: u64,
     dropped: u64,
     copy_cpu_ns: i64,
+    reallocated: u64,
     worker: Option<JoinHandle<Ros2OutStats>>,
 }
 
@@ -143,6 +147,7 @@ impl Ros2OutSink {
             frames_in: 0,
             dropped: 0,
             copy_cpu_ns: 0,
+            reallocated: 0,
             worker: Some(worker),
         })
     }
@@ -223,7 +228,7 @@ impl Sink for Ros2OutSink {
             return Ok(());
         };
         let cpu0 = crate::cpu::thread_cpu_ns();
-        snap.fill(out);
+        self.reallocated += snap.fill(out) as u64;
         self.copy_cpu_ns += crate::cpu::thread_cpu_ns() - cpu0;
         loop {
             match tx.try_send(snap) {
@@ -264,6 +269,7 @@ impl Sink for Ros2OutSink {
         st.frames_in = self.frames_in;
         st.frames_dropped = self.dropped;
         st.copy_cpu_ms_per_frame = self.copy_cpu_ns as f64 / 1e6 / self.frames_in.max(1) as f64;
+        st.arrays_reallocated = self.reallocated;
         stats.extra.insert(self.name.into(), serde_json::to_value(&st).unwrap_or_default());
     }
 }
