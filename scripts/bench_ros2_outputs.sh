@@ -7,7 +7,9 @@
 # the outputs counted (frames written / dropped, write ms a frame) and the runtime's own CPU accounting:
 # the process's CPU ms a frame, the paired difference to the run without (median) as a share of the run
 # without, and the Zenoh threads' CPU (the sink's `abvs-zenoh` thread + Zenoh's own) as a share of the
-# process's.
+# process's, then with the sink's copy on the output thread (`copy_cpu_ms_per_frame`) added: the outputs'
+# whole cost. ABVS_B=<another abvs binary> also runs --zenoh and rmw-zenoh with it (`zenohB`, `rmwB`) in
+# the same rounds, to compare two builds.
 #   cargo build --release -p abvs && scripts/setup.sh && scripts/bench_ros2_outputs.sh [ROUNDS=8] [FRAMES=125] [flags]
 set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
@@ -28,36 +30,42 @@ c.insert_json5("scouting/multicast/enabled", "false")
 s = zenoh.open(c)
 n = {}
 subs = [s.declare_subscriber(k, lambda x: n.__setitem__(str(x.key_expr), n.get(str(x.key_expr), 0) + 1))
-        for k in ["abvs/depth", "abvs/camera_info", "abvs/points", "tf", "abvs/joint_states", "0/abvs/**", "0/tf/**"]]
+        for k in ["abvs/depth", "abvs/camera_info", "abvs/points", "tf", "abvs/joint_states", "abvs/fovea/**", "0/abvs/**",
+                  "0/tf/**"]]
 threading.Event().wait()
 PY
 LISTENER=$!
 trap 'kill $LISTENER 2>/dev/null; rm -rf "$OUT"' EXIT
 sleep 2
 cfgs=(off zenoh rmw mcap both)
+[ -n "${ABVS_B:-}" ] && cfgs+=(zenohB rmwB)
+N=${#cfgs[@]}
 for i in $(seq 1 "$ROUNDS"); do
-  for j in 0 1 2 3 4; do
-    m=${cfgs[$(( (i + j) % 5 ))]}
+  for j in $(seq 0 $(( N - 1 ))); do
+    m=${cfgs[$(( (i + j) % N ))]}
+    bin=$BIN
     case $m in
       off) extra=() ;;
       zenoh) extra=(--zenoh-connect "tcp/127.0.0.1:$PORT") ;;
       rmw) extra=(--zenoh-connect "tcp/127.0.0.1:$PORT" --ros2-keys rmw-zenoh) ;;
       mcap) extra=(--mcap "$OUT/run.mcap") ;;
       both) extra=(--zenoh-connect "tcp/127.0.0.1:$PORT" --mcap "$OUT/run.mcap") ;;
+      zenohB) extra=(--zenoh-connect "tcp/127.0.0.1:$PORT"); bin=$ABVS_B ;;
+      rmwB) extra=(--zenoh-connect "tcp/127.0.0.1:$PORT" --ros2-keys rmw-zenoh); bin=$ABVS_B ;;
     esac
-    "$BIN" run --quiet --truth-stride 0 --frames "$FRAMES" --service-prefix "abvs-bench-$$" "${extra[@]}" "$@" \
+    "$bin" run --quiet --truth-stride 0 --frames "$FRAMES" --service-prefix "abvs-bench-$$" "${extra[@]}" "$@" \
       --stats-json "$OUT/$m-$i.json" >/dev/null 2>&1
     rm -f "$OUT/run.mcap"
   done
 done
-python3 - "$OUT" "$ROUNDS" <<'PY'
+python3 - "$OUT" "$ROUNDS" "${cfgs[@]}" <<'PY'
 import json, statistics as st, sys
-out, n = sys.argv[1], int(sys.argv[2])
+out, n, cfgs = sys.argv[1], int(sys.argv[2]), sys.argv[3:]
 load = lambda m: [json.load(open(f"{out}/{m}-{i}.json")) for i in range(1, n + 1)]
 off = load("off")
 # Zenoh's own threads (its runtime's pools) by name, and the sink's thread
 ZENOH_THREADS = ("abvs-zenoh", "app-", "acc-", "net-", "rx-", "tx-")
-for m in ["off", "zenoh", "rmw", "mcap", "both"]:
+for m in cfgs:
     vs = load(m)
     e = [v["latency_ms"]["p50"] for v in vs]
     r = [v["latency_ms"]["p50"] / o["latency_ms"]["p50"] for v, o in zip(vs, off)]
@@ -70,7 +78,14 @@ for m in ["off", "zenoh", "rmw", "mcap", "both"]:
     line += (f"; CPU {st.median(cpu):.2f} ms a frame, paired difference to off {st.median(d):+.2f} ms"
              f" ({100 * st.median(d) / st.median([o['cpu']['ms_per_frame'] for o in off]):+.1f} %),"
              f" Zenoh threads {100 * st.median(z):.2f} % of it")
+    if "zenoh" in vs[0]:
+        # the Zenoh output's whole cost: its threads and the sink's copy on the output thread, per frame
+        w = [(sum(ms for n, ms in v["cpu"]["other_threads_by_name_ms_per_frame"].items() if n.startswith(ZENOH_THREADS))
+              + v["zenoh"].get("copy_cpu_ms_per_frame", 0.0)) / v["cpu"]["ms_per_frame"] for v in vs]
+        line += f", with the output thread's copy {100 * st.median(w):.2f} %"
     for k in ["zenoh", "mcap"]:
+        if k in vs[0] and "copy_cpu_ms_per_frame" in vs[0][k]:
+            line += f"; {k} copy {st.median([v[k]['copy_cpu_ms_per_frame'] for v in vs]):.2f} ms a frame"
         if k in vs[0]:
             line += (f"; {k} written {sum(v[k]['frames_written'] for v in vs)} dropped {sum(v[k]['frames_dropped'] for v in vs)}"
                      f" of {sum(v[k]['frames_in'] for v in vs)}, {st.median([v[k]['write_ms_p50'] for v in vs]):.2f} ms a frame")

@@ -131,7 +131,16 @@ fn zenoh_messages_reach_a_python_listener() {
     let z = &s["zenoh"];
     assert_eq!(z["frames_in"].as_u64(), Some(n), "{z}");
     assert_eq!(z["frames_failed"].as_u64(), Some(0), "{z}");
-    for key in ["abvs/depth", "abvs/camera_info", "abvs/points", "tf", "abvs/joint_states"] {
+    for key in [
+        "abvs/depth",
+        "abvs/camera_info",
+        "abvs/points",
+        "tf",
+        "abvs/joint_states",
+        "abvs/fovea/depth",
+        "abvs/fovea/camera_info",
+        "abvs/fovea/points",
+    ] {
         let got = r["received"][key].as_u64().unwrap();
         assert!(got as f64 >= 0.9 * n as f64, "{key}: {got} of {n} frames received");
         assert_eq!(r["decoded"][key], r["received"][key], "{key}: every message decodes");
@@ -159,6 +168,21 @@ fn zenoh_messages_reach_a_python_listener() {
     assert!(tf_checked as f64 >= 0.9 * n as f64, "{r}");
     let err = r["tf_max_err_m"].as_f64().unwrap_or(f64::INFINITY);
     assert!(err < 1e-4, "depth + camera_info + tf vs the cloud: {err} m");
+    // the fovea's three topics, frame by frame against its iceoryx2 services: CameraInfo K, P and size are
+    // the window's intrinsics and size, the depth has that size and the header's valid count, the cloud is
+    // the same bytes (none and all NaN on a motion-gated frame), and depth + CameraInfo + /tf give the cloud
+    let f = &r["fovea"];
+    let compared = f["compared"].as_u64().unwrap();
+    assert!(compared as f64 >= 0.9 * n as f64, "{f}");
+    for k in ["info_equal", "depth_equal", "cloud_equal"] {
+        assert_eq!(f[k].as_u64(), Some(compared), "{k}: {f}");
+    }
+    assert_eq!(f["frame_ids"], serde_json::json!(["left_rect_camera"]), "{f}");
+    assert_eq!(f["cloud_frame_ids"], serde_json::json!(["left_home_camera"]), "{f}");
+    assert_eq!(f["focal_above_main"], Value::Bool(true), "native scale: {f}");
+    assert!(f["tf_checked"].as_u64().unwrap() as f64 >= 0.9 * n as f64, "{f}");
+    let err = f["tf_max_err_m"].as_f64().unwrap_or(f64::INFINITY);
+    assert!(err < 1e-4, "fovea depth + camera_info + tf vs its cloud: {err} m");
 }
 
 #[test]
@@ -185,7 +209,17 @@ fn rmw_zenoh_node_is_seen_by_a_python_client() {
         serde_json::json!({"zid_is_peer": true, "ids": ["0", "0"], "enclave_ns_name": ["%", "%", "abvs"]})
     );
     let mut ids = Vec::new();
-    for topic in ["/abvs/depth", "/abvs/camera_info", "/abvs/points", "/tf", "/abvs/joint_states"] {
+    let topics = [
+        "/abvs/depth",
+        "/abvs/camera_info",
+        "/abvs/points",
+        "/tf",
+        "/abvs/joint_states",
+        "/abvs/fovea/depth",
+        "/abvs/fovea/camera_info",
+        "/abvs/fovea/points",
+    ];
+    for topic in topics {
         // every message under the Jazzy key decodes as its type; the subscriber may miss the first few
         // (before its subscription reached the runtime), none after: sequence numbers step by one up to
         // the frames written (one sample a frame, numbered from 1)
@@ -206,13 +240,13 @@ fn rmw_zenoh_node_is_seen_by_a_python_client() {
     }
     ids.sort();
     ids.dedup();
-    assert_eq!(ids.len(), 5, "one entity id a publisher: {ids:?}");
+    assert_eq!(ids.len(), 8, "one entity id a publisher: {ids:?}");
     let gids: std::collections::BTreeSet<String> =
         r["gids"].as_object().unwrap().values().map(|g| g[0].as_str().unwrap_or("").to_string()).collect();
-    assert_eq!(gids.len(), 5, "one GID a publisher: {r}");
-    // the run's end takes the node out of the ROS 2 graph: every token is withdrawn (the node's, the five
+    assert_eq!(gids.len(), 8, "one GID a publisher: {r}");
+    // the run's end takes the node out of the ROS 2 graph: every token is withdrawn (the node's, the eight
     // outputs' and the gaze state's publisher: goals over Zenoh are off, no subscription)
-    assert_eq!(r["tokens"].as_array().map(|a| a.len()), Some(7), "{r}");
+    assert_eq!(r["tokens"].as_array().map(|a| a.len()), Some(10), "{r}");
     let gaze = r["tokens"].as_array().unwrap().iter().filter(|t| t.as_str().unwrap_or("").contains("%gaze%")).count();
     assert_eq!(gaze, 1, "{r}");
     assert_eq!(r["tokens_gone"], r["tokens"], "{r}");
@@ -237,18 +271,22 @@ fn mcap_recording_decodes_in_python() {
         ("/abvs/points", "sensor_msgs/msg/PointCloud2"),
         ("/tf", "tf2_msgs/msg/TFMessage"),
         ("/abvs/joint_states", "sensor_msgs/msg/JointState"),
+        ("/abvs/fovea/depth", "sensor_msgs/msg/Image"),
+        ("/abvs/fovea/camera_info", "sensor_msgs/msg/CameraInfo"),
+        ("/abvs/fovea/points", "sensor_msgs/msg/PointCloud2"),
     ];
     for (topic, ty) in types {
         assert_eq!(r["schemas"][topic], serde_json::json!([ty, "ros2msg", "cdr"]), "{topic}");
         // one message per published frame on every topic: the clouds equal frames_published
         assert_eq!(r["messages"][topic].as_u64(), Some(n), "{topic}: {r}");
     }
-    assert_eq!(r["summary_messages"].as_u64(), Some(5 * n));
+    assert_eq!(r["summary_messages"].as_u64(), Some(8 * n));
     assert_eq!(r["profile"], "ros2");
     assert_eq!(r["stamps_back"].as_u64(), Some(0), "stamps never go back");
-    // CameraInfo K against the FrameHeader intrinsics of the same frame (received over iceoryx2)
+    // CameraInfo K against the FrameHeader intrinsics of the same frame (received over iceoryx2), the main
+    // map's and the fovea's
     let checked = r["k_checked"].as_u64().unwrap();
-    assert!(checked as f64 >= 0.9 * n as f64, "{r}");
+    assert!(checked as f64 >= 0.9 * 2.0 * n as f64, "{r}");
     assert_eq!(r["k_equal"].as_u64(), Some(checked), "{r}");
 }
 

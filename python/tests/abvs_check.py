@@ -6,10 +6,11 @@ mcap-ros2-support, iceoryx2, numpy.
   layout                       the ctypes layout of FrameHeader and CloudPoint
   iox PREFIX [confidence]      receive depth and clouds (and the confidence) until stdin closes (prints
                                "ready" first)
-  zenoh ENDPOINT PREFIX        listen on ENDPOINT for the five keys, and the iceoryx2 clouds, until
-                               stdin closes; decode every message, compare clouds by stamp
+  zenoh ENDPOINT PREFIX        listen on ENDPOINT for the eight keys (the fovea's three included), and the
+                               iceoryx2 clouds and fovea, until stdin closes; decode every message,
+                               compare clouds and the fovea's CameraInfo with iceoryx2 by stamp
   mcap FILE PREFIX             receive the iceoryx2 headers until stdin closes, then decode FILE
-  rmw ENDPOINT                 listen on ENDPOINT as an rmw_zenoh (Jazzy) subscriber would: the five typed
+  rmw ENDPOINT                 listen on ENDPOINT as an rmw_zenoh (Jazzy) subscriber would: the eight typed
                                keys with the hashes rosbags computes, the liveliness tokens, the attachments
   gaze PREFIX X Y Z            wait for the runtime's gaze states, send look_at(X, Y Z), print the first
                                state that reports the goal (and the one before)
@@ -32,6 +33,9 @@ KEYS = {
     "abvs/points": "sensor_msgs/msg/PointCloud2",
     "tf": "tf2_msgs/msg/TFMessage",
     "abvs/joint_states": "sensor_msgs/msg/JointState",
+    "abvs/fovea/depth": "sensor_msgs/msg/Image",
+    "abvs/fovea/camera_info": "sensor_msgs/msg/CameraInfo",
+    "abvs/fovea/points": "sensor_msgs/msg/PointCloud2",
 }
 
 
@@ -60,6 +64,8 @@ class IoxCollector:
         self.fovea_frames = [0, 0]
         self.fovea_bad = []
         self.fovea_focal = set()
+        self.fovea_headers = {}  # t_frame_ns -> (intrinsics, width, height, valid, flags)
+        self.fovea_clouds = {}  # t_frame_ns -> cloud bytes (when keep_clouds)
         self.depth = abvs.Subscriber("depth", prefix)
         self.cloud = abvs.Subscriber("cloud", prefix)
         self.confidence = abvs.Subscriber("confidence", prefix) if confidence else None
@@ -125,8 +131,11 @@ class IoxCollector:
                     elif int(np.isfinite(f.data).sum()) != h.valid:
                         self.fovea_bad.append(["valid", h.seq, int(np.isfinite(f.data).sum()), h.valid])
                     self.fovea_focal.add(round(h.intrinsics[0], 3))
+                    self.fovea_headers[h.t_frame_ns] = (list(h.intrinsics), h.width, h.height, h.valid, h.flags)
                 elif len(f.data) != h.valid:
                     self.fovea_bad.append(["cloud", h.seq, len(f.data), h.valid])
+                elif self.keep_clouds:
+                    self.fovea_clouds[h.t_frame_ns] = f.data.tobytes()
                 self.fovea_frames[k] += 1
 
     def run_cloud(self):
@@ -160,11 +169,12 @@ def quat_matrix(q):
     ])
 
 
-def tf_consistency(decoded):
+def tf_consistency(decoded, ns="abvs/"):
     """Frames whose depth, unprojected with their CameraInfo K and moved by /tf from the depth's frame_id to
-    the cloud's, gives the cloud; returns (frames checked, largest point difference in m)."""
+    the cloud's, gives the cloud (`ns`: "abvs/" the main map's topics, "abvs/fovea/" the fovea's); returns
+    (frames checked, largest point difference in m)."""
     by = lambda k: {stamp_ns(m.header): m for m in decoded[k]}  # noqa: E731
-    depth, info, pts = by("abvs/depth"), by("abvs/camera_info"), by("abvs/points")
+    depth, info, pts = by(ns + "depth"), by(ns + "camera_info"), by(ns + "points")
     tfs = {stamp_ns(m.transforms[0].header): m for m in decoded["tf"] if len(m.transforms)}
     checked, worst = 0, 0.0
     for t in sorted(set(depth) & set(info) & set(pts) & set(tfs)):
@@ -240,7 +250,7 @@ def cmd_zenoh(endpoint, prefix):
             raw[str(sample.key_expr)].append(sample.payload.to_bytes())
 
     subs = [session.declare_subscriber(k, on_sample) for k in KEYS]
-    iox = IoxCollector(prefix, keep_clouds=True)
+    iox = IoxCollector(prefix, keep_clouds=True, fovea=True)
     print("ready", flush=True)
     done.wait()
     time.sleep(1.0)
@@ -288,7 +298,45 @@ def cmd_zenoh(endpoint, prefix):
     out["tf"] = sorted(f"{a}->{b}" for a, b in tf_children)
     out["tf_checked"], out["tf_max_err_m"] = tf_consistency(decoded)
     out["joint_names"] = list(decoded["abvs/joint_states"][0].name) if decoded["abvs/joint_states"] else []
+    out["fovea"] = fovea_checks(decoded, iox)
     print(json.dumps(out))
+
+
+def fovea_checks(decoded, iox):
+    """The fovea's topics against its iceoryx2 services, frame by frame (same stamp): CameraInfo K, P and
+    size are the FrameHeader's intrinsics and window, the Image has that size and as many finite depths as
+    the header counts valid, the PointCloud2 is the iceoryx2 cloud's bytes; a motion-gated frame (flag in the
+    header) has no valid depth and no point; the depth unprojected with the CameraInfo and moved by /tf is the
+    cloud."""
+    by = lambda k: {stamp_ns(m.header): m for m in decoded[k]}  # noqa: E731
+    depth, info, pts = by("abvs/fovea/depth"), by("abvs/fovea/camera_info"), by("abvs/fovea/points")
+    r = {"compared": 0, "info_equal": 0, "depth_equal": 0, "cloud_equal": 0, "gated": 0, "bad": [],
+         "frame_ids": sorted({m.header.frame_id for m in depth.values()} | {m.header.frame_id for m in info.values()}),
+         "cloud_frame_ids": sorted({m.header.frame_id for m in pts.values()}),
+         "focal_above_main": all(info[t].k[0] > 2.0 * m.k[0] for m in decoded["abvs/camera_info"]
+                                 for t in [stamp_ns(m.header)] if t in info)}
+    for t in sorted(set(depth) & set(info) & set(pts) & set(iox.fovea_headers) & set(iox.fovea_clouds)):
+        (fx, fy, cx, cy), w, h, valid, flags = iox.fovea_headers[t]
+        ci, dm, pm = info[t], depth[t], pts[t]
+        r["compared"] += 1
+        ok_info = (list(ci.k) == [fx, 0.0, cx, 0.0, fy, cy, 0.0, 0.0, 1.0]
+                   and list(ci.p) == [fx, 0.0, cx, 0.0, 0.0, fy, cy, 0.0, 0.0, 0.0, 1.0, 0.0]
+                   and (ci.width, ci.height) == (w, h) and list(ci.d) == [0.0] * 5)
+        d = np.frombuffer(dm.data.tobytes(), dtype="<f4")
+        finite = int(np.isfinite(d).sum())
+        ok_depth = (dm.width, dm.height, dm.step, len(d)) == (w, h, 4 * w, w * h) and finite == valid
+        ok_cloud = bytes(pm.data.tobytes()) == iox.fovea_clouds[t] and pm.width == valid
+        if flags & abvs.FLAG_MOTION_GATED:
+            r["gated"] += 1
+            ok_depth = ok_depth and finite == 0 and pm.width == 0
+        r["info_equal"] += ok_info
+        r["depth_equal"] += ok_depth
+        r["cloud_equal"] += ok_cloud
+        if not (ok_info and ok_depth and ok_cloud) and len(r["bad"]) < 3:
+            r["bad"].append({"k": list(ci.k), "size": [ci.width, ci.height], "header": [fx, fy, cx, cy, w, h, valid],
+                             "finite": finite, "points": pm.width})
+    r["tf_checked"], r["tf_max_err_m"] = tf_consistency(decoded, "abvs/fovea/")
+    return r
 
 
 def cmd_mcap(path, prefix):
@@ -296,7 +344,7 @@ def cmd_mcap(path, prefix):
     from mcap_ros2.decoder import DecoderFactory
 
     done = stdin_closed()
-    iox = IoxCollector(prefix, keep_clouds=False)
+    iox = IoxCollector(prefix, keep_clouds=False, fovea=True)
     print("ready", flush=True)
     done.wait()
     time.sleep(0.5)
@@ -324,11 +372,12 @@ def cmd_mcap(path, prefix):
                 if t < last_stamp.get(topic, -1):
                     back += 1
                 last_stamp[topic] = t
-            if topic == "/abvs/camera_info":
+            if topic in ("/abvs/camera_info", "/abvs/fovea/camera_info"):
                 t = stamp_ns(msg.header)
-                if t in iox.headers:
+                heads = iox.headers if topic == "/abvs/camera_info" else iox.fovea_headers
+                if t in heads:
                     k_checked += 1
-                    fx, fy, cx, cy = iox.headers[t][1]
+                    fx, fy, cx, cy = heads[t][0 if topic != "/abvs/camera_info" else 1]
                     k = list(msg.k)
                     if k == [fx, 0.0, cx, 0.0, fy, cy, 0.0, 0.0, 1.0]:
                         k_equal += 1
@@ -356,6 +405,9 @@ TOPICS = {
     "/abvs/points": "sensor_msgs/msg/PointCloud2",
     "/tf": "tf2_msgs/msg/TFMessage",
     "/abvs/joint_states": "sensor_msgs/msg/JointState",
+    "/abvs/fovea/depth": "sensor_msgs/msg/Image",
+    "/abvs/fovea/camera_info": "sensor_msgs/msg/CameraInfo",
+    "/abvs/fovea/points": "sensor_msgs/msg/PointCloud2",
 }
 
 

@@ -8,6 +8,13 @@
 //! | `/abvs/points` | sensor_msgs/msg/PointCloud2, x y z float32 + rgb, valid points only | `left_home_camera` |
 //! | `/tf` | tf2_msgs/msg/TFMessage: `left_home_camera` -> `left_camera`, `right_camera`, `left_rect_camera` | |
 //! | `/abvs/joint_states` | sensor_msgs/msg/JointState: the six link angles (rad) at mid-exposure | `left_home_camera` |
+//! | `/abvs/fovea/depth` | sensor_msgs/msg/Image, `32FC1`: the fovea's window (native scale, `tasks::fovea`) | `left_rect_camera` |
+//! | `/abvs/fovea/camera_info` | sensor_msgs/msg/CameraInfo of the fovea's window (its own K and P) | `left_rect_camera` |
+//! | `/abvs/fovea/points` | sensor_msgs/msg/PointCloud2 of the fovea's window | `left_home_camera` |
+//!
+//! The fovea's topics exist when the run computes a fovea (on by default); the window is a crop of the main
+//! map's rectified plane at the raw frames' focal length, so its frame is `left_rect_camera` too and only
+//! its CameraInfo differs. A motion-gated frame's fovea is published like its main map: all NaN, no points.
 //!
 //! Every header stamp is the frame's left mid-exposure time on CLOCK_MONOTONIC (`FrameHeader::t_frame_ns`
 //! of the iceoryx2 services), so one frame's five messages carry one stamp. Camera frames have OpenCV axes
@@ -16,6 +23,14 @@
 //! image's) is the current left camera turned by the frame's rectifying rotation. The messages are
 //! encoded by the `cdr` crate through serde (standard little-endian encapsulation, 00 01 00 00) from
 //! the Humble definitions in [`SCHEMAS`]; byte arrays are written whole (`serde_bytes`).
+//!
+//! The large messages (the depth images and the clouds) are encoded in three parts ([`Cdr`]): the fields
+//! before the byte array (its length included), the array itself, which is the snapshot's buffer shared
+//! without a copy, and the fields after it. A Zenoh sample is made of those parts as they are (one copy,
+//! Zenoh's own into its batches); a file writer joins them. The bytes are those of the whole message
+//! encoded at once (a test checks it).
+use std::sync::Arc;
+
 use abvs_eye::Pose;
 use nalgebra::{Matrix3, Rotation3, UnitQuaternion};
 use serde::Serialize;
@@ -59,8 +74,9 @@ impl Topic {
     }
 }
 
-/// The five topics, in the order [`Encoded::messages`] returns them.
-pub const TOPICS: [Topic; 5] = [
+/// The topics, in the order [`Encoded::messages`] returns them: the main five, then the fovea's three
+/// ([`topics`]).
+pub const TOPICS: [Topic; 8] = [
     Topic {
         topic: "/abvs/depth",
         key: "abvs/depth",
@@ -96,7 +112,40 @@ pub const TOPICS: [Topic; 5] = [
         schema: SCHEMAS[4],
         rihs01: "RIHS01_a13ee3a330e346c9d87b5aa18d24e11690752bd33a0350f11c5882bc9179260e",
     },
+    Topic {
+        topic: "/abvs/fovea/depth",
+        key: "abvs/fovea/depth",
+        type_name: "sensor_msgs/msg/Image",
+        schema: SCHEMAS[0],
+        rihs01: "RIHS01_d31d41a9a4c4bc8eae9be757b0beed306564f7526c88ea6a4588fb9582527d47",
+    },
+    Topic {
+        topic: "/abvs/fovea/camera_info",
+        key: "abvs/fovea/camera_info",
+        type_name: "sensor_msgs/msg/CameraInfo",
+        schema: SCHEMAS[1],
+        rihs01: "RIHS01_b3dfd68ff46c9d56c80fd3bd4ed22c7a4ddce8c8348f2f59c299e73118e7e275",
+    },
+    Topic {
+        topic: "/abvs/fovea/points",
+        key: "abvs/fovea/points",
+        type_name: "sensor_msgs/msg/PointCloud2",
+        schema: SCHEMAS[2],
+        rihs01: "RIHS01_9198cabf7da3796ae6fe19c4cb3bdd3525492988c70522628af5daa124bae2b5",
+    },
 ];
+
+/// Topics of the main map, the cameras and the joints (the first of [`TOPICS`]).
+pub const MAIN_TOPICS: usize = 5;
+
+/// The topics a run publishes: the main five, and the fovea's when it computes one.
+pub fn topics(fovea: bool) -> &'static [Topic] {
+    if fovea {
+        &TOPICS
+    } else {
+        &TOPICS[..MAIN_TOPICS]
+    }
+}
 
 /// A dependency's definition after the ros2msg separator line.
 macro_rules! dep {
@@ -281,7 +330,79 @@ const FIELDS: [PointField<'static>; 4] = [
     PointField { name: "rgb", offset: 12, datatype: FLOAT32, count: 1 },
 ];
 
-/// A copy of what the five messages of one frame need, taken on the pipeline's output thread
+/// A depth image and its cloud as the messages carry them, with the camera they are in: the main map's or
+/// the fovea's window.
+#[derive(Debug, Clone, Default)]
+pub struct ImageSnapshot {
+    /// Width (px).
+    pub width: u32,
+    /// Height (px).
+    pub height: u32,
+    /// fx = fy of the rectified left camera (px).
+    pub f: f64,
+    /// Principal point, x (px).
+    pub cx: f64,
+    /// Principal point, y (px).
+    pub cy: f64,
+    /// Row-major depth (m, float32 bits), NaN = invalid: the Image's data.
+    pub depth: Arc<Vec<u32>>,
+    /// The cloud as PointCloud2 data: [`POINT_STEP`] bytes (four words) a point.
+    pub cloud: Arc<Vec<u32>>,
+}
+
+/// `b` to write into: a writer still holding the last frame's bytes keeps them, and a new buffer starts
+/// (counted in `replaced`).
+fn unshared<'a>(b: &'a mut Arc<Vec<u32>>, replaced: &mut u32) -> &'a mut Vec<u32> {
+    if Arc::get_mut(b).is_none() {
+        *b = Arc::default();
+        *replaced += 1;
+    }
+    Arc::make_mut(b)
+}
+
+impl ImageSnapshot {
+    fn fill(&mut self, cam: &crate::messages::RectifiedCamera, d: &crate::messages::DepthFrame, replaced: &mut u32) {
+        (self.width, self.height) = (cam.width, cam.height);
+        (self.f, self.cx, self.cy) = (cam.f, cam.cx, cam.cy);
+        let depth = unshared(&mut self.depth, replaced);
+        depth.clear();
+        // SAFETY: f32 and u32 have one size and alignment, and every bit pattern is a u32.
+        depth.extend_from_slice(unsafe { std::slice::from_raw_parts(d.depth.as_ptr().cast::<u32>(), d.depth.len()) });
+        let n = d.n_points;
+        // written in place, one pass of plain stores: this runs on the pipeline's output thread, and a loop of
+        // iterator adapters was most of the sink's cost there where the runtime is built at opt-level 1
+        let (pts, gray) = (&d.points[..n], &d.intensity[..n]);
+        let cloud = unshared(&mut self.cloud, replaced);
+        cloud.clear();
+        cloud.reserve(n * 4);
+        // SAFETY: the capacity holds 4n words; word 4i..4i+4 is written for each i < n (pts and gray hold n
+        // each) before the length covers them.
+        unsafe {
+            let out = cloud.as_mut_ptr();
+            for i in 0..n {
+                let (p, g) = (*pts.as_ptr().add(i), *gray.as_ptr().add(i));
+                let w = out.add(4 * i);
+                w.write(p.x.to_bits());
+                w.add(1).write(p.y.to_bits());
+                w.add(2).write(p.z.to_bits());
+                w.add(3).write(gray_rgb(g));
+            }
+            cloud.set_len(n * 4);
+        }
+    }
+
+    /// Points in the cloud.
+    pub fn n_points(&self) -> usize {
+        self.cloud.len() * 4 / POINT_STEP
+    }
+
+    /// The camera's K (row-major 3x3).
+    pub fn k(&self) -> [f64; 9] {
+        [self.f, 0.0, self.cx, 0.0, self.f, self.cy, 0.0, 0.0, 1.0]
+    }
+}
+
+/// A copy of what the messages of one frame need, taken on the pipeline's output thread
 /// ([`FrameSnapshot::fill`]) and encoded later on a sink's own thread. Reused: filling a snapshot
 /// allocates only when a frame has more points than any before it.
 #[derive(Debug, Clone, Default)]
@@ -298,66 +419,42 @@ pub struct FrameSnapshot {
     pub left_to_right: Pose,
     /// Current left camera -> rectified frame.
     pub rect_from_left: Matrix3<f64>,
-    /// Depth map width (px).
-    pub width: u32,
-    /// Depth map height (px).
-    pub height: u32,
-    /// fx = fy, cx, cy of the rectified left camera (px).
-    pub f: f64,
-    /// Principal point, x (px).
-    pub cx: f64,
-    /// Principal point, y (px).
-    pub cy: f64,
     /// Stereo baseline (m).
     pub baseline_m: f64,
-    /// Row-major depth (m), NaN = invalid.
-    pub depth: Vec<f32>,
-    /// The cloud as PointCloud2 data: [`POINT_STEP`] bytes a point, little-endian.
-    pub cloud: Vec<u8>,
+    /// The main depth map and cloud.
+    pub main: ImageSnapshot,
+    /// The fovea's, when `has_fovea`.
+    pub fovea: ImageSnapshot,
+    /// Whether the frame has a fovea (the run computes one).
+    pub has_fovea: bool,
 }
 
 /// The packed rgb of a gray level (PCL / rviz: 0x00RRGGBB; the top byte is the iceoryx2 cloud's alpha,
 /// 0xff, so the 16 bytes of a point are those of its `CloudPoint`).
+#[inline]
 pub fn gray_rgb(g: u8) -> u32 {
     let g = g as u32;
     0xff00_0000 | g << 16 | g << 8 | g
 }
 
 impl FrameSnapshot {
-    /// Copies a published frame's depth, cloud and geometry.
-    pub fn fill(&mut self, out: &Published) {
+    /// Copies a published frame's depth, cloud and geometry (and its fovea's). Returns the arrays that a
+    /// writer still held from an earlier frame, so that new ones were allocated (none when writers let go).
+    pub fn fill(&mut self, out: &Published) -> u32 {
         self.seq = out.seq;
         self.t_frame_ns = out.t_frame_ns;
         self.theta = *out.theta;
         self.rel_left = out.pose.rel_left;
         self.left_to_right = out.pose.left_to_right;
         self.rect_from_left = out.rect.rect_from_left;
-        self.width = out.cam.width;
-        self.height = out.cam.height;
-        (self.f, self.cx, self.cy) = (out.cam.f, out.cam.cx, out.cam.cy);
         self.baseline_m = out.rect.baseline_m;
-        self.depth.clear();
-        self.depth.extend_from_slice(&out.depth.depth);
-        let n = out.depth.n_points;
-        // sized once, then written in place: this runs on the pipeline's output thread
-        self.cloud.resize(n * POINT_STEP, 0);
-        let pts = out.depth.points[..n].iter().zip(&out.depth.intensity[..n]);
-        for (dst, (p, g)) in self.cloud.chunks_exact_mut(POINT_STEP).zip(pts) {
-            let words = [p.x.to_bits(), p.y.to_bits(), p.z.to_bits(), gray_rgb(*g)];
-            for (d, w) in dst.chunks_exact_mut(4).zip(words) {
-                d.copy_from_slice(&w.to_le_bytes());
-            }
+        let mut replaced = 0;
+        self.main.fill(out.cam, out.depth, &mut replaced);
+        self.has_fovea = out.fovea.is_some();
+        if let Some(f) = out.fovea {
+            self.fovea.fill(&f.cam, &f.depth, &mut replaced);
         }
-    }
-
-    /// Points in the cloud.
-    pub fn n_points(&self) -> usize {
-        self.cloud.len() / POINT_STEP
-    }
-
-    /// The rectified left camera's K (row-major 3x3).
-    pub fn k(&self) -> [f64; 9] {
-        [self.f, 0.0, self.cx, 0.0, self.f, self.cy, 0.0, 0.0, 1.0]
+        replaced
     }
 
     /// Where each camera frame is in the head frame (`left_home_camera`): (child frame, pose that maps the
@@ -369,15 +466,66 @@ impl FrameSnapshot {
     }
 }
 
+/// A shared buffer of words as the bytes a message carries (little-endian machines only: [`Encoded::encode`]).
+#[derive(Debug, Clone)]
+pub struct SharedBytes(pub Arc<Vec<u32>>);
+
+impl AsRef<[u8]> for SharedBytes {
+    fn as_ref(&self) -> &[u8] {
+        // SAFETY: u32 has no padding and any byte is a valid u8; the slice covers exactly the words' memory.
+        unsafe { std::slice::from_raw_parts(self.0.as_ptr().cast::<u8>(), std::mem::size_of_val(&self.0[..])) }
+    }
+}
+
+/// One message's CDR bytes: `head`, then `body` (a large byte array's contents, shared with the snapshot),
+/// then `tail`; a message without a large array is all `head`.
+#[derive(Debug, Clone, Copy)]
+pub struct Cdr<'a> {
+    /// The encapsulation and the fields before the array, its length included.
+    pub head: &'a [u8],
+    /// The array's bytes.
+    pub body: Option<&'a SharedBytes>,
+    /// The fields after it.
+    pub tail: &'a [u8],
+}
+
+impl Cdr<'_> {
+    /// Bytes of the message.
+    pub fn len(&self) -> usize {
+        self.head.len() + self.body.map_or(0, |b| b.as_ref().len()) + self.tail.len()
+    }
+
+    /// Whether the message has no bytes (never: every message has its encapsulation).
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// The message in one piece: `head` itself when there is no body, else joined into `buf`.
+    pub fn contiguous<'b>(&'b self, buf: &'b mut Vec<u8>) -> &'b [u8] {
+        let Some(body) = self.body else { return self.head };
+        buf.clear();
+        buf.reserve(self.len());
+        buf.extend_from_slice(self.head);
+        buf.extend_from_slice(body.as_ref());
+        buf.extend_from_slice(self.tail);
+        buf
+    }
+}
+
+/// One encoded message: `head`, the shared array (when it has one), `tail`.
+#[derive(Debug, Default)]
+struct Message {
+    head: Vec<u8>,
+    body: Option<SharedBytes>,
+    tail: Vec<u8>,
+}
+
 /// The encoded messages of one frame, buffers reused from frame to frame.
 #[derive(Debug, Default)]
 pub struct Encoded {
-    bufs: [Vec<u8>; 5],
-}
-
-fn f32_bytes(v: &[f32]) -> &[u8] {
-    // SAFETY: f32 has no padding and any byte is a valid u8; the slice covers exactly the floats' memory.
-    unsafe { std::slice::from_raw_parts(v.as_ptr().cast::<u8>(), std::mem::size_of_val(v)) }
+    msgs: [Message; 8],
+    /// Messages encoded for the last frame (5, or 8 with the fovea's).
+    n: usize,
 }
 
 fn quaternion(r: &Matrix3<f64>) -> Quaternion {
@@ -397,6 +545,14 @@ pub enum EncodeError {
         #[source]
         source: cdr::Error,
     },
+    /// An array longer than CDR's 32-bit length.
+    #[error("{type_name}: {bytes} bytes is more than a CDR sequence holds")]
+    TooLarge {
+        /// The message type.
+        type_name: &'static str,
+        /// The array's length.
+        bytes: usize,
+    },
     /// A big-endian machine (the messages are written little-endian, as ROS 2 sends them on x86 and ARM).
     #[error("ROS 2 messages are built for little-endian machines only")]
     BigEndian,
@@ -408,73 +564,113 @@ fn encode_into<T: Serialize>(buf: &mut Vec<u8>, type_name: &'static str, msg: &T
         .map_err(|source| EncodeError::Cdr { type_name, source })
 }
 
+impl Message {
+    /// `msg` whose byte array (left empty in `msg`) is `body`, followed by `tail_len` bytes of fields: the
+    /// message encoded with an empty array ends with the array's length (a u32 aligned by what precedes
+    /// it, whatever the array holds) and the tail, whose alignment is 1, so the length is patched in.
+    fn split<T: Serialize>(
+        &mut self,
+        type_name: &'static str,
+        msg: &T,
+        body: &Arc<Vec<u32>>,
+        tail_len: usize,
+    ) -> Result<(), EncodeError> {
+        encode_into(&mut self.head, type_name, msg)?;
+        let bytes = body.len() * 4;
+        let n = u32::try_from(bytes).map_err(|_| EncodeError::TooLarge { type_name, bytes })?;
+        let at = self.head.len() - tail_len;
+        self.tail.clear();
+        self.tail.extend_from_slice(&self.head[at..]);
+        self.head.truncate(at);
+        self.head[at - 4..].copy_from_slice(&n.to_le_bytes());
+        self.body = Some(SharedBytes(Arc::clone(body)));
+        Ok(())
+    }
+
+    fn whole<T: Serialize>(&mut self, type_name: &'static str, msg: &T) -> Result<(), EncodeError> {
+        self.body = None;
+        self.tail.clear();
+        encode_into(&mut self.head, type_name, msg)
+    }
+
+    fn cdr(&self) -> Cdr<'_> {
+        Cdr { head: &self.head, body: self.body.as_ref(), tail: &self.tail }
+    }
+}
+
+/// The Image, CameraInfo and PointCloud2 of `img` into `msgs`, with the topics' `types`.
+fn encode_image(
+    msgs: &mut [Message],
+    types: [&'static str; 3],
+    img: &ImageSnapshot,
+    header: impl Fn(&'static str) -> Header<'static>,
+) -> Result<(), EncodeError> {
+    let [depth, info, points] = msgs else { return Ok(()) };
+    let image = Image {
+        header: header(RECT_FRAME),
+        height: img.height,
+        width: img.width,
+        encoding: "32FC1",
+        is_bigendian: 0,
+        step: img.width * 4,
+        data: &[],
+    };
+    depth.split(types[0], &image, &img.depth, 0)?;
+    info.whole(
+        types[1],
+        &CameraInfo {
+            header: header(RECT_FRAME),
+            height: img.height,
+            width: img.width,
+            // the image is rectified: no distortion left
+            distortion_model: "plumb_bob",
+            d: &[0.0; 5],
+            k: img.k(),
+            r: [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0],
+            p: [img.f, 0.0, img.cx, 0.0, 0.0, img.f, img.cy, 0.0, 0.0, 0.0, 1.0, 0.0],
+            binning_x: 0,
+            binning_y: 0,
+            roi: RegionOfInterest { x_offset: 0, y_offset: 0, height: 0, width: 0, do_rectify: false },
+        },
+    )?;
+    let n = img.n_points() as u32;
+    let cloud = PointCloud2 {
+        header: header(HEAD_FRAME),
+        height: 1,
+        width: n,
+        fields: &FIELDS,
+        is_bigendian: false,
+        point_step: POINT_STEP as u32,
+        row_step: n * POINT_STEP as u32,
+        data: &[],
+        is_dense: true,
+    };
+    // is_dense follows the data
+    points.split(types[2], &cloud, &img.cloud, 1)
+}
+
 impl Encoded {
-    /// Encodes the five messages of `s` (CDR, little-endian encapsulation).
+    /// Encodes the messages of `s` (CDR, little-endian encapsulation): the main five, then the fovea's three
+    /// when it has one.
     pub fn encode(&mut self, s: &FrameSnapshot) -> Result<(), EncodeError> {
         if cfg!(target_endian = "big") {
             return Err(EncodeError::BigEndian);
         }
         let stamp = Time::from_ns(s.t_frame_ns);
         let header = |frame_id| Header { stamp, frame_id };
-        let [depth, info, points, tf, joints] = &mut self.bufs;
-        encode_into(
-            depth,
-            TOPICS[0].type_name,
-            &Image {
-                header: header(RECT_FRAME),
-                height: s.height,
-                width: s.width,
-                encoding: "32FC1",
-                is_bigendian: 0,
-                step: s.width * 4,
-                data: f32_bytes(&s.depth),
-            },
-        )?;
-        let k = s.k();
-        encode_into(
-            info,
-            TOPICS[1].type_name,
-            &CameraInfo {
-                header: header(RECT_FRAME),
-                height: s.height,
-                width: s.width,
-                // the image is rectified: no distortion left
-                distortion_model: "plumb_bob",
-                d: &[0.0; 5],
-                k,
-                r: [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0],
-                p: [s.f, 0.0, s.cx, 0.0, 0.0, s.f, s.cy, 0.0, 0.0, 0.0, 1.0, 0.0],
-                binning_x: 0,
-                binning_y: 0,
-                roi: RegionOfInterest { x_offset: 0, y_offset: 0, height: 0, width: 0, do_rectify: false },
-            },
-        )?;
-        let n = s.n_points() as u32;
-        encode_into(
-            points,
-            TOPICS[2].type_name,
-            &PointCloud2 {
-                header: header(HEAD_FRAME),
-                height: 1,
-                width: n,
-                fields: &FIELDS,
-                is_bigendian: false,
-                point_step: POINT_STEP as u32,
-                row_step: n * POINT_STEP as u32,
-                data: &s.cloud,
-                is_dense: true,
-            },
-        )?;
+        let types = |i: usize| [TOPICS[i].type_name, TOPICS[i + 1].type_name, TOPICS[i + 2].type_name];
+        self.n = 0;
+        let (main, rest) = self.msgs.split_at_mut(3);
+        encode_image(main, types(0), &s.main, header)?;
         let tfs = s.transforms().map(|(child, p)| TransformStamped {
             header: header(HEAD_FRAME),
             child_frame_id: child,
             transform: Transform { translation: Vector3 { x: p.t.x, y: p.t.y, z: p.t.z }, rotation: quaternion(&p.r) },
         });
-        encode_into(tf, TOPICS[3].type_name, &TfMessage { transforms: &tfs })?;
+        rest[0].whole(TOPICS[3].type_name, &TfMessage { transforms: &tfs })?;
         let t = &s.theta;
         let position = [t[0][0], t[0][1], t[0][2], t[1][0], t[1][1], t[1][2]].map(f64::to_radians);
-        encode_into(
-            joints,
+        rest[1].whole(
             TOPICS[4].type_name,
             &JointState {
                 header: header(HEAD_FRAME),
@@ -484,12 +680,25 @@ impl Encoded {
                 effort: &[],
             },
         )?;
+        self.n = MAIN_TOPICS;
+        if s.has_fovea {
+            encode_image(&mut rest[2..5], types(MAIN_TOPICS), &s.fovea, header)?;
+            self.n = TOPICS.len();
+        }
         Ok(())
     }
 
     /// (topic, CDR bytes) of the last encoded frame, in [`TOPICS`] order.
-    pub fn messages(&self) -> impl Iterator<Item = (&'static Topic, &[u8])> {
-        TOPICS.iter().zip(self.bufs.iter().map(|b| b.as_slice()))
+    pub fn messages(&self) -> impl Iterator<Item = (&'static Topic, Cdr<'_>)> {
+        TOPICS.iter().zip(self.msgs[..self.n].iter().map(Message::cdr))
+    }
+
+    /// Lets go of the snapshot's buffers (once the writer is done with them), so that it can be filled again
+    /// without a new allocation.
+    pub fn release(&mut self) {
+        for m in &mut self.msgs {
+            m.body = None;
+        }
     }
 }
 
@@ -508,24 +717,109 @@ mod tests {
         assert_eq!(b, [0, 1, 0, 0, 2, 0, 0, 0, 3, 0, 0, 0, 3, 0, 0, 0, b'a', b'b', 0]);
     }
 
+    fn image(w: u32, h: u32, f: f64, points: &[[f32; 3]]) -> ImageSnapshot {
+        let depth = (0..w * h).map(|i| if i % 3 == 0 { f32::NAN } else { i as f32 * 0.25 }.to_bits()).collect();
+        let cloud = points.iter().flat_map(|p| [p[0].to_bits(), p[1].to_bits(), p[2].to_bits(), gray_rgb(9)]).collect();
+        ImageSnapshot { width: w, height: h, f, cx: 0.5, cy: 0.0, depth: Arc::new(depth), cloud: Arc::new(cloud) }
+    }
+
+    /// The Image and PointCloud2 of `img` encoded whole, as serde writes them with their arrays.
+    fn whole(img: &ImageSnapshot, stamp: Time) -> [Vec<u8>; 2] {
+        let (mut a, mut b) = (Vec::new(), Vec::new());
+        let n = img.n_points() as u32;
+        let header = |frame_id| Header { stamp, frame_id };
+        let depth = SharedBytes(img.depth.clone());
+        let data = depth.as_ref();
+        let image = Image {
+            header: header(RECT_FRAME),
+            height: img.height,
+            width: img.width,
+            encoding: "32FC1",
+            is_bigendian: 0,
+            step: img.width * 4,
+            data,
+        };
+        encode_into(&mut a, "Image", &image).unwrap();
+        let cloud = SharedBytes(img.cloud.clone());
+        let pc = PointCloud2 {
+            header: header(HEAD_FRAME),
+            height: 1,
+            width: n,
+            fields: &FIELDS,
+            is_bigendian: false,
+            point_step: POINT_STEP as u32,
+            row_step: n * POINT_STEP as u32,
+            data: cloud.as_ref(),
+            is_dense: true,
+        };
+        encode_into(&mut b, "PointCloud2", &pc).unwrap();
+        [a, b]
+    }
+
+    #[test]
+    fn parts_are_the_whole_message() {
+        // any array length, any stamp: head + shared array + tail is the message serde encodes at once
+        let mut e = Encoded::default();
+        let mut buf = Vec::new();
+        for (k, (w, h, np)) in [(2, 1, 1), (3, 3, 0), (5, 2, 3), (1, 1, 7)].into_iter().enumerate() {
+            let pts: Vec<[f32; 3]> = (0..np).map(|i| [i as f32, -1.5, 2.0]).collect();
+            let mut s = FrameSnapshot {
+                t_frame_ns: 1_234_567_891 * k as i64 - 7,
+                rect_from_left: Matrix3::identity(),
+                main: image(w, h, 100.0, &pts),
+                fovea: image(h + 1, w, 250.0, &pts[..np / 2]),
+                has_fovea: k % 2 == 0,
+                ..Default::default()
+            };
+            e.encode(&s).unwrap();
+            let m: Vec<_> = e.messages().collect();
+            assert_eq!(m.len(), if s.has_fovea { 8 } else { 5 });
+            let stamp = Time::from_ns(s.t_frame_ns);
+            for (first, img) in [(0, &s.main), (MAIN_TOPICS, &s.fovea)].into_iter().take(m.len() / 4) {
+                let [depth, cloud] = whole(img, stamp);
+                assert_eq!(m[first].1.contiguous(&mut buf), &depth[..], "{k} {}", m[first].0.topic);
+                assert_eq!(m[first + 2].1.contiguous(&mut buf), &cloud[..], "{k} {}", m[first + 2].0.topic);
+                assert!(m[first].1.body.is_some() && m[first + 1].1.body.is_none());
+                assert_eq!(m[first + 2].1.len(), cloud.len());
+            }
+            // the writer let go: the snapshot's buffers are its own again
+            e.release();
+            assert!(Arc::get_mut(&mut s.main.cloud).is_some() && Arc::get_mut(&mut s.fovea.depth).is_some());
+        }
+    }
+
     #[test]
     fn snapshot_encodes_every_topic() {
-        let mut s = FrameSnapshot { width: 2, height: 1, f: 100.0, cx: 0.5, cy: 0.0, ..Default::default() };
-        s.rect_from_left = Matrix3::identity();
-        s.depth = vec![1.0, f32::NAN];
-        s.cloud = [1f32, 2.0, 3.0].iter().flat_map(|v| v.to_le_bytes()).chain(gray_rgb(9).to_le_bytes()).collect();
+        let mut s = FrameSnapshot {
+            main: image(2, 1, 100.0, &[[1.0, 2.0, 3.0]]),
+            rect_from_left: Matrix3::identity(),
+            ..Default::default()
+        };
         let mut e = Encoded::default();
         e.encode(&s).unwrap();
         let m: Vec<_> = e.messages().collect();
         assert_eq!(m.len(), 5);
         // the cloud's data ends the message, followed by is_dense
-        let pc = m[2].1;
-        assert_eq!(&pc[pc.len() - 17..pc.len() - 1], &s.cloud[..]);
+        let mut buf = Vec::new();
+        let pc = m[2].1.contiguous(&mut buf);
+        let point: Vec<u8> =
+            [1f32, 2.0, 3.0].iter().flat_map(|v| v.to_le_bytes()).chain(gray_rgb(9).to_le_bytes()).collect();
+        assert_eq!(&pc[pc.len() - 17..pc.len() - 1], &point[..]);
         assert_eq!(pc[pc.len() - 1], 1);
+        // the fovea's CameraInfo carries its own K
+        s.fovea = image(4, 3, 480.0, &[]);
+        s.has_fovea = true;
+        e.encode(&s).unwrap();
+        let m: Vec<_> = e.messages().collect();
+        assert_eq!(m.iter().map(|(t, _)| t.topic).collect::<Vec<_>>(), TOPICS.map(|t| t.topic));
+        let info = m[6].1.head;
+        let k0 = 480f64.to_le_bytes();
+        assert!(info.windows(8).any(|w| w == k0) && !m[1].1.head.windows(8).any(|w| w == k0));
         for t in TOPICS {
             assert!(t.schema.starts_with(|c: char| c.is_ascii_lowercase()), "{}", t.type_name);
             assert_eq!(t.key, &t.topic[1..]);
             assert!(t.dds_type().contains("::msg::dds_::") && t.dds_type().ends_with('_'), "{}", t.dds_type());
         }
+        assert_eq!(topics(false).len(), MAIN_TOPICS);
     }
 }

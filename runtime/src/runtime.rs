@@ -474,7 +474,8 @@ fn sinks(
     }
     // ROS 2 outputs: lossless runs wait for them, live ones drop their oldest queued frame
     if let Some(p) = &c.sinks.mcap.file {
-        sinks.push(Box::new(crate::sinks::mcap_log::sink(p, c.sinks.mcap.queue, c.source.lossless)?));
+        let fovea = c.fovea.fovea_config().is_some();
+        sinks.push(Box::new(crate::sinks::mcap_log::sink(p, c.sinks.mcap.queue, c.source.lossless, fovea)?));
     }
     let z = &c.bridges.zenoh;
     let zc = crate::bridges::zenoh_gaze::config(z)?;
@@ -498,7 +499,7 @@ fn sinks(
             )?));
         }
         if z.enabled {
-            let w = crate::bridges::zenoh::ZenohWriter::on_session(session, z)?;
+            let w = crate::bridges::zenoh::ZenohWriter::on_session(session, z, c.fovea.fovea_config().is_some())?;
             sinks.push(Box::new(crate::sinks::ros2_out::Ros2OutSink::new("zenoh", w, z.queue, c.source.lossless)?));
         }
     }

@@ -1,7 +1,8 @@
 //! `abvs run --zenoh`: the ROS 2 messages of [`crate::ros2`] published over Zenoh, CDR payloads as ROS 2
 //! sends them, under one of two key layouts (`--ros2-keys`, [`Ros2Keys`]):
 //! - `bridge` (the default): the keys zenoh-bridge-ros2dds maps to ROS 2 topics (the topic without its
-//!   leading slash: `abvs/depth`, `abvs/camera_info`, `abvs/points`, `tf`, `abvs/joint_states`);
+//!   leading slash: `abvs/depth`, `abvs/camera_info`, `abvs/points`, `tf`, `abvs/joint_states`, and with
+//!   the fovea `abvs/fovea/depth`, `abvs/fovea/camera_info`, `abvs/fovea/points`);
 //! - `rmw-zenoh`: rmw_zenoh's wire format ([`super::rmw_zenoh`]): typed keys with the `--ros-distro`'s type
 //!   hashes, the runtime declared as a ROS 2 node with a liveliness token per publisher, and the 33-byte
 //!   attachment (sequence number, source time, publisher GID) on every sample.
@@ -13,9 +14,13 @@
 //! sink's own thread ([`Ros2OutSink`]): the network may block that thread (congestion control `Block`,
 //! so a large cloud is never half-dropped), never the pipeline, whose frames wait in a bounded queue
 //! that drops the oldest (counted in the stats under `zenoh`).
+//!
+//! A depth image or a cloud goes out without a copy of ours: the sample's payload is the message's encoded
+//! fields and the snapshot's array itself ([`crate::ros2::Cdr`]), which Zenoh copies once into its batches.
 use std::path::Path;
 use std::time::{SystemTime, UNIX_EPOCH};
 
+use ::zenoh::bytes::ZBytes;
 use ::zenoh::liveliness::LivelinessToken;
 use ::zenoh::pubsub::Publisher;
 use ::zenoh::qos::CongestionControl;
@@ -24,7 +29,7 @@ use ::zenoh::{Config, Session, Wait};
 use super::rmw_zenoh::{self, EntityKind, Qos, Ros2Keys};
 use crate::config::ZenohSettings;
 use crate::error::RuntimeError;
-use crate::ros2::{Topic, TOPICS};
+use crate::ros2::{topics, Cdr, Topic};
 use crate::sinks::ros2_out::{OutputError, Ros2Writer};
 
 /// Frames the publisher may fall behind by before the oldest is dropped: the newest matter on a network.
@@ -32,6 +37,7 @@ pub const DEFAULT_QUEUE: usize = 4;
 
 /// One publisher per topic, and in the rmw_zenoh format what its samples carry.
 struct Output {
+    topic: &'static Topic,
     publisher: Publisher<'static>,
     /// rmw_zenoh: the publisher's GID and its next sequence number (from 1).
     rmw: Option<([u8; 16], i64)>,
@@ -63,15 +69,16 @@ pub fn config(config_file: Option<&Path>, connect: &[String]) -> crate::Result<C
 }
 
 impl ZenohWriter {
-    /// Opens the session and declares the five publishers with the key layout of `settings` (in the
-    /// rmw_zenoh format also the node's and the publishers' liveliness tokens).
-    pub fn open(config: Config, settings: &ZenohSettings) -> crate::Result<ZenohWriter> {
+    /// Opens the session and declares a publisher per topic (the main five, and the fovea's three when
+    /// `fovea`) with the key layout of `settings` (in the rmw_zenoh format also the node's and the
+    /// publishers' liveliness tokens).
+    pub fn open(config: Config, settings: &ZenohSettings, fovea: bool) -> crate::Result<ZenohWriter> {
         let session = ::zenoh::open(config).wait().map_err(|e| err("opening the session", e))?;
-        Self::on_session(session, settings)
+        Self::on_session(session, settings, fovea)
     }
 
     /// The same on an open session (shared with the gaze topics, `bridges::zenoh_gaze`).
-    pub fn on_session(session: Session, settings: &ZenohSettings) -> crate::Result<ZenohWriter> {
+    pub fn on_session(session: Session, settings: &ZenohSettings, fovea: bool) -> crate::Result<ZenohWriter> {
         let mut node =
             rmw_zenoh::Node::new(settings.domain, session.zid().to_string(), &settings.namespace, &settings.node);
         let mut tokens = Vec::new();
@@ -79,8 +86,9 @@ impl ZenohWriter {
             let t = session.liveliness().declare_token(node.token()).wait();
             tokens.push(t.map_err(|e| err(&format!("declaring the node's token {}", node.token()), e))?);
         }
-        let mut outputs = Vec::with_capacity(TOPICS.len());
-        for t in &TOPICS {
+        let topics = topics(fovea);
+        let mut outputs = Vec::with_capacity(topics.len());
+        for t in topics {
             let (key, rmw) = match settings.keys {
                 Ros2Keys::Bridge => (t.key.to_string(), None),
                 Ros2Keys::RmwZenoh => {
@@ -96,17 +104,27 @@ impl ZenohWriter {
                 .congestion_control(CongestionControl::Block)
                 .wait()
                 .map_err(|e| err(&format!("declaring the publisher of {key}"), e))?;
-            outputs.push(Output { publisher, rmw });
+            outputs.push(Output { topic: t, publisher, rmw });
         }
         Ok(ZenohWriter { outputs, tokens, session })
     }
 }
 
+/// A sample's payload: a small message copied whole; a large one as its fields and the shared array
+/// (Zenoh's slices: the array is not copied here, only into Zenoh's batches).
+fn payload(msg: Cdr<'_>) -> ZBytes {
+    let Some(body) = msg.body else { return ZBytes::from(msg.head) };
+    let mut w = ZBytes::writer();
+    std::io::Write::write_all(&mut w, msg.head).unwrap_or(());
+    w.append(ZBytes::from(bytes::Bytes::from_owner(body.clone())));
+    std::io::Write::write_all(&mut w, msg.tail).unwrap_or(());
+    w.finish()
+}
+
 impl Ros2Writer for ZenohWriter {
-    fn write(&mut self, topic: &'static Topic, _seq: u64, _stamp_ns: i64, cdr: &[u8]) -> Result<(), OutputError> {
-        let i = TOPICS.iter().position(|t| t == topic).ok_or(OutputError::UnknownTopic(topic.topic))?;
-        let out = &mut self.outputs[i];
-        let put = out.publisher.put(cdr);
+    fn write(&mut self, topic: &'static Topic, _seq: u64, _stamp_ns: i64, msg: Cdr<'_>) -> Result<(), OutputError> {
+        let out = self.outputs.iter_mut().find(|o| o.topic == topic).ok_or(OutputError::UnknownTopic(topic.topic))?;
+        let put = out.publisher.put(payload(msg));
         let r = match &mut out.rmw {
             None => put.wait(),
             Some((gid, seq)) => {

@@ -69,7 +69,7 @@ pub const TOPICS: [Topic; 2] = [
 /// Goal samples larger than this are dropped undecoded (a PointStamped with a 16-character frame id is 64).
 pub const MAX_GOAL_BYTES: usize = 1024;
 
-/// rmw_zenoh entity ids of the gaze topics: after the ROS 2 outputs' node (0) and publishers (1-5).
+/// rmw_zenoh entity ids of the gaze topics: after the ROS 2 outputs' node (0) and publishers (1-8).
 const FIRST_ENTITY_ID: u32 = 16;
 
 fn err(what: &str, e: impl std::fmt::Display) -> RuntimeError {

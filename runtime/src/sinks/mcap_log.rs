@@ -7,7 +7,7 @@ use std::io::BufWriter;
 use std::path::Path;
 
 use crate::error::RuntimeError;
-use crate::ros2::{Topic, TOPICS};
+use crate::ros2::{topics, Cdr, Topic};
 use crate::sinks::ros2_out::{OutputError, Ros2OutSink, Ros2Writer};
 
 /// Frames the recorder may fall behind by before the oldest is dropped (about 0.6 s at 25 fps).
@@ -16,14 +16,18 @@ pub const DEFAULT_QUEUE: usize = 16;
 /// The ROS 2 messages written to an MCAP file (profile ros2), one channel per topic.
 pub struct McapWriter {
     writer: Option<mcap::Writer<BufWriter<File>>>,
-    channels: [u16; 5],
-    counts: [u64; 5],
+    topics: &'static [Topic],
+    channels: Vec<u16>,
+    counts: Vec<u64>,
     path: String,
+    /// A large message joined into one piece.
+    joined: Vec<u8>,
 }
 
 impl McapWriter {
-    /// Creates `path` (replacing a file there) with the five channels and their schemas.
-    pub fn create(path: &Path) -> crate::Result<McapWriter> {
+    /// Creates `path` (replacing a file there) with a channel and its schema per topic: the main five, and
+    /// the fovea's three when `fovea`.
+    pub fn create(path: &Path, fovea: bool) -> crate::Result<McapWriter> {
         let name = path.display().to_string();
         let err = |what: &str, e: mcap::McapError| RuntimeError::Invalid(format!("--mcap {name}: {what}: {e}"));
         let file = File::create(path).map_err(|e| RuntimeError::Invalid(format!("--mcap {name}: {e}")))?;
@@ -34,19 +38,29 @@ impl McapWriter {
             .compression(None)
             .create(BufWriter::with_capacity(1 << 20, file))
             .map_err(|e| err("starting the file", e))?;
-        let mut channels = [0u16; 5];
-        for (c, t) in channels.iter_mut().zip(&TOPICS) {
-            let schema =
-                writer.add_schema(t.type_name, "ros2msg", t.schema.as_bytes()).map_err(|e| err("schema", e))?;
-            *c = writer.add_channel(schema, t.topic, "cdr", &BTreeMap::new()).map_err(|e| err("channel", e))?;
+        let topics = topics(fovea);
+        let mut channels = Vec::with_capacity(topics.len());
+        let mut schemas = BTreeMap::new();
+        for t in topics {
+            // one schema a type (the fovea's topics have the main map's)
+            let schema = match schemas.get(t.type_name) {
+                Some(&s) => s,
+                None => {
+                    let s =
+                        writer.add_schema(t.type_name, "ros2msg", t.schema.as_bytes()).map_err(|e| err("schema", e))?;
+                    *schemas.entry(t.type_name).or_insert(s)
+                }
+            };
+            channels.push(writer.add_channel(schema, t.topic, "cdr", &BTreeMap::new()).map_err(|e| err("channel", e))?);
         }
-        Ok(McapWriter { writer: Some(writer), channels, counts: [0; 5], path: name })
+        let counts = vec![0; topics.len()];
+        Ok(McapWriter { writer: Some(writer), topics, channels, counts, path: name, joined: Vec::new() })
     }
 }
 
 impl Ros2Writer for McapWriter {
-    fn write(&mut self, topic: &'static Topic, seq: u64, stamp_ns: i64, cdr: &[u8]) -> Result<(), OutputError> {
-        let i = TOPICS.iter().position(|t| t == topic).ok_or(OutputError::UnknownTopic(topic.topic))?;
+    fn write(&mut self, topic: &'static Topic, seq: u64, stamp_ns: i64, msg: Cdr<'_>) -> Result<(), OutputError> {
+        let i = self.topics.iter().position(|t| t == topic).ok_or(OutputError::UnknownTopic(topic.topic))?;
         let w = self.writer.as_mut().ok_or(OutputError::Closed)?;
         let t = stamp_ns.max(0) as u64;
         let header = mcap::records::MessageHeader {
@@ -55,7 +69,7 @@ impl Ros2Writer for McapWriter {
             log_time: t,
             publish_time: t,
         };
-        w.write_to_known_channel(&header, cdr)
+        w.write_to_known_channel(&header, msg.contiguous(&mut self.joined))
             .map_err(|source| OutputError::Mcap { path: self.path.clone(), source })?;
         self.counts[i] += 1;
         Ok(())
@@ -69,12 +83,12 @@ impl Ros2Writer for McapWriter {
             w.into_inner().flush().map_err(|source| OutputError::Io { path: self.path.clone(), source })?;
         }
         let per: serde_json::Map<_, _> =
-            TOPICS.iter().zip(self.counts).map(|(t, n)| (t.topic.to_string(), serde_json::json!(n))).collect();
+            self.topics.iter().zip(&self.counts).map(|(t, n)| (t.topic.to_string(), serde_json::json!(n))).collect();
         Ok(serde_json::json!({ "file": self.path, "messages": per }))
     }
 }
 
-/// The MCAP recorder as a pipeline sink (stats key `mcap`).
-pub fn sink(path: &Path, queue: usize, blocking: bool) -> crate::Result<Ros2OutSink> {
-    Ros2OutSink::new("mcap", McapWriter::create(path)?, queue, blocking)
+/// The MCAP recorder as a pipeline sink (stats key `mcap`), with the fovea's topics when `fovea`.
+pub fn sink(path: &Path, queue: usize, blocking: bool, fovea: bool) -> crate::Result<Ros2OutSink> {
+    Ros2OutSink::new("mcap", McapWriter::create(path, fovea)?, queue, blocking)
 }
