@@ -6,12 +6,9 @@ use std::fs::File;
 use std::io::BufWriter;
 use std::path::Path;
 
-use crate::error::RuntimeError;
 use crate::ros2::{Topic, TOPICS};
 use crate::sinks::ros2_out::{OutputError, Ros2OutSink, Ros2Writer};
-
-/// Frames the recorder may fall behind by before the oldest is dropped (about 0.6 s at 25 fps).
-pub const DEFAULT_QUEUE: usize = 16;
+use abvs_runtime_core::error::RuntimeError;
 
 /// The ROS 2 messages written to an MCAP file (profile ros2), one channel per topic.
 pub struct McapWriter {
@@ -23,10 +20,14 @@ pub struct McapWriter {
 
 impl McapWriter {
     /// Creates `path` (replacing a file there) with the five channels and their schemas.
-    pub fn create(path: &Path) -> crate::Result<McapWriter> {
+    pub fn create(path: &Path) -> abvs_runtime_core::error::Result<McapWriter> {
         let name = path.display().to_string();
-        let err = |what: &str, e: mcap::McapError| RuntimeError::Invalid(format!("--mcap {name}: {what}: {e}"));
-        let file = File::create(path).map_err(|e| RuntimeError::Invalid(format!("--mcap {name}: {e}")))?;
+        let err = |what: &str, e: mcap::McapError| RuntimeError::Transport {
+            what: format!("--mcap {name}: {what}"),
+            source: Box::new(e),
+        };
+        let file = File::create(path)
+            .map_err(|e| RuntimeError::Transport { what: format!("--mcap {name}"), source: Box::new(e) })?;
         let mut writer = mcap::WriteOptions::new()
             .profile("ros2")
             .library(concat!("abvs ", env!("CARGO_PKG_VERSION")))
@@ -75,6 +76,6 @@ impl Ros2Writer for McapWriter {
 }
 
 /// The MCAP recorder as a pipeline sink (stats key `mcap`).
-pub fn sink(path: &Path, queue: usize, blocking: bool) -> crate::Result<Ros2OutSink> {
+pub fn sink(path: &Path, queue: usize, blocking: bool) -> abvs_runtime_core::error::Result<Ros2OutSink> {
     Ros2OutSink::new("mcap", McapWriter::create(path)?, queue, blocking)
 }

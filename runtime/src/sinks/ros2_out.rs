@@ -9,10 +9,11 @@ use std::time::{Duration, Instant};
 use crossbeam_channel::{bounded, Receiver, Sender, TrySendError};
 use serde::Serialize;
 
-use crate::error::{Result, RuntimeError};
-use crate::pipeline::{Published, Sink};
 use crate::ros2::{EncodeError, Encoded, FrameSnapshot, Topic};
-use crate::sinks::stats::RunStats;
+use abvs_runtime_core::error::{Result, RuntimeError};
+use abvs_runtime_core::messages::Published;
+use abvs_runtime_core::sink::Sink;
+use abvs_runtime_core::stats::RunStats;
 
 /// Why a ROS 2 output could not encode or write a frame.
 #[derive(Debug, thiserror::Error)]
@@ -126,7 +127,7 @@ impl Ros2OutSink {
         let worker = std::thread::Builder::new()
             .name(format!("abvs-{name}"))
             .spawn(move || worker(writer, rx, free))
-            .map_err(|e| RuntimeError::Invalid(format!("{name}: starting its thread: {e}")))?;
+            .map_err(|source| RuntimeError::Thread { what: format!("{name}: starting its thread"), source })?;
         Ok(Ros2OutSink {
             name,
             blocking,
