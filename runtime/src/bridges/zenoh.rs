@@ -10,7 +10,7 @@
 //! peer with Zenoh's defaults) plus the endpoints of `--zenoh-connect` and `--zenoh-listen` (peers retry an
 //! endpoint that is not up yet in the background, so the runtime starts without its consumers); the gaze
 //! topics share it (`super::zenoh_gaze`, which also says who may send goals). Publishing runs on the
-//! sink's own thread ([`Ros2OutSink`]): the network may block that thread (congestion control `Block`,
+//! sink's own thread ([`crate::sinks::ros2_out::Ros2OutSink`]): the network may block that thread (congestion control `Block`,
 //! so a large cloud is never half-dropped), never the pipeline, whose frames wait in a bounded queue
 //! that drops the oldest (counted in the stats under `zenoh`).
 use std::path::Path;

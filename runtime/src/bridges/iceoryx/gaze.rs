@@ -52,7 +52,7 @@ pub struct GazeGoalWire {
 }
 
 /// The gaze at one frame on `{prefix}/gaze/state` (Python: `abvs_iceoryx2.GazeState`); see
-/// [`crate::gaze::GazeState`].
+/// [`abvs_runtime_core::gaze::GazeState`].
 #[derive(Debug, Clone, Copy, PartialEq, Default, ZeroCopySend)]
 #[repr(C)]
 #[type_name("abvs::GazeState/1")]
