@@ -19,3 +19,6 @@ RUSTC_WORKSPACE_WRAPPER="$(rustup which clippy-driver 2>/dev/null || command -v 
 export RUSTC_WORKSPACE_WRAPPER
 export CLIPPY_ARGS="-D__CLIPPY_HACKERY__warnings__CLIPPY_HACKERY__"
 cargo test --workspace
+# rustdoc of the library crates, every warning an error (a broken link, a link to a private item): the
+# dependencies are only type-checked for it, the workspace's crates documented.
+RUSTDOCFLAGS="-D warnings" cargo doc --no-deps --workspace --exclude abvs --exclude abvs-tests

@@ -1,5 +1,5 @@
 //! `abvs disparity`: the left-view disparity of a rectified image pair, by any engine of `abvs run` under
-//! the same names (`abvs_runtime::config::EngineKind`; default: fused), with an optional left-right check,
+//! the same names (`abvs_runtime_core::config::EngineKind`; default: fused), with an optional left-right check,
 //! confidence and invalid reasons.
 //!
 //! The network and the plain SGBM engine run at the model's resolution: inputs are resized to it
@@ -11,7 +11,6 @@
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
-use abvs_runtime::config::EngineKind;
 use abvs_runtime::tasks::confidence::{
     self,
     reason::{NO_ESTIMATE, VALID},
@@ -19,6 +18,7 @@ use abvs_runtime::tasks::confidence::{
 use abvs_runtime::tasks::disparity::{self, DisparityEngine};
 use abvs_runtime::tasks::disparity_census::CensusRefineEngine;
 use abvs_runtime::tasks::disparity_fused::{upsample_disparity, FusedEngine, Source};
+use abvs_runtime_core::config::EngineKind;
 use anyhow::{bail, Context};
 use clap::Args;
 use opencv::core::{Mat, Size};
@@ -74,7 +74,7 @@ pub struct DisparityArgs {
     /// `--confidence` writes it without a left-right check) is below C, in [0, 1], are invalid (reason 4 low
     /// texture, 5 ambiguous, 6 out of the search's range, 7 occluded or a depth edge); 0 keeps every pixel.
     /// Other engines ignore it.
-    #[arg(long, value_name = "C", default_value_t = abvs_runtime::tasks::census_confidence::DEFAULT_MIN_CONFIDENCE,
+    #[arg(long, value_name = "C", default_value_t = abvs_runtime_core::params::DEFAULT_MIN_CONFIDENCE,
           value_parser = crate::args::finite_in_f32(0.0, 1.0))]
     min_confidence: f32,
 }

@@ -11,8 +11,8 @@ use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::time::Instant;
 
-use abvs_runtime::config::EngineKind;
 use abvs_runtime::tasks::disparity::{self, DisparityEngine};
+use abvs_runtime_core::config::EngineKind;
 use anyhow::{bail, Context};
 use clap::Args;
 use opencv::core::Mat;
@@ -308,7 +308,7 @@ fn run_native(a: &EvalArgs, l: &Mat, r: &Mat) -> anyhow::Result<Vec<serde_json::
         // what is published: the validity mask at its default where the engine scores its pixels
         let mut published = est.disparity.clone();
         if let Some((conf, why)) = &est.own {
-            let min = abvs_runtime::tasks::census_confidence::DEFAULT_MIN_CONFIDENCE;
+            let min = abvs_runtime_core::params::DEFAULT_MIN_CONFIDENCE;
             abvs_runtime::tasks::census_confidence::mask(conf, min, &mut published, &mut why.clone());
             let curve = density_curve(&est.disparity, conf, &gt, max);
             let ts: Vec<f32> = (0..=20).map(|i| i as f32 * 0.05).collect();

@@ -3,9 +3,8 @@
 use std::process::ExitCode;
 use std::time::{Duration, Instant};
 
-use abvs_runtime::bridges::iceoryx::{
-    monotonic_ns, BridgeConfig, BridgeError, BridgePayload, CloudPoint, FrameHeader, Subscriber,
-};
+use abvs_runtime::bridges::iceoryx::{BridgeConfig, BridgeError, BridgePayload, CloudPoint, FrameHeader, Subscriber};
+use abvs_runtime_core::messages::monotonic_ns;
 use clap::{Args, ValueEnum};
 
 #[derive(Clone, Copy, Debug, ValueEnum)]

@@ -6,10 +6,10 @@ use std::sync::atomic::AtomicBool;
 use std::sync::Arc;
 use std::time::Duration;
 
-use abvs_runtime::config::LiveConfig;
 use abvs_runtime::record::{record, RecordConfig, RecordStats};
 use abvs_runtime::sinks::session_writer::{CalibFiles, SessionWriter};
 use abvs_runtime::sources::devices::open_devices;
+use abvs_runtime_core::config::LiveConfig;
 use anyhow::Context;
 use clap::Args;
 

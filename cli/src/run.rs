@@ -8,9 +8,9 @@ use std::process::ExitCode;
 use std::sync::atomic::AtomicBool;
 use std::sync::Arc;
 
-use abvs_runtime::config::{RuntimeConfig, SourceKind};
 use abvs_runtime::sinks::side_lane::SideLane;
 use abvs_runtime::{CustomSource, Runtime};
+use abvs_runtime_core::config::{RuntimeConfig, SourceKind};
 use abvs_sim::gaze_score::GazeScore;
 use abvs_sim::gaze_script::GazeScript;
 use abvs_sim::head::{Head, HeadSpec, SimSource};

@@ -2,8 +2,8 @@
 //! `--config`, then every flag given on the command line.
 use std::path::PathBuf;
 
-use abvs_runtime::config::{EngineKind, FkSource, RuntimeConfig, SourceKind};
 use abvs_runtime::shipped::shipped;
+use abvs_runtime_core::config::{EngineKind, FkSource, RuntimeConfig, SourceKind};
 use anyhow::Context;
 use clap::parser::ValueSource;
 use clap::{ArgMatches, Args};
@@ -142,10 +142,10 @@ pub struct RunArgs {
     /// Zenoh key names: `bridge` (zenoh-bridge-ros2dds's) or `rmw-zenoh` (a ROS 2 node that rmw_zenoh
     /// systems see directly; implies --zenoh).
     #[arg(long, value_enum)]
-    pub ros2_keys: Option<abvs_runtime::config::Ros2Keys>,
+    pub ros2_keys: Option<abvs_runtime_core::config::Ros2Keys>,
     /// The ROS 2 distribution whose type hashes the rmw-zenoh keys carry.
     #[arg(long, value_enum)]
-    pub ros_distro: Option<abvs_runtime::config::RosDistro>,
+    pub ros_distro: Option<abvs_runtime_core::config::RosDistro>,
     /// Do not publish over iceoryx2.
     #[arg(long)]
     pub no_publish: bool,
@@ -308,7 +308,7 @@ pub fn effective_config(a: &RunArgs, m: &ArgMatches) -> anyhow::Result<RuntimeCo
         c.motion.gate_blur_px = px;
     }
     if given("time_offset_ms") {
-        c.motion.time_offset_ms = a.time_offset_ms.map(abvs_runtime::tasks::motion::TimeOffsetMs::Both);
+        c.motion.time_offset_ms = a.time_offset_ms.map(abvs_runtime_core::session::TimeOffsetMs::Both);
     }
     if given("pair_tolerance_ms") {
         l.pair_tolerance_ms = d.pair_tolerance_ms;

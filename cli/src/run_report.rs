@@ -1,8 +1,8 @@
 //! What `abvs run` prints at the end of a run (unless `--quiet`): the source, the engine, the latency table,
 //! and a line for each sink that reported (the truth's side lane, the self-check, depth error by confidence
 //! and by eye speed, the ROS 2 outputs).
-use abvs_runtime::config::RuntimeConfig;
 use abvs_runtime::Report;
+use abvs_runtime_core::config::RuntimeConfig;
 
 /// Prints the run's report on stdout.
 pub fn print(c: &RuntimeConfig, r: &Report) {

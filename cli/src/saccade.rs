@@ -8,12 +8,12 @@ use abvs_camera::StereoCalibration;
 use abvs_eye::encoder::counts_to_deg;
 use abvs_eye::pose::Pose;
 use abvs_eye::saccade::PEAK_SPEED_DEG_S;
-use abvs_runtime::session::EncoderRecord;
-use abvs_runtime::sinks::stats::monotonic_ns;
 use abvs_runtime::sources::encoder_link::{
     open_port, BoardFrame, CommandDecoder, CommandFrame, Decoder, LinkEvent, COMMAND_MOVE,
 };
 use abvs_runtime::sources::encoder_stream::EncoderTracker;
+use abvs_runtime_core::messages::monotonic_ns;
+use abvs_runtime_core::session::EncoderRecord;
 use abvs_sim::servo_board::{Sample, ServoBoard};
 use anyhow::{bail, Context};
 use clap::Args;

@@ -32,8 +32,8 @@
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
-use abvs_runtime::config::{RuntimeConfig, SourceKind};
-use abvs_runtime::tasks::motion::TimeOffsetMs;
+use abvs_runtime_core::config::{RuntimeConfig, SourceKind};
+use abvs_runtime_core::session::TimeOffsetMs;
 use anyhow::{bail, Context};
 use nalgebra::{DMatrix, DVector};
 use serde_json::{json, Value};

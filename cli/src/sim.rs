@@ -229,10 +229,11 @@ pub fn parse_effects(s: &str) -> anyhow::Result<Vec<Effect>> {
 /// `abvs sim board --session`: the session's encoder stream sent in real time, each frame when
 /// CLOCK_MONOTONIC reaches its time (board time is the process's own clock, from its start).
 fn session_board(a: BoardArgs) -> anyhow::Result<ExitCode> {
-    use abvs_runtime::sinks::stats::monotonic_ns;
+    use abvs_runtime_core::messages::monotonic_ns;
     use std::io::Write;
     let dir = a.session.as_ref().expect("checked by the caller");
-    let session = abvs_runtime::session::Session::open(dir).with_context(|| format!("opening {}", dir.display()))?;
+    let session =
+        abvs_runtime_core::session::Session::open(dir).with_context(|| format!("opening {}", dir.display()))?;
     let board = abvs_sim::board::SessionBoard {
         rate_hz: a.rate_hz,
         corrupt_every: a.corrupt_every,

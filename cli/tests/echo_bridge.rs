@@ -5,9 +5,8 @@ use std::os::unix::process::ExitStatusExt;
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
-use abvs_runtime::bridges::iceoryx::{
-    dead_node_pids, monotonic_ns, BridgeConfig, CloudPoint, CloudPublisher, FrameHeader,
-};
+use abvs_runtime::bridges::iceoryx::{dead_node_pids, BridgeConfig, CloudPoint, CloudPublisher, FrameHeader};
+use abvs_runtime_core::messages::monotonic_ns;
 
 fn echo(prefix: &str, extra: &[&str]) -> Child {
     Command::new(env!("CARGO_BIN_EXE_abvs"))

@@ -17,19 +17,21 @@ use std::time::{Duration, Instant};
 
 use abvs_camera::StereoCalibration;
 use abvs_runtime::bridges::zenoh_gaze::{self, ZenohGaze};
-use abvs_runtime::config::ZenohSettings;
 use abvs_runtime::gaze::controller::GazeController;
 use abvs_runtime::gaze::stage::GazeStage;
-use abvs_runtime::gaze::{GazeConfig, GazeHandle, Mailbox, RateLimit};
-use abvs_runtime::pipeline::{run_with_gaze, PipelineConfig, Sink};
-use abvs_runtime::sinks::stats::monotonic_ns;
+use abvs_runtime::gaze::{GazeConfig, GazeHandle, Mailbox};
+use abvs_runtime::pipeline::{run_with_gaze, PipelineConfig};
 use abvs_runtime::sources::encoder_stream::EncoderStream;
 use abvs_runtime::sources::live::LiveSource;
 use abvs_runtime::sources::pairing::PairerConfig;
 use abvs_runtime::sources::v4l_capture::StereoCapture;
-use abvs_runtime::stats::RunStats;
 use abvs_runtime::tasks::kinematics::{EyeFk, StereoKinematics};
-use abvs_runtime::tasks::rectify::RectifiedCamera;
+use abvs_runtime_core::config::ZenohSettings;
+use abvs_runtime_core::messages::monotonic_ns;
+use abvs_runtime_core::messages::RectifiedCamera;
+use abvs_runtime_core::params::RateLimit;
+use abvs_runtime_core::sink::Sink;
+use abvs_runtime_core::stats::RunStats;
 use zenoh::Wait;
 
 mod common;
@@ -48,7 +50,7 @@ static ONE_HEAD: Mutex<()> = Mutex::new(());
 
 /// A running live head: the pipeline's thread, its gaze handle, and the simulated board.
 struct Head {
-    run: JoinHandle<abvs_runtime::Result<RunStats>>,
+    run: JoinHandle<abvs_runtime_core::error::Result<RunStats>>,
     gaze: GazeHandle,
     board: Child,
     _slave: serialport::TTYPort,

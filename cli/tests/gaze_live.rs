@@ -12,15 +12,18 @@ use std::time::Duration;
 use abvs_camera::StereoCalibration;
 use abvs_runtime::gaze::controller::GazeController;
 use abvs_runtime::gaze::stage::GazeStage;
-use abvs_runtime::gaze::{GazeConfig, GazeHandle, GazeState, Mailbox, Phase};
-use abvs_runtime::pipeline::{run_with_gaze, PipelineConfig, Published, Sink};
-use abvs_runtime::sinks::stats::monotonic_ns;
+use abvs_runtime::gaze::{GazeConfig, GazeHandle, Mailbox};
+use abvs_runtime::pipeline::{run_with_gaze, PipelineConfig};
 use abvs_runtime::sources::encoder_stream::EncoderStream;
 use abvs_runtime::sources::live::LiveSource;
 use abvs_runtime::sources::pairing::PairerConfig;
 use abvs_runtime::sources::v4l_capture::StereoCapture;
 use abvs_runtime::tasks::kinematics::{EyeFk, StereoKinematics};
-use abvs_runtime::tasks::rectify::RectifiedCamera;
+use abvs_runtime_core::gaze::{GazeState, Phase};
+use abvs_runtime_core::messages::monotonic_ns;
+use abvs_runtime_core::messages::Published;
+use abvs_runtime_core::messages::RectifiedCamera;
+use abvs_runtime_core::sink::Sink;
 
 mod common;
 use common::*;
@@ -36,7 +39,7 @@ impl Sink for States {
     fn name(&self) -> &'static str {
         "gaze states"
     }
-    fn consume(&mut self, out: &Published) -> abvs_runtime::Result<()> {
+    fn consume(&mut self, out: &Published) -> abvs_runtime_core::error::Result<()> {
         self.0.lock().unwrap().push((out.motion.gaze, out.motion.gated));
         Ok(())
     }

@@ -10,13 +10,13 @@ use std::sync::atomic::AtomicBool;
 use std::time::Duration;
 
 use abvs_runtime::record::{record, RecordConfig};
-use abvs_runtime::session::{EncoderRecord, Session};
 use abvs_runtime::sinks::session_writer::{CalibFiles, SessionWriter};
-use abvs_runtime::sinks::stats::monotonic_ns;
 use abvs_runtime::sources::encoder_stream::EncoderStream;
 use abvs_runtime::sources::pairing::PairerConfig;
 use abvs_runtime::sources::v4l_capture::{CaptureError, FrameSource, StereoCapture};
-use abvs_runtime::sources::Frame;
+use abvs_runtime_core::messages::monotonic_ns;
+use abvs_runtime_core::messages::Frame;
+use abvs_runtime_core::session::{EncoderRecord, Session};
 use abvs_sim::board::SessionBoard;
 
 fn fixture() -> PathBuf {
@@ -231,10 +231,11 @@ fn records_the_fixture_from_a_board_process_and_stand_in_cameras() {
 #[test]
 fn live_pipeline_on_the_rig_gives_depth_as_good_as_the_replay() {
     use abvs_camera::StereoCalibration;
-    use abvs_runtime::pipeline::{run, PipelineConfig, Sink};
+    use abvs_runtime::pipeline::{run, PipelineConfig};
     use abvs_runtime::sources::live::LiveSource;
     use abvs_runtime::tasks::kinematics::{EyeFk, StereoKinematics};
-    use abvs_runtime::tasks::rectify::RectifiedCamera;
+    use abvs_runtime_core::messages::RectifiedCamera;
+    use abvs_runtime_core::sink::Sink;
     use abvs_sim::truth::TruthSink;
     let Rig { fx, capture, encoders, mut board, _slave, .. } = rig(0);
     let (w, h) = (fx.meta.width, fx.meta.height);
@@ -285,12 +286,12 @@ fn live_pipeline_on_the_rig_gives_depth_as_good_as_the_replay() {
 /// Counts the published frames corrected row by row (per-row rotations of both eyes).
 struct RowsSeen(std::sync::Arc<std::sync::atomic::AtomicU64>);
 
-impl abvs_runtime::pipeline::Sink for RowsSeen {
+impl abvs_runtime_core::sink::Sink for RowsSeen {
     fn name(&self) -> &'static str {
         "rows seen"
     }
-    fn consume(&mut self, out: &abvs_runtime::pipeline::Published) -> abvs_runtime::Result<()> {
-        let bands = abvs_runtime::tasks::motion::MotionConfig::default().bands + 1;
+    fn consume(&mut self, out: &abvs_runtime_core::messages::Published) -> abvs_runtime_core::error::Result<()> {
+        let bands = abvs_runtime_core::params::MotionConfig::default().bands + 1;
         if out.motion.band_rot.iter().all(|r| r.len() == bands) && out.motion.readout_ns > 0 {
             self.0.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
         }
@@ -438,7 +439,7 @@ fn a_camera_that_stops_delivering_ends_the_live_run_with_the_reason() {
     use abvs_runtime::pipeline::{run, PipelineConfig};
     use abvs_runtime::sources::live::LiveSource;
     use abvs_runtime::tasks::kinematics::{EyeFk, StereoKinematics};
-    use abvs_runtime::tasks::rectify::RectifiedCamera;
+    use abvs_runtime_core::messages::RectifiedCamera;
     let Rig { fx, capture, encoders, mut board, _slave, .. } = rig_with(0, Some(20));
     let (w, h) = (fx.meta.width, fx.meta.height);
     let stereo = StereoCalibration::read_yaml(fx.path(&fx.meta.stereo)).unwrap();

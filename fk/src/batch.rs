@@ -1,6 +1,6 @@
 //! Batched forward pass on a flat layer list (GEMM): [`crate::net::Net::eval_batch`] and the
 //! training in abvs-calib share it.
-use crate::net::{Dense, Net};
+use crate::net::{normalise_row, Dense, Net, CHUNK};
 
 // ---------------------------------------------------------------------------------------------
 // Batched forward/backward on a flat layer list.
@@ -179,5 +179,39 @@ pub fn forward(net: &Net, plan: &Plan, x: &[f32], m: usize, acts: &mut [Vec<f32>
                 *v = if p.relu { z.max(0.0) } else { z };
             }
         }
+    }
+}
+
+// The batched evaluation lives with the GEMM pass it runs, so that `net` does not import this module.
+impl Net {
+    /// Raw inputs -> raw outputs for many samples through GEMM (the training's forward pass).
+    /// Panics if the net does not have 3 inputs and 6 outputs.
+    pub fn eval_batch(&self, xs: &[[f64; 3]]) -> Vec<[f64; 6]> {
+        assert!(self.n_in() == 3 && self.n_out() == 6, "eval_batch needs a 3 -> 6 net");
+        let plan = Plan::new(self);
+        let cap = xs.len().clamp(1, CHUNK);
+        let mut acts = plan.buffers(cap);
+        let mut xb = vec![0f32; cap * 3];
+        let mut res = Vec::with_capacity(xs.len());
+        let last = plan.outputs();
+        for chunk in xs.chunks(CHUNK) {
+            let m = chunk.len();
+            for (dst, x) in xb.chunks_exact_mut(3).zip(chunk) {
+                normalise_row(&self.input_norm, x, dst);
+            }
+            forward(self, &plan, &xb[..m * 3], m, &mut acts);
+            for i in 0..m {
+                let mut r = [0.0; 6];
+                for &(l, col) in &last {
+                    let k = plan.layers[l].n_out;
+                    for (j, v) in acts[l][i * k..(i + 1) * k].iter().enumerate() {
+                        let c = col + j;
+                        r[c] = *v as f64 * self.output_norm.std[c] + self.output_norm.mean[c];
+                    }
+                }
+                res.push(r);
+            }
+        }
+        res
     }
 }

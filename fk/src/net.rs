@@ -17,7 +17,6 @@
 //! Two evaluation paths: [`Net::eval`] (batch 1, stack buffers, AVX2/FMA kernels when the CPU
 //! has them; this is the per-frame path) and [`Net::eval_batch`] (GEMM, the same code the
 //! training uses). They agree to f32 rounding, not bit for bit.
-use crate::batch::{forward, Plan};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
@@ -461,37 +460,6 @@ impl Net {
             emit(&p[..k], off);
             off += k;
         }
-    }
-
-    /// Raw inputs -> raw outputs for many samples through GEMM (the training's forward pass).
-    /// Panics if the net does not have 3 inputs and 6 outputs.
-    pub fn eval_batch(&self, xs: &[[f64; 3]]) -> Vec<[f64; 6]> {
-        assert!(self.n_in() == 3 && self.n_out() == 6, "eval_batch needs a 3 -> 6 net");
-        let plan = Plan::new(self);
-        let cap = xs.len().clamp(1, CHUNK);
-        let mut acts = plan.buffers(cap);
-        let mut xb = vec![0f32; cap * 3];
-        let mut res = Vec::with_capacity(xs.len());
-        let last = plan.outputs();
-        for chunk in xs.chunks(CHUNK) {
-            let m = chunk.len();
-            for (dst, x) in xb.chunks_exact_mut(3).zip(chunk) {
-                normalise_row(&self.input_norm, x, dst);
-            }
-            forward(self, &plan, &xb[..m * 3], m, &mut acts);
-            for i in 0..m {
-                let mut r = [0.0; 6];
-                for &(l, col) in &last {
-                    let k = plan.layers[l].n_out;
-                    for (j, v) in acts[l][i * k..(i + 1) * k].iter().enumerate() {
-                        let c = col + j;
-                        r[c] = *v as f64 * self.output_norm.std[c] + self.output_norm.mean[c];
-                    }
-                }
-                res.push(r);
-            }
-        }
-        res
     }
 }
 

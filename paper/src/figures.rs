@@ -2,7 +2,7 @@
 //! the commanded workspace).
 use crate::config::PaperConfig;
 use crate::error::Result;
-use crate::run::{Scored, TestSet};
+use crate::scored::{Scored, TestSet};
 use crate::summary::{Fig7Point, Fig8Map};
 use abvs_eye::WORKSPACE_DEG;
 use abvs_plot::workspace::{ALPHA_LABEL, GAMMA_LABEL};

@@ -30,6 +30,7 @@ pub mod figures;
 pub mod reference;
 pub mod report;
 pub mod run;
+mod scored;
 pub mod summary;
 
 pub use config::{paper_unit, PaperConfig, RESTRICTED_DEG};

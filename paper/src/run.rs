@@ -6,6 +6,7 @@ use crate::error::{PaperError, Result};
 use crate::figures::{plot_fig7, plot_fig8};
 use crate::reference::{PAPER_M2_FULL, PAPER_M2_RESTRICTED, T3_ORDER};
 use crate::report::report_md;
+use crate::scored::{Scored, TestSet};
 use crate::summary::*;
 use abvs_calib::methods::{finetune, fit, validation_mask, FitConfig, Method};
 use abvs_calib::metrics::evaluate;
@@ -25,34 +26,6 @@ struct Trained {
     samples: usize,
     seconds: f64,
     epochs: Vec<usize>,
-}
-
-/// A unit's test set.
-pub(crate) struct TestSet {
-    pub(crate) unit: String,
-    pub(crate) data: Dataset,
-    pub(crate) meas: Vec<[f64; 6]>,
-    pub(crate) cmd: Vec<[f64; 3]>,
-}
-
-impl TestSet {
-    fn new(unit: &str, data: Dataset) -> Result<Self> {
-        let cmd = data
-            .samples
-            .iter()
-            .map(|s| s.cmd_deg.ok_or_else(|| PaperError::Data("simulated sample without commanded pose".into())))
-            .collect::<Result<_>>()?;
-        let meas = data.samples.iter().map(|s| s.pose).collect();
-        Ok(TestSet { unit: unit.into(), data, meas, cmd })
-    }
-}
-
-/// A model's scores plus what the figures need per test sample.
-pub(crate) struct Scored {
-    pub(crate) result: ModelResult,
-    /// Squared error per sample, mean over the six components (MSE_total's summand).
-    pub(crate) sq: Vec<f64>,
-    pub(crate) mpe: Vec<f64>,
 }
 
 struct Ctx<'a> {

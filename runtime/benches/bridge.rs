@@ -5,6 +5,7 @@
 use std::time::Duration;
 
 use abvs_runtime::bridges::iceoryx::*;
+use abvs_runtime_core::messages::monotonic_ns;
 use criterion::{criterion_group, criterion_main, Criterion};
 
 fn header(seq: u64, w: u32, h: u32) -> FrameHeader {

@@ -5,11 +5,14 @@ use std::path::Path;
 
 use abvs_camera::Camera;
 use abvs_eye::{Fick, Pose};
-use abvs_runtime::tasks::census_confidence::{mask, nearest, Scorer, DEFAULT_MIN_CONFIDENCE};
-use abvs_runtime::tasks::depth::{DepthConfig, DepthFrame};
+use abvs_runtime::tasks::census_confidence::{mask, nearest, Scorer};
+use abvs_runtime::tasks::depth::DepthConfig;
 use abvs_runtime::tasks::disparity::{DisparityEngine, OnnxEngine, SgbmEngine};
 use abvs_runtime::tasks::disparity_census::CensusRefineEngine;
-use abvs_runtime::tasks::rectify::{rectify, RectifiedCamera, StereoRectifier};
+use abvs_runtime::tasks::rectify::{rectify, StereoRectifier};
+use abvs_runtime_core::messages::DepthFrame;
+use abvs_runtime_core::messages::RectifiedCamera;
+use abvs_runtime_core::params::DEFAULT_MIN_CONFIDENCE;
 use criterion::{criterion_group, criterion_main, Criterion};
 use nalgebra::Vector3;
 
@@ -100,7 +103,9 @@ fn bench(c: &mut Criterion) {
         let mut depth = DepthFrame::new(w, h);
         let cfg = DepthConfig::default();
         g.bench_function("depth_and_cloud", |b| {
-            b.iter(|| depth.compute(&d, |_| true, &l, &out, &rect, &Pose::identity(), &cfg))
+            b.iter(|| {
+                abvs_runtime::tasks::depth::compute(&mut depth, &d, |_| true, &l, &out, &rect, &Pose::identity(), &cfg)
+            })
         });
         let _ = rectify(&e);
         g.finish();

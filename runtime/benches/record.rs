@@ -3,7 +3,7 @@
 //! crate's default PNG settings (the baseline), in the same run (runtime/BENCHMARKS.md).
 //! At 25 fps a pair must take well under 40 ms of one core for `abvs record` to keep up.
 use abvs_runtime::sinks::session_writer::{CalibFiles, SessionWriter};
-use abvs_runtime::sources::{Frame, FramePair};
+use abvs_runtime_core::messages::{Frame, FramePair};
 use criterion::{criterion_group, criterion_main, Criterion};
 
 const W: u32 = 1600;

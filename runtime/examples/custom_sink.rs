@@ -7,11 +7,12 @@
 //! ```text
 //! cargo run -p abvs-runtime --example custom_sink [FRAMES]
 //! ```
-use abvs_runtime::config::RuntimeConfig;
-use abvs_runtime::pipeline::{Published, Sink};
 use abvs_runtime::shipped::shipped;
-use abvs_runtime::stats::RunStats;
 use abvs_runtime::Runtime;
+use abvs_runtime_core::config::RuntimeConfig;
+use abvs_runtime_core::messages::Published;
+use abvs_runtime_core::sink::Sink;
+use abvs_runtime_core::stats::RunStats;
 
 /// Counts frames and valid depth pixels, hashes the depth. `consume` runs on the pipeline's critical path:
 /// it must not block, and should not allocate (the runtime allocates nothing per frame).
@@ -28,7 +29,7 @@ impl Sink for DepthSink {
         "depth example"
     }
 
-    fn consume(&mut self, out: &Published) -> abvs_runtime::Result<()> {
+    fn consume(&mut self, out: &Published) -> abvs_runtime_core::error::Result<()> {
         if self.next_seq.is_some_and(|s| s != out.seq) {
             self.out_of_order += 1;
         }

@@ -10,9 +10,9 @@
 //! ```
 use std::time::Duration;
 
-use abvs_runtime::config::RuntimeConfig;
 use abvs_runtime::shipped::shipped;
 use abvs_runtime::Runtime;
+use abvs_runtime_core::config::RuntimeConfig;
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let frames: u64 = match std::env::args().nth(1) {

@@ -14,10 +14,12 @@ use std::collections::BTreeSet;
 use std::process::{Child, Command};
 use std::time::{Duration, Instant};
 
-use abvs_runtime::bridges::iceoryx::{BridgePayload, CloudSubscriber, DepthSubscriber, FrameHeader, Subscriber};
-use abvs_runtime::config::RuntimeConfig;
+use abvs_runtime::bridges::iceoryx::{
+    BridgeConfig, BridgePayload, CloudSubscriber, DepthSubscriber, FrameHeader, Subscriber,
+};
 use abvs_runtime::shipped::shipped;
 use abvs_runtime::Runtime;
+use abvs_runtime_core::config::RuntimeConfig;
 
 /// The deployment both processes share: the fixture at 320x240, paced at its recorded 25 fps as a camera
 /// would deliver it, with the confidence, published under a prefix of this run's own.
@@ -69,7 +71,7 @@ fn publish(prefix: &str, frames: u64) -> Result<(), Box<dyn std::error::Error>> 
 
 fn subscribe(frames: u64) -> Result<(), Box<dyn std::error::Error>> {
     let prefix = format!("abvs-example-{}", std::process::id());
-    let bridge = config(&prefix, frames)?.bridge_config();
+    let bridge = BridgeConfig::for_deployment(&config(&prefix, frames)?);
     // subscribed before the publisher starts: it sends to every subscriber there
     let mut depth = Topic::new(DepthSubscriber::new(&bridge)?);
     let mut confidence = Topic::new(Subscriber::<f32>::confidence(&bridge)?);

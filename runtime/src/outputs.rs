@@ -2,7 +2,7 @@
 //! its results to a missing or read-only directory. Each check names the flag or configuration field.
 use std::path::Path;
 
-use crate::error::{Result, RuntimeError};
+use abvs_runtime_core::error::{Result, RuntimeError};
 
 fn refuse<T>(field: &str, p: &Path, msg: String) -> Result<T> {
     Err(RuntimeError::Output { field: field.to_string(), path: p.to_path_buf(), msg })

@@ -14,25 +14,24 @@ use std::time::Duration;
 
 use abvs_camera::Camera;
 
-use crate::error::Result;
 use crate::gaze::stage::GazeStage;
-pub use crate::messages::{Published, Work};
-pub use crate::runner::{Counts, Graph, Lane, Progress, RunConfig};
-pub use crate::sinks::Sink;
+use crate::runner::{Graph, Lane, Progress, RunConfig};
 use crate::sources::replay::ReplaySource;
-pub use crate::sources::{EncoderFeed, PairSource};
-use crate::stage::Stage;
-use crate::stats::RunStats;
 use crate::tasks::align::AlignStage;
-pub use crate::tasks::confidence::CheckConfig;
 use crate::tasks::depth::{DepthConfig, DepthStage};
 use crate::tasks::disparity::{DisparityEngine, DisparityStage};
-pub use crate::tasks::fovea::FoveaConfig;
 use crate::tasks::fovea::FoveaStage;
 use crate::tasks::kinematics::{KinematicsStage, StereoKinematics};
-pub use crate::tasks::motion::MotionConfig;
-pub use crate::tasks::rectify::camera_for_frames;
-use crate::tasks::rectify::{RectifiedCamera, RectifyStage};
+use crate::tasks::rectify::RectifyStage;
+use abvs_runtime_core::error::Result;
+use abvs_runtime_core::messages::RectifiedCamera;
+use abvs_runtime_core::params::CheckConfig;
+use abvs_runtime_core::params::FoveaConfig;
+use abvs_runtime_core::params::MotionConfig;
+use abvs_runtime_core::sink::Sink;
+use abvs_runtime_core::source::PairSource;
+use abvs_runtime_core::stage::Stage;
+use abvs_runtime_core::stats::RunStats;
 
 /// The lanes of the standard graph (one thread each; the last runs the sinks). Alignment, kinematics and
 /// rectification share a lane: each is well under a millisecond, and a queue between them would add a

@@ -11,12 +11,12 @@ use std::time::{Duration, Instant};
 use crossbeam_channel::{bounded, Receiver, Sender, TrySendError};
 use serde::Serialize;
 
-use crate::error::{Result, RuntimeError};
-use crate::session::{EncoderRecord, Session};
 use crate::sinks::session_writer::SessionWriter;
 use crate::sources::encoder_stream::{EncoderStats, EncoderStream};
 use crate::sources::v4l_capture::{CaptureError, StereoCapture, StereoStats};
-use crate::sources::FramePair;
+use abvs_runtime_core::error::{Result, RuntimeError};
+use abvs_runtime_core::messages::FramePair;
+use abvs_runtime_core::session::{EncoderRecord, Session};
 
 /// How a recording runs: when it stops, how long homing and the capture may take, the writer's queue.
 #[derive(Debug, Clone)]
@@ -243,7 +243,7 @@ pub fn record(
     drop(tx);
     let end = match writer_thread.join() {
         Ok(end) => end,
-        Err(_) => return (Err(RuntimeError::Invalid("the session writer panicked".into())), stats),
+        Err(_) => return (Err(RuntimeError::Panicked("the session writer".into())), stats),
     };
     for (pair, ok) in done_rx.try_iter() {
         stats.pairs_written += u64::from(ok);

@@ -35,7 +35,7 @@ use abvs_eye::Pose;
 use nalgebra::{Matrix3, Rotation3, UnitQuaternion};
 use serde::Serialize;
 
-use crate::pipeline::Published;
+use abvs_runtime_core::messages::Published;
 
 pub mod type_hash;
 

@@ -17,13 +17,13 @@ use std::time::Duration;
 
 use crossbeam_channel::{bounded, Receiver, RecvTimeoutError, Select, Sender, TrySendError};
 
-use crate::cpu::RunCpu;
-use crate::error::{Result, RuntimeError};
-use crate::messages::{monotonic_ns, DepthFrame, RectifiedCamera, Work};
-use crate::sinks::Sink;
-use crate::sources::PairSource;
-use crate::stage::{Stage, StageContext};
-use crate::stats::{rss_bytes, Latency, RunStats, Window, MAX_WINDOWS};
+use abvs_runtime_core::cpu::RunCpu;
+use abvs_runtime_core::error::{Result, RuntimeError};
+use abvs_runtime_core::messages::{monotonic_ns, DepthFrame, RectifiedCamera, Work};
+use abvs_runtime_core::sink::Sink;
+use abvs_runtime_core::source::PairSource;
+use abvs_runtime_core::stage::{Stage, StageContext};
+use abvs_runtime_core::stats::{rss_bytes, Latency, RunStats, Window, MAX_WINDOWS};
 
 /// One thread of the graph: stages run in order on each frame.
 pub struct Lane {
@@ -282,10 +282,10 @@ struct LaneCpu {
 
 impl LaneCpu {
     fn start() -> LaneCpu {
-        LaneCpu { tid: crate::cpu::thread_id(), ns: crate::cpu::thread_cpu_ns() }
+        LaneCpu { tid: abvs_runtime_core::cpu::thread_id(), ns: abvs_runtime_core::cpu::thread_cpu_ns() }
     }
     fn stop(self) -> LaneCpu {
-        LaneCpu { tid: self.tid, ns: crate::cpu::thread_cpu_ns() - self.ns }
+        LaneCpu { tid: self.tid, ns: abvs_runtime_core::cpu::thread_cpu_ns() - self.ns }
     }
 }
 
@@ -354,8 +354,8 @@ pub fn run<S: PairSource>(graph: Graph<S>, cfg: &RunConfig) -> Result<RunStats> 
     let (free_tx, free_rx) = free;
     let (output, middle) = lanes.split_last_mut().expect("checked: at least one lane");
 
-    let cpu_before = crate::cpu::threads();
-    let process_cpu0 = crate::cpu::process_cpu_ns();
+    let cpu_before = abvs_runtime_core::cpu::threads();
+    let process_cpu0 = abvs_runtime_core::cpu::process_cpu_ns();
     let result = std::thread::scope(|s| -> Result<()> {
         // ---- source
         let src = {
@@ -494,10 +494,10 @@ pub fn run<S: PairSource>(graph: Graph<S>, cfg: &RunConfig) -> Result<RunStats> 
         }
         win.close(monotonic_ns(), &mut stats, &progress);
         let out_cpu = out_cpu.stop();
-        let (src_lat, src_cpu) = src.join().map_err(|_| RuntimeError::Invalid("source thread panicked".into()))?;
+        let (src_lat, src_cpu) = src.join().map_err(|_| RuntimeError::Panicked("source thread".into()))?;
         let mut lane_cpu = vec![("source", src_cpu)];
         for (name, h) in handles {
-            let (lat, failed, cpu) = h.join().map_err(|_| RuntimeError::Invalid(format!("{name} thread panicked")))?;
+            let (lat, failed, cpu) = h.join().map_err(|_| RuntimeError::Panicked(format!("{name} thread")))?;
             stats.stage_mut(name).merge(&lat);
             for f in failed {
                 stats.fail(f);
@@ -508,10 +508,11 @@ pub fn run<S: PairSource>(graph: Graph<S>, cfg: &RunConfig) -> Result<RunStats> 
         stats.stage_mut("source").merge(&src_lat);
         let process_name = std::fs::read_to_string("/proc/self/comm").unwrap_or_default();
         let tids: Vec<i32> = lane_cpu.iter().map(|(_, c)| c.tid).collect();
-        let (others, idle_ns) = RunCpu::others_between(&cpu_before, &crate::cpu::threads(), &tids, process_name.trim());
+        let (others, idle_ns) =
+            RunCpu::others_between(&cpu_before, &abvs_runtime_core::cpu::threads(), &tids, process_name.trim());
         stats.cpu = Some(RunCpu {
             lanes: lane_cpu.iter().map(|(n, c)| (*n, c.ns)).collect(),
-            process_ns: crate::cpu::process_cpu_ns() - process_cpu0,
+            process_ns: abvs_runtime_core::cpu::process_cpu_ns() - process_cpu0,
             others,
             idle_ns,
         });

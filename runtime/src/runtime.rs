@@ -5,7 +5,6 @@
 //! the FK models, builds the disparity engine, and opens the sinks and bridges. [`Runtime::add_sink`] adds the
 //! caller's own sinks; [`Runtime::run`], [`Runtime::run_until`] or [`Runtime::spawn`] then run the standard graph
 //! ([`crate::pipeline`]) and return its [`Report`]. The `abvs run` program is this call plus its flags.
-use ::zenoh::Wait;
 use std::path::Path;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
@@ -15,23 +14,24 @@ use std::time::Duration;
 use abvs_camera::{Camera, StereoCalibration};
 
 use crate::bridges::publish::PublishSink;
-use crate::config::{EngineKind, FkSource, RuntimeConfig, SourceKind};
-use crate::error::{Result, RuntimeError};
 use crate::gaze::controller::GazeController;
 use crate::gaze::stage::GazeStage;
 use crate::gaze::{GazeConfig, GazeHandle, Mailbox};
 use crate::pipeline::PipelineConfig;
 use crate::runner::{Counts, Progress};
-use crate::session::Session;
 use crate::sinks::self_check::TimingContext;
 use crate::sinks::session_writer::CalibFiles;
-use crate::sinks::Sink;
 use crate::sources::live::LiveSource;
 use crate::sources::replay::ReplaySource;
-use crate::stats::RunStats;
 use crate::tasks::disparity::{self, DisparityEngine};
 use crate::tasks::kinematics::{EyeFk, StereoKinematics};
-use crate::tasks::rectify::{camera_for_frames, RectifiedCamera};
+use crate::tasks::rectify::camera_for_frames;
+use abvs_runtime_core::config::{EngineKind, FkSource, RuntimeConfig, SourceKind};
+use abvs_runtime_core::error::{Result, RuntimeError};
+use abvs_runtime_core::messages::RectifiedCamera;
+use abvs_runtime_core::session::Session;
+use abvs_runtime_core::sink::Sink;
+use abvs_runtime_core::stats::RunStats;
 
 /// Where the frames come from.
 // One per runtime: the size of the replay variant does not matter.
@@ -40,14 +40,14 @@ enum Input {
     Replay(ReplaySource),
     Live(LiveSource),
     /// A source the caller built ([`Runtime::with_source`]).
-    Custom(Box<dyn crate::sources::PairSource>),
+    Custom(Box<dyn abvs_runtime_core::source::PairSource>),
 }
 
 /// A source built outside the runtime (the toolkit's simulated head, `source.kind = "sim"`), for
 /// [`Runtime::with_source`].
 pub struct CustomSource {
     /// The frames, encoders and board.
-    pub source: Box<dyn crate::sources::PairSource>,
+    pub source: Box<dyn abvs_runtime_core::source::PairSource>,
     /// The rolling-shutter readout its frames carry (ms).
     pub readout_ms: f64,
     /// What the report calls it.
@@ -66,7 +66,7 @@ pub struct Runtime {
     /// The rolling-shutter readout the frames carry (ms).
     readout_ms: f64,
     /// The motion settings the stages run with (the time offset resolved: configuration, session, FK models).
-    motion: crate::tasks::motion::MotionConfig,
+    motion: abvs_runtime_core::params::MotionConfig,
     source_name: String,
     description: String,
     /// The gaze goals' mailbox ([`Runtime::gaze`]) and both eyes' IK models.
@@ -115,7 +115,7 @@ impl Runtime {
     /// calibration is `calibration.dir`'s, as for a live run.
     pub fn with_source(config: &RuntimeConfig, source: CustomSource) -> Result<Runtime> {
         if config.calibration.dir.is_none() {
-            return Err(RuntimeError::Invalid("configuration: calibration.dir: a custom source needs one".into()));
+            return Err(RuntimeError::Config("calibration.dir: a custom source needs one".into()));
         }
         let mut c = config.clone();
         c.source.lossless = true;
@@ -124,7 +124,7 @@ impl Runtime {
 
     fn assemble(config: &RuntimeConfig, custom: Option<CustomSource>) -> Result<Runtime> {
         let c = config;
-        c.check().map_err(|e| RuntimeError::Invalid(format!("configuration: {e}")))?;
+        c.check().map_err(RuntimeError::Config)?;
         check_outputs(c)?;
         let session = match (c.source.kind, &custom) {
             (_, Some(_)) => None,
@@ -216,7 +216,7 @@ impl Runtime {
         &self.gaze_access
     }
 
-    /// Adds a sink of the caller's: it receives every published frame ([`crate::messages::Published`]: depth,
+    /// Adds a sink of the caller's: it receives every published frame ([`abvs_runtime_core::messages::Published`]: depth,
     /// cloud, poses, the rectified pair) on the output lane, after the sinks and bridges of the configuration.
     /// Its [`Sink::consume`] runs on the pipeline's critical path: it must not block, and should not allocate.
     pub fn add_sink(&mut self, sink: Box<dyn Sink>) {
@@ -266,7 +266,7 @@ impl Runtime {
         let thread = std::thread::Builder::new()
             .name("abvs-runtime".into())
             .spawn(move || self.run_with(Some(s), Some(p)))
-            .map_err(|e| RuntimeError::Invalid(format!("starting the runtime's thread: {e}")))?;
+            .map_err(|source| RuntimeError::Thread { what: "starting the runtime's thread".into(), source })?;
         Ok(RuntimeHandle { stop, progress, gaze, thread: Some(thread) })
     }
 
@@ -385,7 +385,7 @@ impl RuntimeHandle {
     /// Waits for the end of the run and returns its report.
     pub fn join(mut self) -> Result<Report> {
         let t = self.thread.take().expect("joined once");
-        t.join().map_err(|_| RuntimeError::Invalid("the runtime's thread panicked".into()))?
+        t.join().map_err(|_| RuntimeError::Panicked("the runtime's thread".into()))?
     }
 }
 
@@ -453,7 +453,7 @@ fn sinks(
 ) -> Result<(Vec<Box<dyn Sink>>, String)> {
     let mut sinks: Vec<Box<dyn Sink>> = Vec::new();
     if c.bridges.iceoryx.enabled {
-        let cfg = c.bridge_config();
+        let cfg = crate::bridges::iceoryx::BridgeConfig::for_deployment(c);
         // the publishers first: their nodes remove (and count) what a killed runtime left behind
         let publish = if c.disparity.confidence || c.disparity.engine.scores_pixels() {
             PublishSink::with_confidence(cfg.clone())?
@@ -468,41 +468,15 @@ fn sinks(
         if c.gaze.enabled {
             sinks.push(Box::new(
                 crate::bridges::iceoryx::gaze::GazeBridge::new(&cfg, gaze.clone())
-                    .map_err(|e| RuntimeError::Invalid(e.to_string()))?,
+                    .map_err(|e| RuntimeError::Ipc(Box::new(e)))?,
             ));
         }
     }
     // ROS 2 outputs: lossless runs wait for them, live ones drop their oldest queued frame
     if let Some(p) = &c.sinks.mcap.file {
-        let fovea = c.fovea.fovea_config().is_some();
-        sinks.push(Box::new(crate::sinks::mcap_log::sink(p, c.sinks.mcap.queue, c.source.lossless, fovea)?));
+        sinks.push(mcap_sink(p, c)?);
     }
-    let z = &c.bridges.zenoh;
-    let zc = crate::bridges::zenoh_gaze::config(z)?;
-    // checked before any session opens: goals over the network need authentication or access control
-    let access = if c.gaze.enabled {
-        crate::bridges::zenoh_gaze::goal_access(z, &zc, c.bridges.iceoryx.enabled)?
-    } else {
-        "gaze: off ([gaze] enabled = false): no goals are taken, no gaze state is published".to_string()
-    };
-    if z.enabled || z.accept_gaze_goals {
-        // one session (one peer, one identity for the access control) for the outputs and the gaze topics
-        let session =
-            ::zenoh::open(zc).wait().map_err(|e| RuntimeError::Invalid(format!("zenoh: opening the session: {e}")))?;
-        // the gaze topics first: they finish before the outputs close the session
-        if c.gaze.enabled {
-            sinks.push(Box::new(crate::bridges::zenoh_gaze::ZenohGaze::new(
-                session.clone(),
-                z,
-                gaze.clone(),
-                z.enabled,
-            )?));
-        }
-        if z.enabled {
-            let w = crate::bridges::zenoh::ZenohWriter::on_session(session, z, c.fovea.fovea_config().is_some())?;
-            sinks.push(Box::new(crate::sinks::ros2_out::Ros2OutSink::new("zenoh", w, z.queue, c.source.lossless)?));
-        }
-    }
+    let access = zenoh_sinks(c, gaze, &mut sinks)?;
     if let Some(p) = &c.sinks.rerun {
         sinks.push(rerun_sink(p)?);
     }
@@ -512,7 +486,7 @@ fn sinks(
     let sc = &c.sinks.self_check;
     if sc.enabled {
         let toml = c.to_toml_string();
-        let mut cfg = crate::sinks::self_check::SelfCheckConfig {
+        let mut cfg = abvs_runtime_core::params::SelfCheckConfig {
             every: sc.every,
             log: sc.log.clone(),
             threshold_deg: sc.threshold_deg,
@@ -536,6 +510,72 @@ fn sinks(
         sinks.push(Box::new(crate::sinks::self_check::SelfCheckSink::with_timing(cfg, out, timing)?));
     }
     Ok((sinks, access))
+}
+
+/// The start-up line's gaze access with `[gaze] enabled = false`.
+const GAZE_OFF: &str = "gaze: off ([gaze] enabled = false): no goals are taken, no gaze state is published";
+
+/// The MCAP recorder of `[sinks.mcap]` (cargo feature `mcap`).
+#[cfg(feature = "mcap")]
+fn mcap_sink(p: &Path, c: &RuntimeConfig) -> Result<Box<dyn Sink>> {
+    let fovea = c.fovea.fovea_config().is_some();
+    Ok(Box::new(crate::sinks::mcap_log::sink(p, c.sinks.mcap.queue, c.source.lossless, fovea)?))
+}
+
+/// Built without MCAP: a configuration that asks for a recording is refused.
+#[cfg(not(feature = "mcap"))]
+fn mcap_sink(_: &Path, _: &RuntimeConfig) -> Result<Box<dyn Sink>> {
+    Err(RuntimeError::NotBuilt { field: "sinks.mcap.file", feature: "mcap" })
+}
+
+/// The Zenoh outputs and gaze topics of `[bridges.zenoh]` (cargo feature `zenoh`); returns where gaze goals are
+/// taken from, for the start-up line.
+#[cfg(feature = "zenoh")]
+fn zenoh_sinks(c: &RuntimeConfig, gaze: &Arc<Mailbox>, sinks: &mut Vec<Box<dyn Sink>>) -> Result<String> {
+    use ::zenoh::Wait;
+    let z = &c.bridges.zenoh;
+    let zc = crate::bridges::zenoh_gaze::config(z)?;
+    // checked before any session opens: goals over the network need authentication or access control
+    let access = if c.gaze.enabled {
+        crate::bridges::zenoh_gaze::goal_access(z, &zc, c.bridges.iceoryx.enabled)?
+    } else {
+        GAZE_OFF.to_string()
+    };
+    if z.enabled || z.accept_gaze_goals {
+        // one session (one peer, one identity for the access control) for the outputs and the gaze topics
+        let session = ::zenoh::open(zc)
+            .wait()
+            .map_err(|source| RuntimeError::Transport { what: "zenoh: opening the session".into(), source })?;
+        // the gaze topics first: they finish before the outputs close the session
+        if c.gaze.enabled {
+            let g = crate::bridges::zenoh_gaze::ZenohGaze::new(session.clone(), z, gaze.clone(), z.enabled)?;
+            sinks.push(Box::new(g));
+        }
+        if z.enabled {
+            let w = crate::bridges::zenoh::ZenohWriter::on_session(session, z, c.fovea.fovea_config().is_some())?;
+            sinks.push(Box::new(crate::sinks::ros2_out::Ros2OutSink::new("zenoh", w, z.queue, c.source.lossless)?));
+        }
+    }
+    Ok(access)
+}
+
+/// Built without Zenoh: a configuration that turns it on is refused; goals come from this machine only.
+#[cfg(not(feature = "zenoh"))]
+fn zenoh_sinks(c: &RuntimeConfig, _: &Arc<Mailbox>, _: &mut Vec<Box<dyn Sink>>) -> Result<String> {
+    let z = &c.bridges.zenoh;
+    if z.enabled || z.accept_gaze_goals {
+        let field = if z.enabled { "bridges.zenoh.enabled" } else { "bridges.zenoh.accept_gaze_goals" };
+        return Err(RuntimeError::NotBuilt { field, feature: "zenoh" });
+    }
+    if !c.gaze.enabled {
+        return Ok(GAZE_OFF.to_string());
+    }
+    let local = if c.bridges.iceoryx.enabled {
+        "this machine (iceoryx2 `gaze/goal`, the Rust handle)"
+    } else {
+        "this process (the Rust handle; iceoryx2 off)"
+    };
+    Ok(format!("gaze goals from {local}; over Zenoh: not built (cargo feature `zenoh`)"))
 }
 
 /// A rolling-shutter readout is at most one frame period (the sensor reads the next frame's first row after

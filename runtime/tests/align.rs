@@ -3,8 +3,9 @@
 use abvs_eye::encoder::quantize_deg;
 use abvs_eye::pose::rotation_angle_deg;
 use abvs_eye::{Fick, SpmGeometry, UnitModel};
-use abvs_runtime::tasks::align::{EncoderSample, EncoderTrack};
-use abvs_runtime::RuntimeError;
+use abvs_runtime::tasks::align::EncoderTrack;
+use abvs_runtime_core::error::RuntimeError;
+use abvs_runtime_core::messages::EncoderSample;
 
 /// A minimum-jerk saccade from yaw -20 to +20 deg (pitch 10, roll 3) whose peak speed is the
 /// paper's 1561 deg/s: peak of min-jerk = 1.875 A / T.

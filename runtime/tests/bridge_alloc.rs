@@ -10,6 +10,7 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::Duration;
 
 use abvs_runtime::bridges::iceoryx::*;
+use abvs_runtime_core::messages::monotonic_ns;
 
 struct Counting;
 static ALLOCS: AtomicU64 = AtomicU64::new(0);

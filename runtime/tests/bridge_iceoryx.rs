@@ -5,6 +5,7 @@ use std::sync::atomic::{AtomicU32, Ordering};
 use std::time::Duration;
 
 use abvs_runtime::bridges::iceoryx::*;
+use abvs_runtime_core::messages::monotonic_ns;
 
 /// A service prefix no other test (in this or another process) uses.
 fn unique_config(w: u32, h: u32) -> BridgeConfig {

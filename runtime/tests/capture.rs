@@ -8,7 +8,7 @@ use std::time::Duration;
 use abvs_runtime::sources::pairing::{Pairer, PairerConfig, Side};
 use abvs_runtime::sources::pixel::{Bayer10Packing, CfaOrder, GrayConverter, PixelError, PixelFormat};
 use abvs_runtime::sources::v4l_capture::*;
-use abvs_runtime::sources::{Frame, FramePair};
+use abvs_runtime_core::messages::{Frame, FramePair};
 use proptest::prelude::*;
 
 // ---------------------------------------------------------------- allocation counting (per thread)

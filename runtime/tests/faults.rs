@@ -7,12 +7,14 @@ use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
 use abvs_camera::StereoCalibration;
-use abvs_runtime::pipeline::{run_replay, PipelineConfig, Published, Sink};
-use abvs_runtime::session::Session;
-use abvs_runtime::sinks::stats::RunStats;
+use abvs_runtime::pipeline::{run_replay, PipelineConfig};
 use abvs_runtime::sources::replay::ReplaySource;
 use abvs_runtime::tasks::disparity::{self, DisparityEngine};
 use abvs_runtime::tasks::kinematics::{EyeFk, StereoKinematics};
+use abvs_runtime_core::messages::Published;
+use abvs_runtime_core::session::Session;
+use abvs_runtime_core::sink::Sink;
+use abvs_runtime_core::stats::RunStats;
 
 fn fixture() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../fixtures/session")
@@ -53,7 +55,7 @@ impl Sink for SlowSink {
     fn name(&self) -> &'static str {
         "slow"
     }
-    fn consume(&mut self, out: &Published) -> abvs_runtime::Result<()> {
+    fn consume(&mut self, out: &Published) -> abvs_runtime_core::error::Result<()> {
         if let Some(d) = self.delay {
             std::thread::sleep(d);
         }
@@ -78,7 +80,7 @@ impl DisparityEngine for SlowEngine {
     fn max_disparity(&self) -> f64 {
         self.inner.max_disparity()
     }
-    fn compute(&mut self, left: &[u8], right: &[u8], out: &mut [f32]) -> abvs_runtime::Result<()> {
+    fn compute(&mut self, left: &[u8], right: &[u8], out: &mut [f32]) -> abvs_runtime_core::error::Result<()> {
         std::thread::sleep(self.delay);
         self.inner.compute(left, right, out)
     }

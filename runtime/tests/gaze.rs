@@ -11,10 +11,11 @@ use abvs_eye::Pose;
 use abvs_fk::model::FkModel;
 use abvs_runtime::gaze::controller::GazeController;
 use abvs_runtime::gaze::stage::measured_fixation;
-use abvs_runtime::gaze::{GazeConfig, GazeHandle, Goal, GoalKind, Mailbox, Phase, Refusal};
-use abvs_runtime::messages::StereoPose;
-use abvs_runtime::sources::board::BoardLink;
+use abvs_runtime::gaze::{GazeConfig, GazeHandle, Goal, GoalKind, Mailbox};
 use abvs_runtime::tasks::kinematics::{moving_extrinsic, EyeFk};
+use abvs_runtime_core::gaze::{Phase, Refusal};
+use abvs_runtime_core::messages::StereoPose;
+use abvs_runtime_core::source::BoardLink;
 
 const NOW: i64 = 10_000_000_000;
 

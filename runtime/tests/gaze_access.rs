@@ -10,9 +10,9 @@ use std::time::{Duration, Instant};
 
 use abvs_runtime::bridges::iceoryx::gaze::{goal_service, GazeGoalWire};
 use abvs_runtime::bridges::iceoryx::Ipc;
-use abvs_runtime::config::{EngineKind, RuntimeConfig};
 use abvs_runtime::shipped::shipped;
 use abvs_runtime::Runtime;
+use abvs_runtime_core::config::{EngineKind, RuntimeConfig};
 use iceoryx2::prelude::*;
 use zenoh::Wait;
 
@@ -60,7 +60,7 @@ fn run_with_peers(mut c: RuntimeConfig) -> (serde_json::Value, serde_json::Value
     c.bridges.zenoh.config = Some(zc);
     let runtime = Runtime::from_config(&c).unwrap();
     let access = runtime.gaze_access().to_string();
-    let cfg = c.bridge_config();
+    let cfg = abvs_runtime::bridges::iceoryx::BridgeConfig::for_deployment(&c);
     let handle = runtime.spawn().unwrap();
 
     let mut pc = zenoh::Config::default();

@@ -7,10 +7,10 @@ use std::path::PathBuf;
 use std::process::Command;
 use std::time::{Duration, Instant};
 
-use abvs_runtime::config::{EngineKind, RuntimeConfig};
-use abvs_runtime::gaze::{Phase, Refusal};
 use abvs_runtime::shipped::shipped;
 use abvs_runtime::Runtime;
+use abvs_runtime_core::config::{EngineKind, RuntimeConfig};
+use abvs_runtime_core::gaze::{Phase, Refusal};
 
 fn repo() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("..")

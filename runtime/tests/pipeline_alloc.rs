@@ -12,11 +12,13 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 
 use abvs_camera::StereoCalibration;
-use abvs_runtime::pipeline::{run_replay, PipelineConfig, Published, Sink};
-use abvs_runtime::session::Session;
+use abvs_runtime::pipeline::{run_replay, PipelineConfig};
 use abvs_runtime::sources::replay::{on_decode_thread, ReplaySource};
 use abvs_runtime::tasks::disparity;
 use abvs_runtime::tasks::kinematics::{EyeFk, StereoKinematics};
+use abvs_runtime_core::messages::Published;
+use abvs_runtime_core::session::Session;
+use abvs_runtime_core::sink::Sink;
 
 const FRAMES: u64 = 200;
 
@@ -54,7 +56,7 @@ impl Sink for Probe {
     fn name(&self) -> &'static str {
         "probe"
     }
-    fn consume(&mut self, _: &Published) -> abvs_runtime::Result<()> {
+    fn consume(&mut self, _: &Published) -> abvs_runtime_core::error::Result<()> {
         let mut v = self.0.lock().unwrap();
         if v.len() < v.capacity() {
             v.push((ALLOCS.load(Ordering::Relaxed), DECODE_ALLOCS.load(Ordering::Relaxed)));

@@ -17,11 +17,14 @@ use std::time::Duration;
 use abvs_camera::StereoCalibration;
 use abvs_runtime::bridges::iceoryx::BridgeConfig;
 use abvs_runtime::bridges::publish::PublishSink;
-use abvs_runtime::pipeline::{run_replay, CheckConfig, PipelineConfig, Published, Sink};
-use abvs_runtime::session::Session;
+use abvs_runtime::pipeline::{run_replay, PipelineConfig};
 use abvs_runtime::sources::replay::{on_decode_thread, ReplaySource};
 use abvs_runtime::tasks::disparity;
 use abvs_runtime::tasks::kinematics::{EyeFk, StereoKinematics};
+use abvs_runtime_core::messages::Published;
+use abvs_runtime_core::params::CheckConfig;
+use abvs_runtime_core::session::Session;
+use abvs_runtime_core::sink::Sink;
 
 struct Counting;
 /// Allocations of every thread but the replay's decoder, and the largest of them (bytes).
@@ -68,7 +71,7 @@ impl Sink for Probe {
     fn name(&self) -> &'static str {
         "probe"
     }
-    fn consume(&mut self, p: &Published) -> abvs_runtime::Result<()> {
+    fn consume(&mut self, p: &Published) -> abvs_runtime_core::error::Result<()> {
         if p.confidence.is_some() {
             WITH_CONFIDENCE.fetch_add(1, Ordering::Relaxed);
         }

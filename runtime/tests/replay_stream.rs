@@ -9,8 +9,8 @@ use std::process::Command;
 use std::sync::atomic::{AtomicI64, Ordering};
 use std::time::{Duration, Instant};
 
-use abvs_runtime::session::{EncoderRecord, FrameRecord, Session, SessionMeta, SESSION_FORMAT};
 use abvs_runtime::sources::replay::{ReplaySource, RING};
+use abvs_runtime_core::session::{EncoderRecord, FrameRecord, Session, SessionMeta, SESSION_FORMAT};
 
 struct Tracking;
 /// Bytes allocated and not yet freed (all threads), and the highest value since the last reset.

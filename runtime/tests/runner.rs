@@ -6,16 +6,20 @@ use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex};
 
 use abvs_camera::StereoCalibration;
-use abvs_runtime::messages::Work;
-use abvs_runtime::pipeline::{self, Graph, Lane, PipelineConfig, Published, Sink};
+use abvs_runtime::pipeline;
+use abvs_runtime::pipeline::PipelineConfig;
 use abvs_runtime::runner;
-use abvs_runtime::session::Session;
+use abvs_runtime::runner::{Graph, Lane};
 use abvs_runtime::sources::replay::ReplaySource;
-use abvs_runtime::stage::{Stage, StageContext};
-use abvs_runtime::stats::RunStats;
 use abvs_runtime::tasks::depth::{DepthConfig, DepthStage};
 use abvs_runtime::tasks::disparity;
 use abvs_runtime::tasks::kinematics::{EyeFk, StereoKinematics};
+use abvs_runtime_core::messages::Published;
+use abvs_runtime_core::messages::Work;
+use abvs_runtime_core::session::Session;
+use abvs_runtime_core::sink::Sink;
+use abvs_runtime_core::stage::{Stage, StageContext};
+use abvs_runtime_core::stats::RunStats;
 
 const FRAMES: u64 = 20;
 
@@ -54,12 +58,12 @@ impl Stage for Brightness {
     fn name(&self) -> &'static str {
         self.name
     }
-    fn start(&mut self, ctx: &mut StageContext) -> abvs_runtime::Result<()> {
+    fn start(&mut self, ctx: &mut StageContext) -> abvs_runtime_core::error::Result<()> {
         assert_eq!((ctx.out.width, ctx.out.height), (320, 240));
         self.started = true;
         Ok(())
     }
-    fn process(&mut self, w: &mut Work) -> abvs_runtime::Result<()> {
+    fn process(&mut self, w: &mut Work) -> abvs_runtime_core::error::Result<()> {
         assert!(self.started && w.rectified.rect.is_some(), "runs after rectification");
         let l = &w.rectified.left;
         let mean = l.iter().map(|&v| v as f64).sum::<f64>() / l.len() as f64;
@@ -78,7 +82,7 @@ impl Sink for Recorder {
     fn name(&self) -> &'static str {
         "recorder"
     }
-    fn consume(&mut self, out: &Published) -> abvs_runtime::Result<()> {
+    fn consume(&mut self, out: &Published) -> abvs_runtime_core::error::Result<()> {
         self.0.lock().unwrap().push((out.seq, out.depth.n_points));
         Ok(())
     }
@@ -91,8 +95,8 @@ impl Sink for Failing {
     fn name(&self) -> &'static str {
         "failing"
     }
-    fn consume(&mut self, _: &Published) -> abvs_runtime::Result<()> {
-        Err(abvs_runtime::RuntimeError::Invalid("disk full".into()))
+    fn consume(&mut self, _: &Published) -> abvs_runtime_core::error::Result<()> {
+        Err(abvs_runtime_core::error::RuntimeError::Invalid("disk full".into()))
     }
 }
 
@@ -145,7 +149,7 @@ impl Stage for Named {
     fn name(&self) -> &'static str {
         self.0
     }
-    fn process(&mut self, _: &mut Work) -> abvs_runtime::Result<()> {
+    fn process(&mut self, _: &mut Work) -> abvs_runtime_core::error::Result<()> {
         Ok(())
     }
 }
@@ -179,9 +183,9 @@ fn descriptions_must_place_exactly_the_stages_given() {
 
 /// Works until the calling thread has used `ms` of CPU time (not wall time).
 fn burn(ms: i64) {
-    let t = abvs_runtime::cpu::thread_cpu_ns();
+    let t = abvs_runtime_core::cpu::thread_cpu_ns();
     let mut x = 0u64;
-    while abvs_runtime::cpu::thread_cpu_ns() - t < ms * 1_000_000 {
+    while abvs_runtime_core::cpu::thread_cpu_ns() - t < ms * 1_000_000 {
         x = std::hint::black_box(x.wrapping_mul(6364136223846793005).wrapping_add(1));
     }
 }
@@ -196,7 +200,7 @@ impl Stage for Burner {
     fn name(&self) -> &'static str {
         "burner"
     }
-    fn start(&mut self, _: &mut StageContext) -> abvs_runtime::Result<()> {
+    fn start(&mut self, _: &mut StageContext) -> abvs_runtime_core::error::Result<()> {
         let (tx, rx) = std::sync::mpsc::channel::<()>();
         std::thread::Builder::new()
             .name("burner-helper".into())
@@ -211,7 +215,7 @@ impl Stage for Burner {
         self.helper = Some(tx);
         Ok(())
     }
-    fn process(&mut self, _: &mut Work) -> abvs_runtime::Result<()> {
+    fn process(&mut self, _: &mut Work) -> abvs_runtime_core::error::Result<()> {
         burn(3);
         if let Some(tx) = &self.helper {
             let _ = tx.send(());

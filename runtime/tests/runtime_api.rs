@@ -5,9 +5,10 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use abvs_runtime::config::{EngineKind, RuntimeConfig, SourceKind};
 use abvs_runtime::shipped::shipped;
-use abvs_runtime::{Runtime, RuntimeError};
+use abvs_runtime::Runtime;
+use abvs_runtime_core::config::{EngineKind, RuntimeConfig, SourceKind};
+use abvs_runtime_core::error::RuntimeError;
 
 /// The fixture at 320x240 with SGBM (the cheapest engine), publishing nothing.
 fn small() -> RuntimeConfig {

@@ -6,11 +6,12 @@ use std::process::Command;
 
 use abvs_camera::StereoCalibration;
 use abvs_runtime::pipeline::{run_replay, PipelineConfig};
-use abvs_runtime::session::Session;
-use abvs_runtime::sinks::self_check::{SelfCheckConfig, SelfCheckSink, LOG_HEADER};
+use abvs_runtime::sinks::self_check::{SelfCheckSink, LOG_HEADER};
 use abvs_runtime::sources::replay::ReplaySource;
 use abvs_runtime::tasks::disparity;
 use abvs_runtime::tasks::kinematics::{EyeFk, StereoKinematics};
+use abvs_runtime_core::params::SelfCheckConfig;
+use abvs_runtime_core::session::Session;
 use nalgebra::{Rotation3, Vector3};
 use serde_json::Value;
 
@@ -36,7 +37,7 @@ fn run(dir: &Path, engine: &str, lossless: bool, frames: Option<u64>, check: Opt
     let model = Path::new(env!("CARGO_MANIFEST_DIR")).join("../models/hitnet/hitnet-s");
     let max_disp = cfg.out.f * stereo.baseline_mm() / 1000.0 / 0.2;
     let eng = disparity::engine(engine, (engine == "onnx").then_some(model.as_path()), (w, h), max_disp, 2).unwrap();
-    let mut sinks: Vec<Box<dyn abvs_runtime::pipeline::Sink>> = Vec::new();
+    let mut sinks: Vec<Box<dyn abvs_runtime_core::sink::Sink>> = Vec::new();
     if let Some(c) = check {
         sinks.push(Box::new(SelfCheckSink::new(c, &cfg.out).unwrap()));
     }

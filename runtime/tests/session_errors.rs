@@ -3,7 +3,7 @@
 //! directory are refused.
 use std::path::{Path, PathBuf};
 
-use abvs_runtime::session::Session;
+use abvs_runtime_core::session::Session;
 
 fn fixture() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../fixtures/session")

@@ -2,7 +2,7 @@
 //! (runtime's `encoder_link` protocol) from a synthetic link roll with injected faults
 //! ([`BoardSim`]), or from a recorded session after a start-up roll through the index markers
 //! ([`SessionBoard`]). Offline: the runtime only decodes what a board sends.
-use abvs_runtime::session::EncoderRecord;
+use abvs_runtime_core::session::EncoderRecord;
 
 /// Why a session cannot be scripted as a board's frame stream.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]

@@ -25,9 +25,10 @@ use std::sync::Arc;
 use hdrhistogram::Histogram;
 use nalgebra::Vector3;
 
-use abvs_runtime::gaze::Phase;
-use abvs_runtime::pipeline::{Published, Sink};
-use abvs_runtime::sinks::stats::RunStats;
+use abvs_runtime_core::gaze::Phase;
+use abvs_runtime_core::messages::Published;
+use abvs_runtime_core::sink::Sink;
+use abvs_runtime_core::stats::RunStats;
 
 use crate::head::{FrameTruth, TruthFeed};
 
@@ -128,7 +129,7 @@ impl Sink for GazeScore {
         "gaze_score"
     }
 
-    fn consume(&mut self, out: &Published) -> abvs_runtime::Result<()> {
+    fn consume(&mut self, out: &Published) -> abvs_runtime_core::error::Result<()> {
         if let Some(p) = self.prev_seq {
             self.seq_gaps += out.seq.saturating_sub(p + 1);
         }

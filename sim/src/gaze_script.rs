@@ -21,8 +21,8 @@
 //! A line that cannot be read is an error naming the file, the line and the field.
 use std::path::{Path, PathBuf};
 
-use abvs_runtime::error::{Result, RuntimeError};
 use abvs_runtime::gaze::GazeHandle;
+use abvs_runtime_core::error::{Result, RuntimeError};
 
 /// What a goal asks for.
 #[derive(Debug, Clone, Copy, PartialEq)]

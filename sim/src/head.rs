@@ -40,15 +40,14 @@ use abvs_render::{RayTable, Scene};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
-use abvs_runtime::error::{Result, RuntimeError};
 use abvs_runtime::gaze::GazeHandle;
-use abvs_runtime::messages::{EncoderSample, SourcePair};
-use abvs_runtime::sources::board::BoardLink;
 use abvs_runtime::sources::encoder_link::BoardFrame;
 use abvs_runtime::sources::encoder_stream::EncoderTracker;
-use abvs_runtime::sources::{EncoderFeed, PairSource};
-use abvs_runtime::stats::RunStats;
-use abvs_runtime::tasks::align::EncoderTrack;
+use abvs_runtime_core::error::{Result, RuntimeError};
+use abvs_runtime_core::messages::{EncoderSample, SourcePair};
+use abvs_runtime_core::source::BoardLink;
+use abvs_runtime_core::source::{EncoderFeed, PairSource};
+use abvs_runtime_core::stats::RunStats;
 
 use crate::gaze_script::{GazeScript, ScriptGoal};
 use crate::servo_board::ServoBoard;
@@ -95,7 +94,7 @@ pub struct HeadSpec {
 
 impl HeadSpec {
     /// From the runtime configuration's `[source.sim]`.
-    pub fn from_config(c: &abvs_runtime::config::SimConfig) -> HeadSpec {
+    pub fn from_config(c: &abvs_runtime_core::config::SimConfig) -> HeadSpec {
         HeadSpec {
             seed: c.seed,
             width: c.width,
@@ -321,14 +320,13 @@ struct SimEncoders {
 const ENCODER_PERIOD_NS: i64 = 1_000_000;
 
 impl EncoderFeed for SimEncoders {
-    fn feed(&mut self, t_ns: i64, tracks: &mut [EncoderTrack; 2]) {
+    fn feed(&mut self, t_ns: i64, push: &mut dyn FnMut(usize, EncoderSample)) {
         let mut b = self.shared.board.lock().expect("sim board");
         while self.next_ns <= t_ns {
-            for (e, track) in tracks.iter_mut().enumerate() {
+            for e in 0..2 {
                 let p = b.traj[e].at(self.next_ns - self.shared.latency_ns[e]);
                 let deg = |i: usize| (p[i].round() as i64 - b.home[e][i]) as f64 * 360.0 / COUNTS_PER_REV as f64;
-                let _ =
-                    track.push(EncoderSample { t_s: self.next_ns as f64 * 1e-9, theta_deg: [deg(0), deg(1), deg(2)] });
+                push(e, EncoderSample { t_s: self.next_ns as f64 * 1e-9, theta_deg: [deg(0), deg(1), deg(2)] });
             }
             b.last_record_ns = Some(self.next_ns);
             self.next_ns += ENCODER_PERIOD_NS;

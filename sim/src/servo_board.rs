@@ -147,9 +147,9 @@ impl ServoBoard {
 mod tests {
     use super::*;
     use abvs_eye::saccade::{MinJerk, PEAK_SPEED_DEG_S};
-    use abvs_runtime::session::EncoderRecord;
     use abvs_runtime::sources::encoder_link::BoardFrame;
     use abvs_runtime::sources::encoder_stream::EncoderTracker;
+    use abvs_runtime_core::session::EncoderRecord;
 
     #[test]
     fn homes_then_executes_a_minimum_jerk_move() {

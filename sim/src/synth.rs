@@ -36,8 +36,8 @@ use nalgebra::{Isometry3, Matrix3, Point3, Rotation3, Translation3, UnitQuaterni
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
-use abvs_runtime::error::{Result, RuntimeError};
-use abvs_runtime::session::{EncoderRecord, FrameRecord, Session, SessionMeta, Truth, SESSION_FORMAT};
+use abvs_runtime_core::error::{Result, RuntimeError};
+use abvs_runtime_core::session::{EncoderRecord, FrameRecord, Session, SessionMeta, Truth, SESSION_FORMAT};
 
 use crate::gaze_plan::GazePlan;
 

@@ -18,14 +18,15 @@ use abvs_eye::{Pose, UnitModel};
 use abvs_render::Scene;
 use nalgebra::{Point3, UnitQuaternion, Vector2, Vector3};
 
-use abvs_runtime::error::{Result, RuntimeError};
-use abvs_runtime::messages::FoveaFrame;
-use abvs_runtime::pipeline::{Published, Sink};
-use abvs_runtime::session::{Session, SessionMeta};
-use abvs_runtime::sinks::stats::{DepthError, RunStats};
 use abvs_runtime::sources::replay::ReplaySource;
 use abvs_runtime::tasks::motion::RowRotations;
 use abvs_runtime::tasks::rectify::source_pixel;
+use abvs_runtime_core::error::{Result, RuntimeError};
+use abvs_runtime_core::messages::FoveaFrame;
+use abvs_runtime_core::messages::Published;
+use abvs_runtime_core::session::{Session, SessionMeta};
+use abvs_runtime_core::sink::Sink;
+use abvs_runtime_core::stats::{DepthError, RunStats};
 
 /// The confidence above which a point counts as confident in `depth_error_by_confidence`.
 pub const HIGH_CONFIDENCE: f32 = 0.8;
@@ -213,7 +214,7 @@ impl TruthSink {
         if let Some((seq, _, _)) = nodes.next() {
             return Err(RuntimeError::Invalid(format!("truth row poses: seq {seq} has no frame in {}", pp.display())));
         }
-        let camera = abvs_runtime::pipeline::camera_for_frames(&stereo.left, meta.width, meta.height)?;
+        let camera = abvs_runtime::tasks::rectify::camera_for_frames(&stereo.left, meta.width, meta.height)?;
         Ok(Some(TruthSink {
             scene,
             camera,
@@ -233,7 +234,8 @@ impl TruthSink {
     /// feed by seq as it renders them.
     pub fn for_head(source: &crate::head::SimSource, stride: usize) -> Result<TruthSink> {
         let head = source.head();
-        let camera = abvs_runtime::pipeline::camera_for_frames(&head.stereo.left, head.spec.width, head.spec.height)?;
+        let camera =
+            abvs_runtime::tasks::rectify::camera_for_frames(&head.stereo.left, head.spec.width, head.spec.height)?;
         Ok(TruthSink {
             scene: crate::synth::scene(head.spec.seed)?,
             camera,

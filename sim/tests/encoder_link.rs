@@ -74,8 +74,8 @@ fn clock_map_recovers_board_time_under_latency_jitter() {
 /// board replays from power-on, sequence and clock from zero) both eyes home again.
 #[test]
 fn tracker_homes_maps_and_rehomes_after_a_board_reset() {
-    use abvs_runtime::session::Session;
     use abvs_runtime::sources::encoder_stream::EncoderTracker;
+    use abvs_runtime_core::session::Session;
     use abvs_sim::board::SessionBoard;
     let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../fixtures/session");
     let session = Session::open(&dir).unwrap();

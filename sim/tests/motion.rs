@@ -12,13 +12,16 @@ use std::path::Path;
 use std::sync::{Arc, Mutex};
 
 use abvs_camera::StereoCalibration;
-use abvs_runtime::pipeline::{run_replay, MotionConfig, PipelineConfig, Published, Sink};
-use abvs_runtime::session::Session;
-use abvs_runtime::sinks::stats::RunStats;
+use abvs_runtime::pipeline::{run_replay, PipelineConfig};
 use abvs_runtime::sources::replay::ReplaySource;
 use abvs_runtime::tasks::disparity;
 use abvs_runtime::tasks::kinematics::{EyeFk, StereoKinematics};
-use abvs_runtime::tasks::rectify::RectifiedCamera;
+use abvs_runtime_core::messages::Published;
+use abvs_runtime_core::messages::RectifiedCamera;
+use abvs_runtime_core::params::MotionConfig;
+use abvs_runtime_core::session::Session;
+use abvs_runtime_core::sink::Sink;
+use abvs_runtime_core::stats::RunStats;
 use abvs_sim::synth::{generate, SessionSpec};
 use abvs_sim::truth::TruthSink;
 use serde_json::Value;
@@ -52,7 +55,7 @@ impl Sink for Watch {
     fn name(&self) -> &'static str {
         "watch"
     }
-    fn consume(&mut self, out: &Published) -> abvs_runtime::Result<()> {
+    fn consume(&mut self, out: &Published) -> abvs_runtime_core::error::Result<()> {
         let m = out.motion;
         let all_nan = out.depth.depth.iter().all(|d| d.is_nan());
         self.seen.lock().unwrap().push((m.max_speed_deg_s(), m.blur_px, m.gated, out.depth.n_points, all_nan));

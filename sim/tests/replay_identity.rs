@@ -6,12 +6,14 @@ use std::process::Command;
 use std::sync::{Arc, Mutex};
 
 use abvs_camera::StereoCalibration;
-use abvs_runtime::pipeline::{run_replay, PipelineConfig, Published, Sink};
-use abvs_runtime::session::Session;
-use abvs_runtime::sinks::stats::{DepthError, RunStats};
+use abvs_runtime::pipeline::{run_replay, PipelineConfig};
 use abvs_runtime::sources::replay::ReplaySource;
 use abvs_runtime::tasks::disparity;
 use abvs_runtime::tasks::kinematics::{EyeFk, StereoKinematics};
+use abvs_runtime_core::messages::Published;
+use abvs_runtime_core::session::Session;
+use abvs_runtime_core::sink::Sink;
+use abvs_runtime_core::stats::{DepthError, RunStats};
 use abvs_sim::truth::TruthSink;
 
 fn fixture() -> PathBuf {
@@ -29,7 +31,7 @@ impl Sink for PerFrame {
     fn name(&self) -> &'static str {
         "per-frame truth"
     }
-    fn consume(&mut self, out: &Published) -> abvs_runtime::Result<()> {
+    fn consume(&mut self, out: &Published) -> abvs_runtime_core::error::Result<()> {
         self.truth.consume(out)?;
         let (now, last) = (self.truth.error(), self.last);
         self.frames.lock().unwrap().push((

@@ -9,7 +9,7 @@ use std::path::Path;
 /// The crates the robot never links: training, experiments, rendering, simulation, plots.
 const TOOLKIT: [&str; 6] = ["abvs-calib", "abvs-render", "abvs-plot", "abvs-sim", "abvs-paper", "abvs-camcal"];
 /// The crates that run on the robot.
-const ONBOARD: [&str; 5] = ["abvs-runtime", "abvs-eye", "abvs-fk", "abvs-camera", "abvs-onnx"];
+const ONBOARD: [&str; 6] = ["abvs-runtime", "abvs-runtime-core", "abvs-eye", "abvs-fk", "abvs-camera", "abvs-onnx"];
 
 /// Each workspace crate's name and the `abvs-*` crates of its `[dependencies]`.
 fn workspace_graph() -> BTreeMap<String, BTreeSet<String>> {
@@ -52,4 +52,52 @@ fn what_runs_on_the_robot_links_no_toolkit_crate() {
     // the walk finds what is there: the program links both sides
     let cli = closure(&graph, "abvs");
     assert!(TOOLKIT.iter().all(|t| cli.contains(*t)), "the abvs program links every toolkit crate: {cli:?}");
+}
+
+/// Each package's normal (not dev, not build) dependencies as cargo resolved them for the workspace
+/// (`cargo metadata`: the real closure, crates.io included, under the features the workspace turns on).
+fn resolved_normal_graph() -> BTreeMap<String, BTreeSet<String>> {
+    let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
+    let out = std::process::Command::new(cargo)
+        .args(["metadata", "--format-version", "1", "--offline", "--locked"])
+        .current_dir(&root)
+        .output()
+        .expect("cargo metadata runs");
+    assert!(out.status.success(), "cargo metadata: {}", String::from_utf8_lossy(&out.stderr));
+    let meta: serde_json::Value = serde_json::from_slice(&out.stdout).expect("cargo metadata's JSON");
+    let name_of: BTreeMap<&str, &str> = meta["packages"]
+        .as_array()
+        .expect("packages")
+        .iter()
+        .map(|p| (p["id"].as_str().expect("id"), p["name"].as_str().expect("name")))
+        .collect();
+    let mut graph = BTreeMap::new();
+    for node in meta["resolve"]["nodes"].as_array().expect("resolve.nodes") {
+        let deps = node["deps"]
+            .as_array()
+            .expect("deps")
+            .iter()
+            .filter(|d| d["dep_kinds"].as_array().is_some_and(|k| k.iter().any(|k| k["kind"].is_null())))
+            .map(|d| name_of[d["pkg"].as_str().expect("pkg")].to_string())
+            .collect();
+        graph.insert(name_of[node["id"].as_str().expect("id")].to_string(), deps);
+    }
+    graph
+}
+
+/// The runtime's whole normal dependency closure (crates.io included) holds no toolkit crate, and the bottom
+/// crate's holds none of the heavy backends (OpenCV, ONNX Runtime, iceoryx2, Zenoh) nor the runtime itself.
+#[test]
+fn resolved_closures_hold_no_toolkit_and_core_no_backend() {
+    let graph = resolved_normal_graph();
+    let runtime = closure(&graph, "abvs-runtime");
+    let bad: Vec<&str> = TOOLKIT.iter().copied().filter(|t| runtime.contains(*t)).collect();
+    assert!(bad.is_empty(), "abvs-runtime's resolved closure holds the toolkit: {bad:?}");
+    // the walk sees crates.io crates: the runtime links OpenCV and iceoryx2
+    assert!(runtime.contains("opencv") && runtime.contains("iceoryx2"), "{runtime:?}");
+    let core = closure(&graph, "abvs-runtime-core");
+    let heavy = ["opencv", "ort", "iceoryx2", "zenoh", "abvs-runtime", "abvs-fk", "abvs-onnx", "abvs-camera"];
+    let bad: Vec<&str> = heavy.iter().copied().filter(|t| core.contains(*t)).collect();
+    assert!(bad.is_empty(), "abvs-runtime-core's resolved closure holds {bad:?}");
 }

@@ -1,9 +1,9 @@
 //! A stand-in camera for the live-head tests (gaze_live, gaze_access): one picture, delivered in real time.
 use std::time::Duration;
 
-use abvs_runtime::sinks::stats::monotonic_ns;
 use abvs_runtime::sources::v4l_capture::{CaptureError, FrameSource};
-use abvs_runtime::sources::Frame;
+use abvs_runtime_core::messages::monotonic_ns;
+use abvs_runtime_core::messages::Frame;
 
 pub const PERIOD_NS: i64 = 40_000_000;
 pub const EXPOSURE_NS: i64 = 8_000_000;

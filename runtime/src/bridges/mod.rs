@@ -2,6 +2,9 @@
 //! over Zenoh to others).
 pub mod iceoryx;
 pub mod publish;
+#[cfg(feature = "zenoh")]
 pub mod rmw_zenoh;
+#[cfg(feature = "zenoh")]
 pub mod zenoh;
+#[cfg(feature = "zenoh")]
 pub mod zenoh_gaze;

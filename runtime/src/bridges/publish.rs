@@ -4,10 +4,10 @@
 use abvs_eye::Pose;
 
 use crate::bridges::iceoryx::{check_shm_space, BridgeConfig, CloudPoint, FrameHeader, Publisher, CONFIDENCE_TOPIC};
-use crate::error::{Result, RuntimeError};
-use crate::messages::Published;
-use crate::sinks::Sink;
-use crate::stats::RunStats;
+use abvs_runtime_core::error::{Result, RuntimeError};
+use abvs_runtime_core::messages::Published;
+use abvs_runtime_core::sink::Sink;
+use abvs_runtime_core::stats::RunStats;
 
 /// Publishes every finished frame on the iceoryx2 services (see the module docs).
 pub struct PublishSink {
@@ -33,7 +33,7 @@ impl PublishSink {
     }
 
     fn open(config: BridgeConfig, confidence: bool) -> Result<PublishSink> {
-        let err = |e: crate::bridges::iceoryx::BridgeError| RuntimeError::Invalid(e.to_string());
+        let err = |e: crate::bridges::iceoryx::BridgeError| RuntimeError::Ipc(Box::new(e));
         // every topic's shared memory at once (each publisher checks its own as it is created)
         let maps = if confidence { 2 } else { 1 };
         let all = maps * config.publisher_bytes::<f32>() + config.publisher_bytes::<CloudPoint>();
@@ -53,7 +53,7 @@ impl PublishSink {
 
     /// Also the fovea's depth and cloud, on services sized for its `width` x `height` window.
     pub fn with_fovea(mut self, width: u32, height: u32) -> Result<PublishSink> {
-        let err = |e: crate::bridges::iceoryx::BridgeError| RuntimeError::Invalid(e.to_string());
+        let err = |e: crate::bridges::iceoryx::BridgeError| RuntimeError::Ipc(Box::new(e));
         let cfg = BridgeConfig { max_width: width, max_height: height, ..self.config.clone() };
         self.fovea = Some((Publisher::fovea(&cfg).map_err(err)?, Publisher::fovea(&cfg).map_err(err)?));
         Ok(self)
@@ -79,7 +79,7 @@ impl Sink for PublishSink {
     }
 
     fn consume(&mut self, out: &Published) -> Result<()> {
-        let err = |e: crate::bridges::iceoryx::BridgeError| RuntimeError::Invalid(e.to_string());
+        let err = |e: crate::bridges::iceoryx::BridgeError| RuntimeError::Ipc(Box::new(e));
         let mut h = FrameHeader::new_left_home();
         h.seq = out.seq;
         h.t_frame_ns = out.t_frame_ns;

@@ -14,47 +14,19 @@
 //! The QoS in a token is rmw's enum values ([`Qos::encode`]); the runtime's publishers are sensor data
 //! (best effort, volatile, keep last 5: rclcpp's `SensorDataQoS`), what `ros2 topic echo` and rviz
 //! subscribe with for images and clouds.
-use serde::{Deserialize, Serialize};
 use sha2::{Digest, Sha256};
 use zenoh::liveliness::LivelinessToken;
 use zenoh::{Session, Wait};
 
+use abvs_runtime_core::config::RosDistro;
+
 use crate::ros2::Topic;
 
-/// The Zenoh key names of the ROS 2 messages (`[bridges.zenoh] keys`, `--ros2-keys`).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
-#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
-#[serde(rename_all = "kebab-case")]
-pub enum Ros2Keys {
-    /// zenoh-bridge-ros2dds's: the topic without its leading slash (`abvs/depth`), plain CDR samples.
-    #[default]
-    Bridge,
-    /// rmw_zenoh's: typed keys, liveliness tokens and attachments (this module).
-    RmwZenoh,
-}
-
-/// The ROS 2 distribution the rmw_zenoh keys are for: it decides the type hashes (`[bridges.zenoh] distro`,
-/// `--ros-distro`). A subscriber never matches a key with another hash.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
-#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
-#[serde(rename_all = "lowercase")]
-pub enum RosDistro {
-    /// Humble: no type hashes (`TypeHashNotSupported`).
-    Humble,
-    /// Jazzy (the current LTS): RIHS01 hashes.
-    #[default]
-    Jazzy,
-    /// Kilted: RIHS01 hashes, the same as Jazzy's for the five published types.
-    Kilted,
-}
-
-impl RosDistro {
-    /// The hash field of `topic`'s keys and tokens.
-    pub fn type_hash(self, topic: &Topic) -> &'static str {
-        match self {
-            RosDistro::Humble => "TypeHashNotSupported",
-            RosDistro::Jazzy | RosDistro::Kilted => topic.rihs01,
-        }
+/// The hash field of `topic`'s keys and tokens under `distro`.
+pub fn type_hash(distro: RosDistro, topic: &Topic) -> &'static str {
+    match distro {
+        RosDistro::Humble => "TypeHashNotSupported",
+        RosDistro::Jazzy | RosDistro::Kilted => topic.rihs01,
     }
 }
 
@@ -113,23 +85,6 @@ pub fn mangle(name: &str) -> String {
 /// The data key of `topic` (`/abvs/depth`) with type `dds_type` and hash `hash` in `domain`.
 pub fn topic_key(domain: u32, topic: &str, dds_type: &str, hash: &str) -> String {
     format!("{domain}/{}/{dds_type}/{hash}", topic.trim_matches('/'))
-}
-
-/// A node name or namespace that ROS 2 refuses (rcl's rules: names of letters, digits and `_`, not
-/// starting with a digit; a namespace `/` or `/` + such names joined by `/`).
-pub fn check_node(name: &str, namespace: &str) -> Result<(), String> {
-    let token_ok = |t: &str| {
-        t.chars().next().is_some_and(|c| c.is_ascii_alphabetic() || c == '_')
-            && t.chars().all(|c| c.is_ascii_alphanumeric() || c == '_')
-    };
-    if !token_ok(name) {
-        return Err(format!("node: `{name}` is not a ROS 2 node name (letters, digits, `_`; no digit first)"));
-    }
-    let ns_ok = namespace == "/" || namespace.strip_prefix('/').is_some_and(|r| r.split('/').all(token_ok));
-    if !ns_ok {
-        return Err(format!("namespace: `{namespace}` is not `/` or `/name[/name...]` (letters, digits, `_`)"));
-    }
-    Ok(())
 }
 
 /// One entity's keys: where its samples go, its liveliness token and its GID.
@@ -207,7 +162,7 @@ impl Node {
         distro: RosDistro,
         qos: Qos,
     ) -> zenoh::Result<(Endpoint, LivelinessToken)> {
-        let e = self.endpoint(kind, topic.topic, &topic.dds_type(), distro.type_hash(topic), qos);
+        let e = self.endpoint(kind, topic.topic, &topic.dds_type(), type_hash(distro, topic), qos);
         let token = session.liveliness().declare_token(e.token.clone()).wait()?;
         Ok((e, token))
     }
@@ -236,12 +191,12 @@ mod tests {
     fn keys_tokens_and_attachment() {
         let depth = &TOPICS[0];
         assert_eq!(
-            topic_key(0, depth.topic, &depth.dds_type(), RosDistro::Jazzy.type_hash(depth)),
+            topic_key(0, depth.topic, &depth.dds_type(), type_hash(RosDistro::Jazzy, depth)),
             "0/abvs/depth/sensor_msgs::msg::dds_::Image_/\
              RIHS01_d31d41a9a4c4bc8eae9be757b0beed306564f7526c88ea6a4588fb9582527d47"
         );
-        assert_eq!(RosDistro::Humble.type_hash(depth), "TypeHashNotSupported");
-        assert_eq!(RosDistro::Kilted.type_hash(&TOPICS[2]), RosDistro::Jazzy.type_hash(&TOPICS[2]));
+        assert_eq!(type_hash(RosDistro::Humble, depth), "TypeHashNotSupported");
+        assert_eq!(type_hash(RosDistro::Kilted, &TOPICS[2]), type_hash(RosDistro::Jazzy, &TOPICS[2]));
         let mut n = Node::new(7, "a1b2".into(), "/", "abvs");
         assert_eq!(n.token(), "@ros2_lv/7/a1b2/0/0/NN/%/%/abvs");
         let tf = &TOPICS[3];
@@ -272,16 +227,5 @@ mod tests {
         assert_eq!(&a[8..16], &(-2i64).to_le_bytes());
         assert_eq!(a[16], 0x10);
         assert_eq!(&a[17..], &p.gid);
-    }
-
-    #[test]
-    fn node_names() {
-        assert!(check_node("abvs", "/").is_ok() && check_node("_eyes2", "/robot/head_1").is_ok());
-        for (name, ns) in
-            [("2abvs", "/"), ("ab-vs", "/"), ("", "/"), ("abvs", ""), ("abvs", "robot"), ("abvs", "/a//b")]
-        {
-            assert!(check_node(name, ns).is_err(), "{name:?} {ns:?}");
-        }
-        assert!(check_node("abvs", "/robot/").is_err());
     }
 }

@@ -11,7 +11,7 @@
 //! peer with Zenoh's defaults) plus the endpoints of `--zenoh-connect` and `--zenoh-listen` (peers retry an
 //! endpoint that is not up yet in the background, so the runtime starts without its consumers); the gaze
 //! topics share it (`super::zenoh_gaze`, which also says who may send goals). Publishing runs on the
-//! sink's own thread ([`Ros2OutSink`]): the network may block that thread (congestion control `Block`,
+//! sink's own thread ([`crate::sinks::ros2_out::Ros2OutSink`]): the network may block that thread (congestion control `Block`,
 //! so a large cloud is never half-dropped), never the pipeline, whose frames wait in a bounded queue
 //! that drops the oldest (counted in the stats under `zenoh`).
 //!
@@ -26,14 +26,12 @@ use ::zenoh::pubsub::Publisher;
 use ::zenoh::qos::CongestionControl;
 use ::zenoh::{Config, Session, Wait};
 
-use super::rmw_zenoh::{self, EntityKind, Qos, Ros2Keys};
-use crate::config::ZenohSettings;
-use crate::error::RuntimeError;
+use super::rmw_zenoh::{self, EntityKind, Qos};
 use crate::ros2::{topics, Cdr, Topic};
 use crate::sinks::ros2_out::{OutputError, Ros2Writer};
-
-/// Frames the publisher may fall behind by before the oldest is dropped: the newest matter on a network.
-pub const DEFAULT_QUEUE: usize = 4;
+use abvs_runtime_core::config::Ros2Keys;
+use abvs_runtime_core::config::ZenohSettings;
+use abvs_runtime_core::error::RuntimeError;
 
 /// One publisher per topic, and in the rmw_zenoh format what its samples carry.
 struct Output {
@@ -51,12 +49,12 @@ pub struct ZenohWriter {
     session: Session,
 }
 
-fn err(what: &str, e: impl std::fmt::Display) -> RuntimeError {
-    RuntimeError::Invalid(format!("zenoh: {what}: {e}"))
+fn err(what: &str, e: impl Into<Box<dyn std::error::Error + Send + Sync>>) -> RuntimeError {
+    RuntimeError::Transport { what: format!("zenoh: {what}"), source: e.into() }
 }
 
 /// The session's configuration: `config_file` (or Zenoh's defaults), then `connect` endpoints added.
-pub fn config(config_file: Option<&Path>, connect: &[String]) -> crate::Result<Config> {
+pub fn config(config_file: Option<&Path>, connect: &[String]) -> abvs_runtime_core::error::Result<Config> {
     let mut c = match config_file {
         Some(p) => Config::from_file(p).map_err(|e| err(&format!("configuration {}", p.display()), e))?,
         None => Config::default(),
@@ -72,13 +70,13 @@ impl ZenohWriter {
     /// Opens the session and declares a publisher per topic (the main five, and the fovea's three when
     /// `fovea`) with the key layout of `settings` (in the rmw_zenoh format also the node's and the
     /// publishers' liveliness tokens).
-    pub fn open(config: Config, settings: &ZenohSettings, fovea: bool) -> crate::Result<ZenohWriter> {
+    pub fn open(config: Config, settings: &ZenohSettings, fovea: bool) -> abvs_runtime_core::error::Result<ZenohWriter> {
         let session = ::zenoh::open(config).wait().map_err(|e| err("opening the session", e))?;
         Self::on_session(session, settings, fovea)
     }
 
     /// The same on an open session (shared with the gaze topics, `bridges::zenoh_gaze`).
-    pub fn on_session(session: Session, settings: &ZenohSettings, fovea: bool) -> crate::Result<ZenohWriter> {
+    pub fn on_session(session: Session, settings: &ZenohSettings, fovea: bool) -> abvs_runtime_core::error::Result<ZenohWriter> {
         let mut node =
             rmw_zenoh::Node::new(settings.domain, session.zid().to_string(), &settings.namespace, &settings.node);
         let mut tokens = Vec::new();

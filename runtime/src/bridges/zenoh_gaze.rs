@@ -32,13 +32,15 @@ use ::zenoh::qos::CongestionControl;
 use ::zenoh::{Config, Session, Wait};
 use serde::Deserialize;
 
-use super::rmw_zenoh::{self, EntityKind, Qos, Ros2Keys};
-use crate::config::ZenohSettings;
-use crate::error::RuntimeError;
-use crate::gaze::{GazeState, Goal, GoalKind, GoalSource, Mailbox};
-use crate::messages::Published;
+use super::rmw_zenoh::{self, EntityKind, Qos};
+use crate::gaze::{Goal, GoalKind, Mailbox};
 use crate::ros2::{Topic, HEAD_FRAME};
-use crate::stats::RunStats;
+use abvs_runtime_core::config::Ros2Keys;
+use abvs_runtime_core::config::ZenohSettings;
+use abvs_runtime_core::error::RuntimeError;
+use abvs_runtime_core::gaze::{GazeState, GoalSource};
+use abvs_runtime_core::messages::Published;
+use abvs_runtime_core::stats::RunStats;
 
 /// The goal topic and the state topic.
 pub const TOPICS: [Topic; 2] = [
@@ -72,13 +74,17 @@ pub const MAX_GOAL_BYTES: usize = 1024;
 /// rmw_zenoh entity ids of the gaze topics: after the ROS 2 outputs' node (0) and publishers (1-8).
 const FIRST_ENTITY_ID: u32 = 16;
 
-fn err(what: &str, e: impl std::fmt::Display) -> RuntimeError {
-    RuntimeError::Invalid(format!("zenoh: {what}: {e}"))
+fn err(what: &str, e: impl Into<Box<dyn std::error::Error + Send + Sync>>) -> RuntimeError {
+    RuntimeError::Transport { what: format!("zenoh: {what}"), source: e.into() }
 }
 
 /// Where the runtime takes gaze goals from, for the start-up line; or the refusal to start, naming the
 /// configuration key, when Zenoh goals are on without authentication or access control and not `insecure`.
-pub fn goal_access(settings: &ZenohSettings, config: &Config, iceoryx: bool) -> crate::Result<String> {
+pub fn goal_access(
+    settings: &ZenohSettings,
+    config: &Config,
+    iceoryx: bool,
+) -> abvs_runtime_core::error::Result<String> {
     let local = if iceoryx {
         "this machine (iceoryx2 `gaze/goal`, the Rust handle)"
     } else {
@@ -234,7 +240,7 @@ impl ZenohGaze {
         settings: &ZenohSettings,
         mailbox: Arc<Mailbox>,
         node_declared: bool,
-    ) -> crate::Result<ZenohGaze> {
+    ) -> abvs_runtime_core::error::Result<ZenohGaze> {
         let mut node =
             rmw_zenoh::Node::new(settings.domain, session.zid().to_string(), &settings.namespace, &settings.node);
         node.skip_to(FIRST_ENTITY_ID);
@@ -318,12 +324,12 @@ impl ZenohGaze {
     }
 }
 
-impl crate::sinks::Sink for ZenohGaze {
+impl abvs_runtime_core::sink::Sink for ZenohGaze {
     fn name(&self) -> &'static str {
         "zenoh gaze"
     }
 
-    fn consume(&mut self, out: &Published) -> crate::Result<()> {
+    fn consume(&mut self, out: &Published) -> abvs_runtime_core::error::Result<()> {
         state_json(&mut self.json, &out.motion.gaze, out.t_frame_ns, out.motion.gated);
         string_cdr(&mut self.cdr, &self.json);
         let put = self.states.put(&self.cdr[..]);
@@ -369,7 +375,7 @@ impl crate::sinks::Sink for ZenohGaze {
 
 /// The session of `[bridges.zenoh]`: its configuration file (a relative user/password dictionary is
 /// relative to that file), plus `connect` and `listen` endpoints.
-pub fn config(settings: &ZenohSettings) -> crate::Result<Config> {
+pub fn config(settings: &ZenohSettings) -> abvs_runtime_core::error::Result<Config> {
     let mut c = super::zenoh::config(settings.config.as_deref(), &settings.connect)?;
     const DICT: &str = "transport/auth/usrpwd/dictionary_file";
     let dict = c.get_json(DICT).ok().and_then(|j| serde_json::from_str::<Option<String>>(&j).ok().flatten());

@@ -12,8 +12,9 @@ use abvs_fk::model::{FkModel, FkState};
 use hdrhistogram::Histogram;
 use nalgebra::Vector3;
 
-use super::{GazeConfig, GazeState, Goal, GoalKind, Phase, Refusal};
-use crate::sources::board::BoardLink;
+use super::{GazeConfig, Goal, GoalKind};
+use abvs_runtime_core::gaze::{GazeState, Phase, Refusal};
+use abvs_runtime_core::source::BoardLink;
 
 /// Largest pitch (alpha) and yaw (gamma) of an eye's orientation (deg, Fick).
 pub const PITCH_YAW_LIMIT_DEG: f64 = 30.0;

@@ -5,77 +5,10 @@
 //! motors: a goal taken while the bucket is empty waits (the newest one only, in [`GoalGate`]) until a token
 //! comes; one replaced while it waits is counted as `rate_limited` under its source. The controller's
 //! refusals then apply to every goal as before, and are counted per source too.
-use serde::{Deserialize, Serialize};
+use abvs_runtime_core::gaze::GoalSource;
+use abvs_runtime_core::params::RateLimit;
 
 use super::{Goal, Mailbox};
-
-/// Where a goal came from.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-#[repr(u8)]
-pub enum GoalSource {
-    /// The running runtime's [`super::GazeHandle`] (the robot's own process).
-    Rust = 1,
-    /// The iceoryx2 service `{prefix}/gaze/goal` (a process on this machine).
-    Iceoryx2 = 2,
-    /// `/abvs/gaze/goal` over Zenoh (another machine; off unless `[bridges.zenoh] accept_gaze_goals`).
-    Zenoh = 3,
-}
-
-impl GoalSource {
-    /// Every source, in wire order.
-    pub const ALL: [GoalSource; 3] = [GoalSource::Rust, GoalSource::Iceoryx2, GoalSource::Zenoh];
-
-    /// Its name in the statistics and the Zenoh state.
-    pub fn name(self) -> &'static str {
-        match self {
-            GoalSource::Rust => "rust",
-            GoalSource::Iceoryx2 => "iceoryx2",
-            GoalSource::Zenoh => "zenoh",
-        }
-    }
-
-    /// Index in [`GoalSource::ALL`].
-    pub fn index(self) -> usize {
-        self as usize - 1
-    }
-}
-
-/// The goals the controller executes per second, whoever sends them (`[gaze] max_goals_per_s`, `goal_burst`).
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields, default)]
-pub struct RateLimit {
-    /// Sustained goals per second. 20: a person makes 3-4 saccades a second, and a pursuit target updated at
-    /// the camera's 25 fps still fits with the burst.
-    pub max_goals_per_s: f64,
-    /// Goals that may come back to back (the bucket's size).
-    pub goal_burst: u32,
-}
-
-impl Default for RateLimit {
-    fn default() -> Self {
-        RateLimit { max_goals_per_s: 20.0, goal_burst: 4 }
-    }
-}
-
-impl RateLimit {
-    /// Values the limit cannot run with, named by their `[gaze]` field.
-    #[allow(clippy::neg_cmp_op_on_partial_ord)] // refuses NaN too
-    pub fn check(&self) -> Result<(), String> {
-        if !(self.max_goals_per_s > 0.0 && self.max_goals_per_s <= 10_000.0) {
-            return Err(format!("gaze.max_goals_per_s: {} must be in (0, 10000]", self.max_goals_per_s));
-        }
-        if !(1..=1000).contains(&self.goal_burst) {
-            return Err(format!("gaze.goal_burst: {} must be in 1..=1000", self.goal_burst));
-        }
-        Ok(())
-    }
-
-    /// The most goals it lets through in `seconds` (starting full).
-    pub fn most_in(&self, seconds: f64) -> u64 {
-        (self.max_goals_per_s * seconds).floor() as u64 + u64::from(self.goal_burst)
-    }
-}
 
 /// What the gate counted for one source.
 #[derive(Debug, Clone, Copy, Default)]

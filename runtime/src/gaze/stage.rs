@@ -1,19 +1,21 @@
 //! The gaze stage: the controller once per frame, after kinematics (which solved the frame's poses). It
 //! takes the newest goal, measures where the eyes look, gates frames exposed during a commanded saccade, and
-//! writes the frame's [`GazeState`] into [`crate::messages::FrameMotion::gaze`] (and the mailbox's latest).
+//! writes the frame's [`GazeState`] into [`abvs_runtime_core::messages::FrameMotion::gaze`] (and the mailbox's latest).
 use std::sync::Arc;
 
 use abvs_eye::Pose;
 use nalgebra::Vector3;
 
 use super::controller::GazeController;
-use super::limit::{GoalGate, RateLimit};
-use super::{GazeState, Mailbox};
-use crate::error::Result;
-use crate::messages::{monotonic_ns, StereoPose, Work};
-use crate::sources::board::BoardLink;
-use crate::stage::{Stage, StageContext};
-use crate::stats::RunStats;
+use super::limit::GoalGate;
+use super::Mailbox;
+use abvs_runtime_core::error::Result;
+use abvs_runtime_core::gaze::GazeState;
+use abvs_runtime_core::messages::{monotonic_ns, StereoPose, Work};
+use abvs_runtime_core::params::RateLimit;
+use abvs_runtime_core::source::BoardLink;
+use abvs_runtime_core::stage::{Stage, StageContext};
+use abvs_runtime_core::stats::RunStats;
 
 /// See the module doc.
 pub struct GazeStage {
@@ -89,14 +91,14 @@ impl Stage for GazeStage {
     }
 
     fn process(&mut self, w: &mut Work) -> Result<()> {
-        let t0 = crate::cpu::thread_cpu_ns();
+        let t0 = abvs_runtime_core::cpu::thread_cpu_ns();
         self.step(w);
-        self.cpu_ns += crate::cpu::thread_cpu_ns() - t0;
+        self.cpu_ns += abvs_runtime_core::cpu::thread_cpu_ns() - t0;
         self.frames += 1;
         Ok(())
     }
 
-    fn failure(&self, _e: &crate::error::RuntimeError) -> &'static str {
+    fn failure(&self, _e: &abvs_runtime_core::error::RuntimeError) -> &'static str {
         "gaze failed"
     }
 

@@ -3,9 +3,9 @@
 //! not for the real-time path.
 use std::path::PathBuf;
 
-use crate::error::{Result, RuntimeError};
-use crate::messages::Published;
-use crate::sinks::Sink;
+use abvs_runtime_core::error::{Result, RuntimeError};
+use abvs_runtime_core::messages::Published;
+use abvs_runtime_core::sink::Sink;
 
 /// Writes `frame_{seq}.png` per frame: rectified left, rectified right, depth and the cloud's top view side
 /// by side.

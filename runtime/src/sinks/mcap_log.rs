@@ -6,12 +6,9 @@ use std::fs::File;
 use std::io::BufWriter;
 use std::path::Path;
 
-use crate::error::RuntimeError;
+use abvs_runtime_core::error::RuntimeError;
 use crate::ros2::{topics, Cdr, Topic};
 use crate::sinks::ros2_out::{OutputError, Ros2OutSink, Ros2Writer};
-
-/// Frames the recorder may fall behind by before the oldest is dropped (about 0.6 s at 25 fps).
-pub const DEFAULT_QUEUE: usize = 16;
 
 /// The ROS 2 messages written to an MCAP file (profile ros2), one channel per topic.
 pub struct McapWriter {
@@ -27,10 +24,14 @@ pub struct McapWriter {
 impl McapWriter {
     /// Creates `path` (replacing a file there) with a channel and its schema per topic: the main five, and
     /// the fovea's three when `fovea`.
-    pub fn create(path: &Path, fovea: bool) -> crate::Result<McapWriter> {
+    pub fn create(path: &Path, fovea: bool) -> abvs_runtime_core::error::Result<McapWriter> {
         let name = path.display().to_string();
-        let err = |what: &str, e: mcap::McapError| RuntimeError::Invalid(format!("--mcap {name}: {what}: {e}"));
-        let file = File::create(path).map_err(|e| RuntimeError::Invalid(format!("--mcap {name}: {e}")))?;
+        let err = |what: &str, e: mcap::McapError| RuntimeError::Transport {
+            what: format!("--mcap {name}: {what}"),
+            source: Box::new(e),
+        };
+        let file = File::create(path)
+            .map_err(|e| RuntimeError::Transport { what: format!("--mcap {name}"), source: Box::new(e) })?;
         let mut writer = mcap::WriteOptions::new()
             .profile("ros2")
             .library(concat!("abvs ", env!("CARGO_PKG_VERSION")))
@@ -89,6 +90,6 @@ impl Ros2Writer for McapWriter {
 }
 
 /// The MCAP recorder as a pipeline sink (stats key `mcap`), with the fovea's topics when `fovea`.
-pub fn sink(path: &Path, queue: usize, blocking: bool, fovea: bool) -> crate::Result<Ros2OutSink> {
+pub fn sink(path: &Path, queue: usize, blocking: bool, fovea: bool) -> abvs_runtime_core::error::Result<Ros2OutSink> {
     Ros2OutSink::new("mcap", McapWriter::create(path, fovea)?, queue, blocking)
 }

@@ -16,10 +16,10 @@ use std::path::Path;
 use abvs_eye::Pose;
 use rerun::{RecordingStream, RecordingStreamBuilder};
 
-use crate::error::{Result, RuntimeError};
-use crate::messages::Published;
-use crate::sinks::Sink;
-use crate::stats::RunStats;
+use abvs_runtime_core::error::{Result, RuntimeError};
+use abvs_runtime_core::messages::Published;
+use abvs_runtime_core::sink::Sink;
+use abvs_runtime_core::stats::RunStats;
 
 /// Logs every published frame (rectified pair, depth, cloud, camera frustums) to a rerun `.rrd` file.
 pub struct RerunSink {

@@ -10,10 +10,11 @@ use std::time::{Duration, Instant};
 use crossbeam_channel::{bounded, Receiver, Sender, TrySendError};
 use serde::Serialize;
 
-use crate::error::{Result, RuntimeError};
-use crate::pipeline::{Published, Sink};
+use abvs_runtime_core::error::{Result, RuntimeError};
+use abvs_runtime_core::messages::Published;
+use abvs_runtime_core::sink::Sink;
 use crate::ros2::{Cdr, EncodeError, Encoded, FrameSnapshot, Topic};
-use crate::sinks::stats::RunStats;
+use abvs_runtime_core::stats::RunStats;
 
 /// Why a ROS 2 output could not encode or write a frame.
 #[derive(Debug, thiserror::Error)]
@@ -136,7 +137,7 @@ impl Ros2OutSink {
         let worker = std::thread::Builder::new()
             .name(format!("abvs-{name}"))
             .spawn(move || worker(writer, rx, free))
-            .map_err(|e| RuntimeError::Invalid(format!("{name}: starting its thread: {e}")))?;
+            .map_err(|source| RuntimeError::Thread { what: format!("{name}: starting its thread"), source })?;
         Ok(Ros2OutSink {
             name,
             blocking,
@@ -227,9 +228,9 @@ impl Sink for Ros2OutSink {
             self.dropped += 1;
             return Ok(());
         };
-        let cpu0 = crate::cpu::thread_cpu_ns();
+        let cpu0 = abvs_runtime_core::cpu::thread_cpu_ns();
         self.reallocated += snap.fill(out) as u64;
-        self.copy_cpu_ns += crate::cpu::thread_cpu_ns() - cpu0;
+        self.copy_cpu_ns += abvs_runtime_core::cpu::thread_cpu_ns() - cpu0;
         loop {
             match tx.try_send(snap) {
                 Ok(()) => return Ok(()),

@@ -1,4 +1,4 @@
-//! Writes a recorded session (the format of [`crate::session`]) as it is captured: frame PNGs and
+//! Writes a recorded session (the format of [`abvs_runtime_core::session`]) as it is captured: frame PNGs and
 //! rows of frames.csv and encoders.csv appended and flushed as they come, so that a recording cut
 //! short (power, Ctrl-C) keeps everything up to its last second and still opens as a session.
 //!
@@ -12,10 +12,10 @@ use std::path::{Path, PathBuf};
 
 use abvs_camera::StereoCalibration;
 
-use crate::error::{Result, RuntimeError};
-use crate::session::{EncoderRecord, FrameRecord, Session, SessionMeta, SESSION_FILE, SESSION_FORMAT};
-use crate::sources::FramePair;
 use crate::tasks::kinematics::EyeFk;
+use abvs_runtime_core::error::{Result, RuntimeError};
+use abvs_runtime_core::messages::{Frame, FramePair};
+use abvs_runtime_core::session::{EncoderRecord, FrameRecord, Session, SessionMeta, SESSION_FILE, SESSION_FORMAT};
 
 /// The calibration a recording is made with: copied into the session's calib/.
 #[derive(Debug, Clone)]
@@ -61,7 +61,7 @@ fn copy_tree(from: &Path, to: &Path) -> std::io::Result<()> {
 }
 
 /// 8-bit gray PNG straight from the frame buffer, fast compression (25 fps of two eyes on a robot CPU).
-fn write_png(p: &Path, f: &crate::sources::Frame) -> Result<()> {
+fn write_png(p: &Path, f: &Frame) -> Result<()> {
     use image::codecs::png::{CompressionType, FilterType, PngEncoder};
     use image::ImageEncoder;
     if f.gray.len() != f.width as usize * f.height as usize {

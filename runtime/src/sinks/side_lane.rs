@@ -20,10 +20,12 @@ use crossbeam_channel::{bounded, Receiver, Sender};
 use glam::Vec3;
 use serde::Serialize;
 
-use crate::error::{Result, RuntimeError};
-use crate::messages::{DepthFrame, FoveaFrame, FrameMotion, Published, Rectification, RectifiedCamera, StereoPose};
-use crate::sinks::Sink;
-use crate::stats::RunStats;
+use abvs_runtime_core::error::{Result, RuntimeError};
+use abvs_runtime_core::messages::{
+    DepthFrame, FoveaFrame, FrameMotion, Published, Rectification, RectifiedCamera, StereoPose,
+};
+use abvs_runtime_core::sink::Sink;
+use abvs_runtime_core::stats::RunStats;
 
 /// An owned copy of a [`Published`] frame, every field; its buffers are sized once for the largest frame
 /// (`of`) and reused (no allocation per frame). A field added to `Published` is added to `fill` and `view`
@@ -254,7 +256,10 @@ impl<S: Sink + 'static> SideLane<S> {
                 }
                 d
             })
-            .map_err(|e| RuntimeError::Invalid(format!("{name} side lane: starting its thread: {e}")))?;
+            .map_err(|source| RuntimeError::Thread {
+                what: format!("{name} side lane: starting its thread"),
+                source,
+            })?;
         Ok(SideLane {
             name,
             blocking,
@@ -376,7 +381,7 @@ mod tests {
         let (theta, rect) = ([[0.0; 3]; 2], Rectification { rect_from_left: m, rect_from_right: m, baseline_m: 0.06 });
         let img = vec![0u8; 32];
         let disp = vec![0f32; 32];
-        let motion = crate::messages::FrameMotion::new();
+        let motion = abvs_runtime_core::messages::FrameMotion::new();
         let p = Published {
             seq,
             session_seq: seq,

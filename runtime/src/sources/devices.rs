@@ -3,12 +3,12 @@
 //! open them the same way.
 use std::time::{Duration, Instant};
 
-use crate::config::LiveConfig;
-use crate::error::{Result, RuntimeError};
 use crate::sources::encoder_link::open_port;
 use crate::sources::encoder_stream::EncoderStream;
 use crate::sources::pairing::PairerConfig;
 use crate::sources::v4l_capture::{CaptureConfig, RowReference, StereoCapture};
+use abvs_runtime_core::config::LiveConfig;
+use abvs_runtime_core::error::{Result, RuntimeError};
 
 /// Encoder rows the stream's channel holds for a consumer that falls behind.
 const ENCODER_QUEUE: usize = 16_384;

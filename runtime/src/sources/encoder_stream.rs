@@ -20,7 +20,7 @@ use crossbeam_channel::{Receiver, Sender, TrySendError};
 use serde::Serialize;
 
 use super::encoder_link::{BoardFrame, ClockMap, Decoder, LinkEvent, LinkStats};
-use crate::session::EncoderRecord;
+use abvs_runtime_core::session::EncoderRecord;
 
 /// Frames the clock mapping fits over (about 2 s of both eyes at 1 kHz).
 pub const CLOCK_WINDOW: usize = 4000;
@@ -223,7 +223,7 @@ impl EncoderStream {
                         }
                         Err(e) => break Err(format!("encoder port {name}: {e}")),
                     };
-                    let rx_ns = crate::messages::monotonic_ns();
+                    let rx_ns = abvs_runtime_core::messages::monotonic_ns();
                     tracker.feed(&buf[..n], rx_ns, &mut out);
                     if !out.is_empty() {
                         last.store(rx_ns, Ordering::Relaxed);

@@ -5,12 +5,12 @@
 //! the wire.
 use std::time::{Duration, Instant};
 
-use crate::messages::{EncoderSample, SourcePair};
 use crate::sources::encoder_stream::EncoderStream;
 use crate::sources::v4l_capture::{CaptureError, StereoCapture};
-use crate::sources::{EncoderFeed, FramePair, PairSource};
-use crate::stats::RunStats;
-use crate::tasks::align::EncoderTrack;
+use abvs_runtime_core::messages::FramePair;
+use abvs_runtime_core::messages::{EncoderSample, SourcePair};
+use abvs_runtime_core::source::{EncoderFeed, PairSource};
+use abvs_runtime_core::stats::RunStats;
 
 /// How long the time-alignment stage waits for encoder samples that should exist by now.
 pub const ENCODER_WAIT: Duration = Duration::from_millis(30);
@@ -52,7 +52,7 @@ impl LiveSource {
 
     /// Opens the devices `[source.live]` describes ([`crate::sources::devices`]) and waits until both eyes are
     /// homed.
-    pub fn open(l: &crate::config::LiveConfig) -> crate::Result<LiveSource> {
+    pub fn open(l: &abvs_runtime_core::config::LiveConfig) -> abvs_runtime_core::error::Result<LiveSource> {
         let (capture, encoders) = crate::sources::devices::open_devices(l)?;
         crate::sources::devices::wait_for_homing(&encoders, l.homing_timeout_s)?;
         Ok(LiveSource::new(capture, encoders, l.width, l.height))
@@ -71,7 +71,7 @@ impl PairSource for LiveSource {
         (self.width, self.height)
     }
 
-    fn board(&mut self) -> Option<Box<dyn crate::sources::board::BoardLink>> {
+    fn board(&mut self) -> Option<Box<dyn abvs_runtime_core::source::BoardLink>> {
         let board = self.encoders.as_mut()?.take_board()?;
         Some(Box::new(board))
     }
@@ -143,25 +143,25 @@ struct LiveEncoders {
 }
 
 impl LiveEncoders {
-    fn push(&mut self, r: crate::session::EncoderRecord, tracks: &mut [EncoderTrack; 2]) {
+    fn push(&mut self, r: abvs_runtime_core::session::EncoderRecord, push: &mut dyn FnMut(usize, EncoderSample)) {
         let s = r.sample();
         let eye = usize::from(r.eye.min(1));
         self.newest_ns[eye] = self.newest_ns[eye].max(r.t_ns);
-        let _ = tracks[eye].push(EncoderSample { t_s: s.t_s, theta_deg: s.theta_deg });
+        push(eye, EncoderSample { t_s: s.t_s, theta_deg: s.theta_deg });
     }
 }
 
 impl EncoderFeed for LiveEncoders {
-    fn feed(&mut self, t_ns: i64, tracks: &mut [EncoderTrack; 2]) {
+    fn feed(&mut self, t_ns: i64, push: &mut dyn FnMut(usize, EncoderSample)) {
         while let Ok(r) = self.stream.records().try_recv() {
-            self.push(r, tracks);
+            self.push(r, push);
         }
         // Samples up to t_ns may still be in the serial link: wait for them a little.
         let deadline = Instant::now() + ENCODER_WAIT;
         while self.newest_ns.iter().any(|&n| n < t_ns) {
             let left = deadline.saturating_duration_since(Instant::now());
             match self.stream.records().recv_timeout(left) {
-                Ok(r) => self.push(r, tracks),
+                Ok(r) => self.push(r, push),
                 Err(_) => break,
             }
         }

@@ -13,7 +13,7 @@
 //! Memory is bounded by [`PairerConfig::window`] frames per side; nothing panics on any input.
 use std::collections::VecDeque;
 
-use super::{Frame, FramePair};
+use abvs_runtime_core::messages::{Frame, FramePair};
 
 /// Which camera a frame came from.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]

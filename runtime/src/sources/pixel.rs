@@ -127,9 +127,9 @@ pub enum PixelError {
     },
 }
 
-impl From<PixelError> for crate::RuntimeError {
+impl From<PixelError> for abvs_runtime_core::error::RuntimeError {
     fn from(e: PixelError) -> Self {
-        crate::RuntimeError::Invalid(e.to_string())
+        abvs_runtime_core::error::RuntimeError::Capture(Box::new(e))
     }
 }
 

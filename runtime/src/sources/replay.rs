@@ -24,12 +24,11 @@ use std::time::Duration;
 
 use crossbeam_channel::{bounded, Receiver, RecvTimeoutError, Select, Sender};
 
-use crate::error::{Result, RuntimeError};
-use crate::messages::SourcePair;
-use crate::session::{EncoderRecord, FrameRecord, Session, SessionMeta};
-use crate::sources::{EncoderFeed, PairSource};
-use crate::stats::RunStats;
-use crate::tasks::align::{EncoderSample, EncoderTrack};
+use abvs_runtime_core::error::{Result, RuntimeError};
+use abvs_runtime_core::messages::{EncoderSample, SourcePair};
+use abvs_runtime_core::session::{EncoderRecord, FrameRecord, Session, SessionMeta};
+use abvs_runtime_core::source::{EncoderFeed, PairSource};
+use abvs_runtime_core::stats::RunStats;
 
 /// Stereo pairs decoded ahead of the pipeline (each holds both images: 4 x 2 x 1.9 MB at 1600x1200).
 pub const RING: usize = 4;
@@ -142,9 +141,8 @@ pub struct EncoderReplay {
 }
 
 impl EncoderReplay {
-    /// Feeds both eyes' tracks with every encoder sample stamped up to `t_ns` (replay time). Refused samples
-    /// are counted by the tracks.
-    pub fn feed(&mut self, t_ns: i64, tracks: &mut [EncoderTrack; 2]) {
+    /// Hands `push` every encoder sample stamped up to `t_ns` (replay time), with its eye.
+    pub fn feed(&mut self, t_ns: i64, push: &mut dyn FnMut(usize, EncoderSample)) {
         loop {
             if self.next == self.records.len() {
                 self.next = 0;
@@ -156,7 +154,7 @@ impl EncoderReplay {
                 break;
             }
             let s = r.sample();
-            let _ = tracks[r.eye as usize].push(EncoderSample { t_s: t as f64 * 1e-9, theta_deg: s.theta_deg });
+            push(r.eye as usize, EncoderSample { t_s: t as f64 * 1e-9, theta_deg: s.theta_deg });
             self.next += 1;
         }
     }
@@ -466,7 +464,7 @@ impl PairSource for ReplaySource {
 }
 
 impl EncoderFeed for EncoderReplay {
-    fn feed(&mut self, t_ns: i64, tracks: &mut [EncoderTrack; 2]) {
-        EncoderReplay::feed(self, t_ns, tracks)
+    fn feed(&mut self, t_ns: i64, push: &mut dyn FnMut(usize, EncoderSample)) {
+        EncoderReplay::feed(self, t_ns, push)
     }
 }

@@ -29,7 +29,7 @@ use v4l::{Device, FourCC};
 
 use super::pairing::{PairStats, Pairer, PairerConfig, Side};
 use super::pixel::{fourcc_string, GrayConverter, PixelError, PixelFormat};
-use super::{Frame, FramePair};
+use abvs_runtime_core::messages::{Frame, FramePair};
 
 /// `V4L2_BUF_FLAG_ERROR`: the buffer was filled but its data is corrupted.
 pub const BUF_FLAG_ERROR: u32 = 0x0000_0040;
@@ -249,9 +249,9 @@ impl CaptureError {
     }
 }
 
-impl From<CaptureError> for crate::RuntimeError {
+impl From<CaptureError> for abvs_runtime_core::error::RuntimeError {
     fn from(e: CaptureError) -> Self {
-        crate::RuntimeError::Invalid(e.to_string())
+        abvs_runtime_core::error::RuntimeError::Capture(Box::new(e))
     }
 }
 
@@ -294,7 +294,7 @@ pub fn start_of_exposure_ns(
 }
 
 /// The row (fraction of the image) whose start of exposure the stamps fix independently of the readout
-/// ([`crate::messages::SourcePair::readout_anchor`]): the first row for start-of-exposure stamps, the last
+/// ([`abvs_runtime_core::messages::SourcePair::readout_anchor`]): the first row for start-of-exposure stamps, the last
 /// for end-of-frame ones (the readout is subtracted to reach the first row).
 pub fn readout_anchor(source: TimestampSource, reference: RowReference) -> f64 {
     match (source, reference) {

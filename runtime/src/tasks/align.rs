@@ -8,16 +8,17 @@
 //! Interpolation is cubic Hermite with Catmull-Rom slopes (monotone in time, C1): at saccade speed
 //! (1561 deg/s, ~2e5 deg/s^2) linear interpolation between 1 kHz samples errs by up to
 //! `a h^2 / 8` ~ 0.02 deg, the whole error budget; the cubic's error is two orders smaller.
-use crate::error::{Result, RuntimeError};
-use crate::messages::Work;
-use crate::sources::EncoderFeed;
-use crate::stage::{Stage, StageContext};
-use crate::stats::RunStats;
-use crate::tasks::motion::{node_time_ns, MotionConfig, SPEED_DT_S, WIDE_DT_S};
+use crate::tasks::motion::{node_time_ns, SPEED_DT_S, WIDE_DT_S};
 use abvs_eye::UnitModel;
+use abvs_runtime_core::error::{Result, RuntimeError};
+use abvs_runtime_core::messages::Work;
+use abvs_runtime_core::params::MotionConfig;
+use abvs_runtime_core::source::EncoderFeed;
+use abvs_runtime_core::stage::{Stage, StageContext};
+use abvs_runtime_core::stats::RunStats;
 use std::collections::VecDeque;
 
-pub use crate::messages::EncoderSample;
+use abvs_runtime_core::messages::EncoderSample;
 
 /// Counts of what the track refused, for the runtime's statistics.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
@@ -183,7 +184,13 @@ impl Stage for AlignStage {
         if let Some(encoders) = self.encoders.as_mut() {
             // encoders up to a little past the frame's last row (interpolation needs the samples after it)
             let latest = w.t_frame_ns.max(w.t_right_ns) + m.readout_ns / 2 + 20_000_000;
-            encoders.feed(latest + (tracks[0].latency_s.max(tracks[1].latency_s) * 1e9) as i64, tracks);
+            let until = latest + (tracks[0].latency_s.max(tracks[1].latency_s) * 1e9) as i64;
+            // A refused sample is counted by its track.
+            encoders.feed(until, &mut |eye, s| {
+                if let Some(t) = tracks.get_mut(eye) {
+                    let _ = t.push(s);
+                }
+            });
         }
         let bands = self.motion.bands_for(m.readout_ns);
         for (eye, t_ns) in [w.t_frame_ns, w.t_right_ns].into_iter().enumerate() {
@@ -204,7 +211,7 @@ impl Stage for AlignStage {
     }
 
     fn failure(&self, e: &RuntimeError) -> &'static str {
-        crate::stage::timing_failure(e).unwrap_or("kinematics or rectification failed")
+        abvs_runtime_core::stage::timing_failure(e).unwrap_or("kinematics or rectification failed")
     }
 
     fn finish(&mut self, stats: &mut RunStats) {

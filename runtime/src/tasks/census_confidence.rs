@@ -30,12 +30,6 @@
 use super::confidence::reason;
 use super::disparity_census::{AT_EDGE, MARGIN_ONE};
 
-/// The default threshold of the validity mask (`[disparity] min_confidence`, `--min-confidence`): published
-/// depth is NaN where the confidence is below it. 0 keeps every pixel (the dense output, bit for bit).
-/// Chosen on Aloe at 640x480 (`abvs disparity-eval --resolution 640x480 --json`, `own_confidence.mask_curve`)
-/// among the thresholds that publish at least 5 points more than SGBM_3WAY's density (0.725) at no more than
-/// its bad-2 (3.85 %): 0.7 gives 0.783 / 3.41 % (0.65: 0.795 / 3.88 %; 0.75: 0.769 / 2.93 %).
-pub const DEFAULT_MIN_CONFIDENCE: f32 = 0.7;
 /// The logistic model's bias (see the module docs; fitted on Aloe at 640x480).
 pub const B: f32 = -0.13;
 /// Weight of SGBM's acceptance.
@@ -195,6 +189,7 @@ pub fn nearest<T: Copy>(src: &[T], (sw, sh): (usize, usize), dst: &mut [T], (dw,
 #[cfg(test)]
 mod tests {
     use super::*;
+    use abvs_runtime_core::params::DEFAULT_MIN_CONFIDENCE;
 
     /// A textured row band whose search was unique, started from an accepted SGBM match: high confidence;
     /// the same where the network filled a flat area with an ambiguous search: below the default threshold, for

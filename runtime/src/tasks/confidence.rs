@@ -19,49 +19,11 @@
 //! at start: it does not allocate per frame. It runs inside the disparity stage
 //! ([`super::disparity::DisparityStage::with_check`]), which owns the engine; the confidence travels in
 //! [`Work::confidence`].
-use crate::error::{Result, RuntimeError};
-use crate::messages::Work;
+use abvs_runtime_core::error::{Result, RuntimeError};
+use abvs_runtime_core::messages::Work;
 
 use super::disparity::DisparityEngine;
-
-/// Largest `max_diff` accepted (px): beyond it exp(-diff) comes close to f32's underflow, and a check that
-/// loose checks nothing.
-pub const MAX_DIFF_LIMIT: f32 = 50.0;
-
-/// What the left-right check does.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct CheckConfig {
-    /// Write the confidence into each frame ([`Work::confidence`], published by the bridges).
-    pub confidence: bool,
-    /// Set the disparity of every pixel of confidence 0 to NaN (depth and cloud drop it).
-    pub invalidate: bool,
-    /// Largest left/right disagreement (px) of a consistent match.
-    pub max_diff: f32,
-}
-
-impl Default for CheckConfig {
-    fn default() -> Self {
-        CheckConfig { confidence: false, invalidate: false, max_diff: 1.0 }
-    }
-}
-
-impl CheckConfig {
-    /// Whether the check runs at all (it has something to produce).
-    pub fn enabled(&self) -> bool {
-        self.confidence || self.invalidate
-    }
-
-    /// Refuses a `max_diff` outside (0, [`MAX_DIFF_LIMIT`]].
-    pub fn check(&self) -> Result<()> {
-        if !(self.max_diff > 0.0 && self.max_diff <= MAX_DIFF_LIMIT) {
-            return Err(RuntimeError::Invalid(format!(
-                "left-right check: max_diff {} px must be in (0, {MAX_DIFF_LIMIT}]",
-                self.max_diff
-            )));
-        }
-        Ok(())
-    }
-}
+use abvs_runtime_core::params::CheckConfig;
 
 /// Each row of a `width`-wide image reversed into `dst` (the mirror that turns a right view into a left one).
 pub fn mirror_rows<T: Copy>(src: &[T], width: usize, dst: &mut [T]) {

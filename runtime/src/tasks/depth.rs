@@ -7,10 +7,10 @@
 use abvs_eye::Pose;
 use glam::{Mat3, Vec3};
 
-use crate::error::{Result, RuntimeError};
-pub use crate::messages::DepthFrame;
-use crate::messages::{Rectification, RectifiedCamera, Work};
-use crate::stage::{Stage, StageContext};
+use abvs_runtime_core::error::{Result, RuntimeError};
+use abvs_runtime_core::messages::DepthFrame;
+use abvs_runtime_core::messages::{Rectification, RectifiedCamera, Work};
+use abvs_runtime_core::stage::{Stage, StageContext};
 
 /// The depth range kept: points nearer or farther are invalid (NaN, not in the cloud).
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -27,57 +27,55 @@ impl Default for DepthConfig {
     }
 }
 
-impl DepthFrame {
-    /// Fills depth and points from a disparity map; `valid` says which rectified pixels see the raw image.
-    // the negated comparisons reject NaN disparities and depths too
-    #[allow(clippy::too_many_arguments, clippy::neg_cmp_op_on_partial_ord, clippy::nonminimal_bool)]
-    pub fn compute(
-        &mut self,
-        disparity: &[f32],
-        valid: impl Fn(usize) -> bool,
-        left_rect: &[u8],
-        cam: &RectifiedCamera,
-        rect: &Rectification,
-        rel_left: &Pose,
-        cfg: &DepthConfig,
-    ) {
-        let fb = (cam.f * rect.baseline_m) as f32;
-        // rectified -> current left camera -> left home camera
-        let m = rel_left.r * rect.rect_from_left.transpose();
-        let rot = Mat3::from_cols_array(&[
-            m[(0, 0)] as f32,
-            m[(1, 0)] as f32,
-            m[(2, 0)] as f32,
-            m[(0, 1)] as f32,
-            m[(1, 1)] as f32,
-            m[(2, 1)] as f32,
-            m[(0, 2)] as f32,
-            m[(1, 2)] as f32,
-            m[(2, 2)] as f32,
-        ]);
-        let t = Vec3::new(rel_left.t.x as f32, rel_left.t.y as f32, rel_left.t.z as f32);
-        let (w, h) = (self.width as usize, self.height as usize);
-        let (inv_f, cx, cy) = (1.0 / cam.f as f32, cam.cx as f32, cam.cy as f32);
-        let mut n = 0;
-        for v in 0..h {
-            for u in 0..w {
-                let i = v * w + u;
-                let d = disparity[i];
-                let z = fb / d;
-                if !(d > 0.0) || !(z >= cfg.min_m && z <= cfg.max_m) || !valid(i) {
-                    self.depth[i] = f32::NAN;
-                    continue;
-                }
-                self.depth[i] = z;
-                let p = Vec3::new((u as f32 - cx) * inv_f * z, (v as f32 - cy) * inv_f * z, z);
-                self.points[n] = rot * p + t;
-                self.intensity[n] = left_rect[i];
-                self.pixel[n] = i as u32;
-                n += 1;
+/// Fills `out`'s depth and points from a disparity map; `valid` says which rectified pixels see the raw image.
+// the negated comparisons reject NaN disparities and depths too
+#[allow(clippy::too_many_arguments, clippy::neg_cmp_op_on_partial_ord, clippy::nonminimal_bool)]
+pub fn compute(
+    out: &mut DepthFrame,
+    disparity: &[f32],
+    valid: impl Fn(usize) -> bool,
+    left_rect: &[u8],
+    cam: &RectifiedCamera,
+    rect: &Rectification,
+    rel_left: &Pose,
+    cfg: &DepthConfig,
+) {
+    let fb = (cam.f * rect.baseline_m) as f32;
+    // rectified -> current left camera -> left home camera
+    let m = rel_left.r * rect.rect_from_left.transpose();
+    let rot = Mat3::from_cols_array(&[
+        m[(0, 0)] as f32,
+        m[(1, 0)] as f32,
+        m[(2, 0)] as f32,
+        m[(0, 1)] as f32,
+        m[(1, 1)] as f32,
+        m[(2, 1)] as f32,
+        m[(0, 2)] as f32,
+        m[(1, 2)] as f32,
+        m[(2, 2)] as f32,
+    ]);
+    let t = Vec3::new(rel_left.t.x as f32, rel_left.t.y as f32, rel_left.t.z as f32);
+    let (w, h) = (out.width as usize, out.height as usize);
+    let (inv_f, cx, cy) = (1.0 / cam.f as f32, cam.cx as f32, cam.cy as f32);
+    let mut n = 0;
+    for v in 0..h {
+        for u in 0..w {
+            let i = v * w + u;
+            let d = disparity[i];
+            let z = fb / d;
+            if !(d > 0.0) || !(z >= cfg.min_m && z <= cfg.max_m) || !valid(i) {
+                out.depth[i] = f32::NAN;
+                continue;
             }
+            out.depth[i] = z;
+            let p = Vec3::new((u as f32 - cx) * inv_f * z, (v as f32 - cy) * inv_f * z, z);
+            out.points[n] = rot * p + t;
+            out.intensity[n] = left_rect[i];
+            out.pixel[n] = i as u32;
+            n += 1;
         }
-        self.n_points = n;
     }
+    out.n_points = n;
 }
 
 /// The depth stage: depth map and cloud ([`Work::depth`]) from the disparity, on the output lane (which
@@ -124,11 +122,11 @@ impl Stage for DepthStage {
             return Ok(());
         }
         let valid = &rectified.valid;
-        depth.compute(disparity, |i| valid[i] != 0, &rectified.left, cam, rect, &pose.rel_left, &self.cfg);
+        compute(depth, disparity, |i| valid[i] != 0, &rectified.left, cam, rect, &pose.rel_left, &self.cfg);
         Ok(())
     }
 
-    fn finish(&mut self, stats: &mut crate::stats::RunStats) {
+    fn finish(&mut self, stats: &mut abvs_runtime_core::stats::RunStats) {
         stats.frames_motion_gated += self.gated;
     }
 
@@ -157,7 +155,7 @@ mod tests {
         let disp = vec![d; 64 * 48];
         let mut f = DepthFrame::new(64, 48);
         let rel = Pose::new(nalgebra::Matrix3::identity(), Vector3::new(0.001, 0.0, 0.0));
-        f.compute(&disp, |i| i != 5, &[7u8; 64 * 48], &cam, &rect, &rel, &DepthConfig::default());
+        compute(&mut f, &disp, |i| i != 5, &[7u8; 64 * 48], &cam, &rect, &rel, &DepthConfig::default());
         assert_eq!(f.n_points, 64 * 48 - 1);
         assert!(f.depth[5].is_nan());
         for p in &f.points[..f.n_points] {
@@ -166,7 +164,7 @@ mod tests {
         assert!((f.points[0].x - ((0.0 - cam.cx as f32) / cam.f as f32 * z + 0.001)).abs() < 1e-5);
         // out of range and invalid disparities are NaN, not zero
         let far = vec![0.5f32; 64 * 48];
-        f.compute(&far, |_| true, &[0u8; 64 * 48], &cam, &rect, &rel, &DepthConfig::default());
+        compute(&mut f, &far, |_| true, &[0u8; 64 * 48], &cam, &rect, &rel, &DepthConfig::default());
         assert_eq!(f.n_points, 0);
         assert!(f.depth.iter().all(|d| d.is_nan()));
     }

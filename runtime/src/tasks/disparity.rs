@@ -14,11 +14,12 @@ use opencv::core::{Mat, Scalar};
 use opencv::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use crate::error::{Result, RuntimeError};
-use crate::messages::Work;
-use crate::stage::{Stage, StageContext};
+use abvs_runtime_core::error::{Result, RuntimeError};
+use abvs_runtime_core::messages::Work;
+use abvs_runtime_core::stage::{Stage, StageContext};
 
-use super::confidence::{CheckConfig, LrCheck};
+use super::confidence::LrCheck;
+use abvs_runtime_core::params::CheckConfig;
 
 /// The format tag of a disparity model's manifest.json.
 pub const DISPARITY_FORMAT: &str = "abvs-disparity-model/1";
@@ -157,7 +158,7 @@ impl OnnxEngine {
                 });
             }
             // the model file is named relative to the manifest and stays in its directory
-            crate::session::check_inside(&m.file)
+            abvs_runtime_core::session::check_inside(&m.file)
                 .map_err(|e| RuntimeError::Model { path: mp.clone(), msg: format!("bad manifest: `file`: {e}") })?;
             let f = path.join(&m.file);
             if let Some(h) = &m.onnx_sha256 {

@@ -19,7 +19,7 @@ use super::disparity::{DisparityEngine, OnnxEngine, SgbmEngine};
 use super::disparity_fused::{resize_gray, upsample_disparity};
 use std::ops::Range;
 
-use crate::error::{Result, RuntimeError};
+use abvs_runtime_core::error::{Result, RuntimeError};
 
 /// Offsets searched around the network's disparity: -SEARCH_PX..=SEARCH_PX (px at the engine's resolution).
 pub const SEARCH_PX: i32 = 3;

@@ -12,7 +12,7 @@ use opencv::core::{Mat, Size};
 use opencv::prelude::*;
 
 use super::disparity::{DisparityEngine, OnnxEngine, SgbmEngine};
-use crate::error::{Result, RuntimeError};
+use abvs_runtime_core::error::{Result, RuntimeError};
 
 /// Where a fused pixel's disparity came from.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

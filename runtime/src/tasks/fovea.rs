@@ -23,44 +23,15 @@ use abvs_camera::Camera;
 use abvs_eye::Pose;
 use nalgebra::Vector3;
 
-use crate::error::{Result, RuntimeError};
 use crate::gaze::stage::measured_fixation;
-use crate::messages::{FoveaFrame, RectifiedCamera, Work};
-use crate::stage::{Stage, StageContext};
 use crate::tasks::depth::DepthConfig;
 use crate::tasks::disparity::{DisparityEngine, SgbmEngine};
 use crate::tasks::motion::RowRotations;
 use crate::tasks::rectify::{camera_for_frames, RectifyMaps};
-
-/// What the fovea computes and where it looks by default.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct FoveaConfig {
-    /// Window width (px at the raw frames' scale).
-    pub width: u32,
-    /// Window height (px).
-    pub height: u32,
-    /// Widest disparity search (px at the fovea's scale; a multiple of 16).
-    pub max_range_px: u32,
-    /// Fixations nearer than this (m, from the midpoint of the optical centres) are not used.
-    pub min_distance_m: f64,
-    /// Fixations farther than this (nearly parallel axes: the meeting point is noise) are not used.
-    pub max_distance_m: f64,
-    /// Distance along the image centre's ray used without a usable fixation (m).
-    pub default_distance_m: f64,
-}
-
-impl Default for FoveaConfig {
-    fn default() -> Self {
-        FoveaConfig {
-            width: 320,
-            height: 240,
-            max_range_px: 64,
-            min_distance_m: 0.15,
-            max_distance_m: 3.0,
-            default_distance_m: 1.0,
-        }
-    }
-}
+use abvs_runtime_core::error::{Result, RuntimeError};
+use abvs_runtime_core::messages::{FoveaFrame, RectifiedCamera, Work};
+use abvs_runtime_core::params::FoveaConfig;
+use abvs_runtime_core::stage::{Stage, StageContext};
 
 /// Bins per pixel of the histogram of the main map's disparities over the window.
 const HIST_BINS_PER_PX: f64 = 4.0;
@@ -210,7 +181,7 @@ impl Stage for FoveaStage {
     }
 
     fn process(&mut self, w: &mut Work) -> Result<()> {
-        let (cpu0, wall0) = (crate::cpu::thread_cpu_ns(), crate::messages::monotonic_ns());
+        let (cpu0, wall0) = (abvs_runtime_core::cpu::thread_cpu_ns(), abvs_runtime_core::messages::monotonic_ns());
         let s = self.started.as_mut().ok_or_else(|| RuntimeError::Invalid("fovea: not started".into()))?;
         let Work { fovea, pose, rectified, motion, disparity, raw_left, raw_right, .. } = w;
         let f =
@@ -352,19 +323,19 @@ impl Stage for FoveaStage {
         self.counts.masked_by_main += masked;
         self.counts.filled_from_main += filled;
         let FoveaFrame { disparity, valid, left, depth, .. } = &mut *f;
-        depth.compute(disparity, |i| valid[i] != 0, left, &cam, rect, &pose.rel_left, &dcfg);
+        crate::tasks::depth::compute(depth, disparity, |i| valid[i] != 0, left, &cam, rect, &pose.rel_left, &dcfg);
         f.ready = true;
         self.counts.points += f.depth.n_points as u64;
-        self.counts.cpu_ns += crate::cpu::thread_cpu_ns() - cpu0;
-        self.counts.wall_ns += crate::messages::monotonic_ns() - wall0;
+        self.counts.cpu_ns += abvs_runtime_core::cpu::thread_cpu_ns() - cpu0;
+        self.counts.wall_ns += abvs_runtime_core::messages::monotonic_ns() - wall0;
         Ok(())
     }
 
     fn failure(&self, e: &RuntimeError) -> &'static str {
-        crate::stage::timing_failure(e).unwrap_or("fovea failed")
+        abvs_runtime_core::stage::timing_failure(e).unwrap_or("fovea failed")
     }
 
-    fn finish(&mut self, stats: &mut crate::stats::RunStats) {
+    fn finish(&mut self, stats: &mut abvs_runtime_core::stats::RunStats) {
         let c = &self.counts;
         let matched = (c.frames - c.gated).max(1) as f64;
         let focal = self.started.as_ref().map_or(f64::NAN, |s| s.focal);

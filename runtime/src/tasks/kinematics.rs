@@ -11,11 +11,12 @@ use abvs_eye::{Pose, UnitModel};
 use abvs_fk::model::{FkModel, FkState, Frozen};
 use nalgebra::{Matrix3, Vector3};
 
-use crate::error::{Result, RuntimeError};
-pub use crate::messages::StereoPose;
-use crate::messages::{FrameMotion, RectifiedCamera, Work};
-use crate::stage::{Stage, StageContext};
-use crate::tasks::motion::{angle_deg, MotionConfig, SPEED_DT_S, WIDE_DT_S};
+use crate::tasks::motion::{angle_deg, SPEED_DT_S, WIDE_DT_S};
+use abvs_runtime_core::error::{Result, RuntimeError};
+use abvs_runtime_core::messages::StereoPose;
+use abvs_runtime_core::messages::{FrameMotion, RectifiedCamera, Work};
+use abvs_runtime_core::params::MotionConfig;
+use abvs_runtime_core::stage::{Stage, StageContext};
 
 /// One eye's FK evaluator with its stream state (motion history for backlash, warm start).
 pub enum EyeFk {
@@ -58,7 +59,7 @@ impl EyeFk {
 
     /// The FK of a unit model.
     pub fn from_unit(unit: &UnitModel) -> Result<EyeFk> {
-        let fk = unit.compile().map_err(|e| RuntimeError::Invalid(e.to_string()))?;
+        let fk = unit.compile().map_err(fk_err)?;
         let state = fk.stream();
         Ok(EyeFk::Unit { fk: Box::new(fk), state })
     }
@@ -69,7 +70,7 @@ impl EyeFk {
         match self {
             EyeFk::Calibrated { model, .. } => FkModel::load(&model.dir)
                 .map_err(|e| RuntimeError::Model { path: model.dir.clone(), msg: e.to_string() }),
-            EyeFk::Unit { fk, .. } => FkModel::from_unit(&fk.model).map_err(|e| RuntimeError::Invalid(e.to_string())),
+            EyeFk::Unit { fk, .. } => FkModel::from_unit(&fk.model).map_err(fk_err),
         }
     }
 
@@ -85,12 +86,10 @@ impl EyeFk {
     pub fn pose(&mut self, theta_deg: &[f64; 3], gravity: [f64; 3]) -> Result<Pose> {
         let p = match self {
             EyeFk::Calibrated { model, state } => {
-                let p6 = model.eval(state, theta_deg, gravity).map_err(|e| RuntimeError::Invalid(e.to_string()))?;
+                let p6 = model.eval(state, theta_deg, gravity).map_err(fk_err)?;
                 Pose::from_p6(&p6)
             }
-            EyeFk::Unit { fk, state } => {
-                fk.next(state, theta_deg, gravity).map_err(|e| RuntimeError::Invalid(e.to_string()))?
-            }
+            EyeFk::Unit { fk, state } => fk.next(state, theta_deg, gravity).map_err(fk_err)?,
         };
         Ok(Pose::new(p.r, p.t * 1e-3))
     }
@@ -121,13 +120,12 @@ pub enum FrozenFk<'a> {
 impl FrozenFk<'_> {
     /// Camera pose relative to home (metres) at readings `theta_deg` (deg, homed).
     pub fn pose(&mut self, theta_deg: &[f64; 3]) -> Result<Pose> {
-        let inv = |e: &dyn std::fmt::Display| RuntimeError::Invalid(e.to_string());
         let p = match self {
             FrozenFk::Calibrated { model, frozen } => {
-                Pose::from_p6(&model.eval_frozen(frozen, theta_deg).map_err(|e| inv(&e))?)
+                Pose::from_p6(&model.eval_frozen(frozen, theta_deg).map_err(fk_err)?)
             }
             FrozenFk::Unit { fk, cond, warm } => {
-                let (p, r) = fk.pose_unchecked(theta_deg, cond, Some(warm)).map_err(|e| inv(&e))?;
+                let (p, r) = fk.pose_unchecked(theta_deg, cond, Some(warm)).map_err(fk_err)?;
                 *warm = r;
                 p
             }
@@ -140,14 +138,12 @@ impl EyeFk {
     /// The FK frozen at the stream's state for the reading `theta_deg` (the frame's own, already
     /// evaluated with [`EyeFk::pose`]).
     pub fn frozen(&self, theta_deg: &[f64; 3], gravity: [f64; 3]) -> Result<FrozenFk<'_>> {
-        let inv = |e: &dyn std::fmt::Display| RuntimeError::Invalid(e.to_string());
         Ok(match self {
-            EyeFk::Calibrated { model, state } => FrozenFk::Calibrated {
-                model,
-                frozen: model.freeze(state, theta_deg, gravity, None).map_err(|e| inv(&e))?,
-            },
+            EyeFk::Calibrated { model, state } => {
+                FrozenFk::Calibrated { model, frozen: model.freeze(state, theta_deg, gravity, None).map_err(fk_err)? }
+            }
             EyeFk::Unit { fk, state } => {
-                let (cond, warm) = fk.peek(state, theta_deg, gravity, None).map_err(|e| inv(&e))?;
+                let (cond, warm) = fk.peek(state, theta_deg, gravity, None).map_err(fk_err)?;
                 FrozenFk::Unit { fk, cond, warm }
             }
         })
@@ -287,8 +283,13 @@ impl Stage for KinematicsStage {
     }
 
     fn failure(&self, e: &RuntimeError) -> &'static str {
-        crate::stage::timing_failure(e).unwrap_or("kinematics or rectification failed")
+        abvs_runtime_core::stage::timing_failure(e).unwrap_or("kinematics or rectification failed")
     }
+}
+
+/// An FK error as the runtime's, kept as its source.
+fn fk_err<E: std::error::Error + Send + Sync + 'static>(e: E) -> RuntimeError {
+    RuntimeError::Fk(Box::new(e))
 }
 
 #[cfg(test)]

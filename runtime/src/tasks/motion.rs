@@ -22,7 +22,8 @@
 //! during a saccade (saccadic suppression). See `DEFAULT_GATE_BLUR_PX` for the default's reason.
 use nalgebra::Matrix3;
 
-pub use crate::messages::{FrameMotion, MAX_ROW_BANDS};
+#[cfg(test)]
+use abvs_runtime_core::params::MotionConfig;
 
 /// Half the interval (s) of the central difference that gives an eye's angular speed: two encoder
 /// periods at 1 kHz, short against a pursuit's changes, long against the counts' quantisation
@@ -34,72 +35,6 @@ pub const SPEED_DT_S: f64 = 1e-3;
 /// self-check's timing evidence is first order in the speed and needs that). Within the encoder margin the
 /// align stage already waits for (20 ms past the last row), so it adds no latency.
 pub const WIDE_DT_S: f64 = 0.015;
-
-/// Default motion gate (rectified pixels of blur). 3 px at 640x480 (4.7 px/deg at the centre) is
-/// 0.64 deg of blur: 160 deg/s at a 4 ms exposure, so smooth pursuit (up to ~100 deg/s) is kept and
-/// saccades (200-1561 deg/s) are gated. The per-speed error table in runtime/BENCHMARKS.md shows depth
-/// falling apart beyond this (the network was trained on sharp images).
-pub const DEFAULT_GATE_BLUR_PX: f64 = 3.0;
-
-/// What the runtime does about motion during an exposure.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct MotionConfig {
-    /// Correct each row with the eye's pose when it exposed (when the frames have a readout).
-    pub rolling_shutter: bool,
-    /// Row bands of the per-row correction (nodes = bands + 1).
-    pub bands: usize,
-    /// Frames whose blur exceeds this many rectified pixels are gated (infinity: never).
-    pub gate_blur_px: f64,
-    /// encoder_time_offset of each eye (s), overriding their FK models' (effects.md; `None`: the models').
-    pub time_offset_s: Option<[f64; 2]>,
-}
-
-impl Default for MotionConfig {
-    fn default() -> Self {
-        MotionConfig { rolling_shutter: true, bands: 8, gate_blur_px: DEFAULT_GATE_BLUR_PX, time_offset_s: None }
-    }
-}
-
-impl MotionConfig {
-    /// Row bands used for a frame of `readout_ns` (0: the frame is corrected as a whole).
-    pub fn bands_for(&self, readout_ns: i64) -> usize {
-        if self.rolling_shutter && readout_ns > 0 {
-            self.bands.clamp(1, MAX_ROW_BANDS)
-        } else {
-            0
-        }
-    }
-}
-
-/// An encoder_time_offset setting (ms: the encoder stream is stamped this much late; effects.md): one value
-/// for both eyes (`time_offset_ms = 2.0`) or one per eye, left then right (`time_offset_ms = [2.0, 2.4]`).
-#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
-#[serde(untagged)]
-pub enum TimeOffsetMs {
-    /// The same offset for both eyes (one drive board stamps both).
-    Both(f64),
-    /// Left, right.
-    PerEye([f64; 2]),
-}
-
-impl TimeOffsetMs {
-    /// Left and right offsets (ms).
-    pub fn per_eye(&self) -> [f64; 2] {
-        match *self {
-            TimeOffsetMs::Both(t) => [t, t],
-            TimeOffsetMs::PerEye(t) => t,
-        }
-    }
-
-    /// Refuses an offset beyond a second (or NaN), naming `field`.
-    #[allow(clippy::neg_cmp_op_on_partial_ord)] // refuses NaN too
-    pub fn check(&self, field: &str) -> std::result::Result<(), String> {
-        match self.per_eye().into_iter().find(|t| !(t.abs() <= 1000.0)) {
-            Some(t) => Err(format!("{field}: {t} must be in [-1000, 1000] ms")),
-            None => Ok(()),
-        }
-    }
-}
 
 /// Camera time (ns) of node `b` of `bands`: that row's mid-exposure, relative to the frame's instant
 /// `t_frame_ns` (the middle row's).

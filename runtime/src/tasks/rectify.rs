@@ -14,12 +14,12 @@ use opencv::core::{Mat, Scalar, BORDER_CONSTANT};
 use opencv::imgproc;
 use opencv::prelude::*;
 
-use crate::error::{Result, RuntimeError};
-use crate::messages::Work;
-use crate::stage::{Stage, StageContext};
 use crate::tasks::motion::RowRotations;
+use abvs_runtime_core::error::{Result, RuntimeError};
+use abvs_runtime_core::messages::Work;
+use abvs_runtime_core::stage::{Stage, StageContext};
 
-pub use crate::messages::{Rectification, RectifiedCamera};
+use abvs_runtime_core::messages::{Rectification, RectifiedCamera};
 
 /// Rectifying rotations for the extrinsic `left_to_right` (x_r = R x_l + t): the rectified x axis runs along
 /// the baseline from the left to the right centre (so disparity x_l - x_r is positive), z is the mean of the
@@ -448,7 +448,7 @@ impl Stage for RectifyStage {
     }
 
     fn failure(&self, e: &RuntimeError) -> &'static str {
-        crate::stage::timing_failure(e).unwrap_or("kinematics or rectification failed")
+        abvs_runtime_core::stage::timing_failure(e).unwrap_or("kinematics or rectification failed")
     }
 }
 

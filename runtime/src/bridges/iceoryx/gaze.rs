@@ -17,9 +17,10 @@ use iceoryx2::prelude::*;
 
 use super::services::{iox, node};
 use super::{BridgeConfig, BridgeError, Ipc};
-use crate::gaze::{GazeState, Goal, GoalKind, GoalSource, Mailbox, Phase};
-use crate::messages::Published;
-use crate::stats::RunStats;
+use crate::gaze::{Goal, GoalKind, Mailbox};
+use abvs_runtime_core::gaze::{GazeState, GoalSource, Phase};
+use abvs_runtime_core::messages::Published;
+use abvs_runtime_core::stats::RunStats;
 
 /// Goal publishers the goal service admits (processes that point the eyes).
 pub const GOAL_PUBLISHERS: usize = 4;
@@ -51,7 +52,7 @@ pub struct GazeGoalWire {
 }
 
 /// The gaze at one frame on `{prefix}/gaze/state` (Python: `abvs_iceoryx2.GazeState`); see
-/// [`crate::gaze::GazeState`].
+/// [`abvs_runtime_core::gaze::GazeState`].
 #[derive(Debug, Clone, Copy, PartialEq, Default, ZeroCopySend)]
 #[repr(C)]
 #[type_name("abvs::GazeState/1")]
@@ -64,7 +65,7 @@ pub struct GazeStateWire {
     pub goal_id: u64,
     /// 0 idle, 1 saccade, 2 pursuit, 3 settled, 4 refused ([`Phase`]).
     pub phase: u32,
-    /// 0, or why the goal was refused: 1 + the index in [`crate::gaze::Refusal::ALL`] (1 non_finite, 2
+    /// 0, or why the goal was refused: 1 + the index in [`abvs_runtime_core::gaze::Refusal::ALL`] (1 non_finite, 2
     /// behind_eyes, 3 too_near, 4 outside_workspace, 5 near_singular, 6 unreachable, 7 not_homed,
     /// 8 encoders_silent, 9 no_board, 10 send_failed).
     pub reason: u32,
@@ -198,15 +199,15 @@ impl GazeBridge {
     }
 }
 
-impl crate::sinks::Sink for GazeBridge {
+impl abvs_runtime_core::sink::Sink for GazeBridge {
     fn name(&self) -> &'static str {
         "iceoryx2 gaze"
     }
 
-    fn consume(&mut self, out: &Published) -> crate::Result<()> {
-        let t0 = crate::cpu::thread_cpu_ns();
+    fn consume(&mut self, out: &Published) -> abvs_runtime_core::error::Result<()> {
+        let t0 = abvs_runtime_core::cpu::thread_cpu_ns();
         self.exchange(out);
-        self.cpu_ns += crate::cpu::thread_cpu_ns() - t0;
+        self.cpu_ns += abvs_runtime_core::cpu::thread_cpu_ns() - t0;
         self.frames += 1;
         Ok(())
     }

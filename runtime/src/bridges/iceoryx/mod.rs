@@ -90,7 +90,7 @@ use iceoryx2::prelude::*;
 use iceoryx2::sample::Sample;
 
 /// The runtime's one clock (CLOCK_MONOTONIC ns), re-exported where the bridge's users have always found it.
-pub use crate::messages::monotonic_ns;
+use abvs_runtime_core::messages::monotonic_ns;
 
 /// The iceoryx2 service flavour of both sides: inter-process, ports usable from any thread.
 pub type Ipc = ipc_threadsafe::Service;
@@ -252,6 +252,14 @@ impl BridgeConfig {
     /// The defaults with another network resolution.
     pub fn for_resolution(width: u32, height: u32) -> Self {
         Self { max_width: width, max_height: height, ..Self::default() }
+    }
+
+    /// The iceoryx2 bridge of a deployment: `[bridges.iceoryx]`'s prefix, sized for the rectified resolution.
+    /// A subscriber in another process opens its services with the same value ([`Subscriber::new`]); any
+    /// other settings are refused as foreign.
+    pub fn for_deployment(c: &abvs_runtime_core::config::RuntimeConfig) -> Self {
+        Self::for_resolution(c.disparity.width, c.disparity.height)
+            .with_prefix(c.bridges.iceoryx.service_prefix.clone())
     }
 
     /// The same configuration under another service name prefix.

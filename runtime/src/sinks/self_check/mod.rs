@@ -64,10 +64,10 @@ use crossbeam_channel::{bounded, Receiver, Sender};
 use nalgebra::{Matrix3, Vector3};
 use serde_json::{json, Value};
 
-use crate::error::{Result, RuntimeError};
-use crate::messages::{Published, Rectification, RectifiedCamera};
-use crate::sinks::Sink;
-use crate::stats::{Latency, RunStats};
+use abvs_runtime_core::error::{Result, RuntimeError};
+use abvs_runtime_core::messages::{Published, Rectification, RectifiedCamera};
+use abvs_runtime_core::sink::Sink;
+use abvs_runtime_core::stats::{Latency, RunStats};
 
 mod fit;
 mod matching;
@@ -80,34 +80,6 @@ pub use matching::*;
 pub use summary::*;
 pub use timing::*;
 pub use worker::*;
-
-/// How the self-check runs.
-#[derive(Debug, Clone, PartialEq)]
-pub struct SelfCheckConfig {
-    /// Check every n-th frame (by `seq`; 1 = every frame). 5 by default: 5 checks a second at 25 fps, a
-    /// fifth of the worker's CPU time (10 ms a check at 320x240, release) for the same drift detection.
-    pub every: u64,
-    /// Half-height of the band of rows searched for a match (px).
-    pub band_px: f32,
-    /// Nearest depth matched (m): the disparity range is f B / min_depth.
-    pub min_depth_m: f64,
-    /// Corners searched per frame (at most).
-    pub features: usize,
-    /// Warn when the rotation error (median of the last `warn_frames` checked frames) exceeds this (deg).
-    pub threshold_deg: f64,
-    /// Window of the warning (checked frames).
-    pub warn_frames: u32,
-    /// Per-frame CSV log.
-    pub log: Option<PathBuf>,
-    /// Wait for the worker instead of skipping frames (offline, reproducible; costs the output stage the wait).
-    pub blocking: bool,
-    /// Run the worker only on otherwise idle CPU time (Linux SCHED_IDLE; nice 19 where refused), so it never
-    /// takes a core from the pipeline's stages; false keeps the pipeline's priority.
-    pub background: bool,
-    /// The run's identity, on every row of both logs and in `<log>.run.toml` ([`new_run_id`]; 0 = none), so
-    /// that `abvs calib self-check` refuses logs and configurations of different runs.
-    pub run_id: u64,
-}
 
 /// A run identity for the logs: 48 bits (exact in a CSV number) of SHA-256 over the run's configuration, the
 /// wall-clock time and the process.
@@ -125,23 +97,6 @@ pub fn new_run_id(config: &str) -> u64 {
 /// The line of `<log>.run.toml` that names its run (a TOML comment: the file stays a configuration).
 pub fn run_id_line(run_id: u64) -> String {
     format!("# self-check run_id = {run_id}")
-}
-
-impl Default for SelfCheckConfig {
-    fn default() -> Self {
-        SelfCheckConfig {
-            every: 5,
-            band_px: 4.0,
-            min_depth_m: 0.15,
-            features: 300,
-            threshold_deg: 0.1,
-            warn_frames: 25,
-            log: None,
-            blocking: false,
-            background: true,
-            run_id: 0,
-        }
-    }
 }
 
 #[cfg(test)]

@@ -1,5 +1,6 @@
 //! The run's self-check statistics (bounded memory over a long run) and the per-frame log.
 use super::*;
+use abvs_runtime_core::params::SelfCheckConfig;
 
 pub(super) const BIN_PX: f64 = 0.005;
 /// Checked frames kept for the run's rotation estimate and match count (about 33 minutes at 5 a second).

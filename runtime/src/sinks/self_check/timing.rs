@@ -12,7 +12,7 @@
 //!
 //! With an encoder-to-camera offset wrong by `dT` per eye and a readout wrong by `dR`, row fraction `rho`
 //! (0 = top row, of the raw image) has `eps = dT + dR (rho - anchor)`; `anchor` is the row the stamps fix
-//! ([`crate::messages::SourcePair::readout_anchor`]). `abvs calib self-check` fits `dT` and `dR` per eye to
+//! ([`abvs_runtime_core::messages::SourcePair::readout_anchor`]). `abvs calib self-check` fits `dT` and `dR` per eye to
 //! the logged matches; this module only measures, per match, the raw rows and `s_l`, `s_r`.
 use super::*;
 use abvs_camera::Camera;

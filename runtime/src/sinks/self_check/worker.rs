@@ -1,5 +1,6 @@
 //! The sink and its worker thread: pooled jobs, idle-priority checking, the summary at the end.
 use super::*;
+use abvs_runtime_core::params::SelfCheckConfig;
 
 /// One rectified pair handed to the worker (pooled: allocated at start-up).
 pub struct Job {
@@ -92,8 +93,8 @@ impl SelfCheckSink {
                         baseline_m: 0.0,
                     },
                     band_rot: [
-                        Vec::with_capacity(crate::messages::MAX_ROW_BANDS + 1),
-                        Vec::with_capacity(crate::messages::MAX_ROW_BANDS + 1),
+                        Vec::with_capacity(abvs_runtime_core::messages::MAX_ROW_BANDS + 1),
+                        Vec::with_capacity(abvs_runtime_core::messages::MAX_ROW_BANDS + 1),
                     ],
                     omega_rad_s: [Vector3::zeros(); 2],
                     speed_deg_s: [0.0; 2],
@@ -152,7 +153,7 @@ impl SelfCheckSink {
                 }
                 sum
             })
-            .map_err(|e| RuntimeError::Invalid(format!("self-check: starting its thread: {e}")))?;
+            .map_err(|source| RuntimeError::Thread { what: "self-check: starting its thread".into(), source })?;
         Ok(SelfCheckSink { cfg, tx: Some(tx), free: free_rx, worker: Some(worker), skipped: 0 })
     }
 }

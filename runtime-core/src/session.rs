@@ -24,7 +24,37 @@ use serde::{Deserialize, Serialize};
 use toml::Spanned;
 
 use crate::error::{Result, RuntimeError};
-use crate::tasks::align::EncoderSample;
+use crate::messages::EncoderSample;
+
+/// An encoder_time_offset setting (ms: the encoder stream is stamped this much late; effects.md): one value
+/// for both eyes (`time_offset_ms = 2.0`) or one per eye, left then right (`time_offset_ms = [2.0, 2.4]`).
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(untagged)]
+pub enum TimeOffsetMs {
+    /// The same offset for both eyes (one drive board stamps both).
+    Both(f64),
+    /// Left, right.
+    PerEye([f64; 2]),
+}
+
+impl TimeOffsetMs {
+    /// Left and right offsets (ms).
+    pub fn per_eye(&self) -> [f64; 2] {
+        match *self {
+            TimeOffsetMs::Both(t) => [t, t],
+            TimeOffsetMs::PerEye(t) => t,
+        }
+    }
+
+    /// Refuses an offset beyond a second (or NaN), naming `field`.
+    #[allow(clippy::neg_cmp_op_on_partial_ord)] // refuses NaN too
+    pub fn check(&self, field: &str) -> std::result::Result<(), String> {
+        match self.per_eye().into_iter().find(|t| !(t.abs() <= 1000.0)) {
+            Some(t) => Err(format!("{field}: {t} must be in [-1000, 1000] ms")),
+            None => Ok(()),
+        }
+    }
+}
 
 /// The format tag of session.toml.
 pub const SESSION_FORMAT: &str = "abvs-session/1";
@@ -88,7 +118,7 @@ pub struct SessionMeta {
     /// The encoders' encoder_time_offset (ms; one value or `[left, right]`) where it was measured (`abvs calib
     /// self-check --session`): a replay applies it instead of the FK models'.
     #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub time_offset_ms: Option<crate::tasks::motion::TimeOffsetMs>,
+    pub time_offset_ms: Option<TimeOffsetMs>,
     /// Stereo calibration at home (relative path).
     pub stereo: String,
     /// Per-eye FK model directories or unit-model TOML files (relative paths), left then right.

@@ -1,11 +1,11 @@
 //! The stage contract: what every processing step between a source and the sinks implements (align,
-//! kinematics, rectify, disparity, depth, and any side stage). The runner ([`crate::runner`]) calls
+//! kinematics, rectify, disparity, depth, and any side stage). The runtime's runner calls
 //! [`Stage::start`] once before the first frame, [`Stage::process`] on every frame of its lane's thread, and
 //! [`Stage::finish`] once after the last; a stage owns its state (tracks, models, maps, engines) and writes
 //! its message into the frame's pooled buffers, so processing does not allocate.
 use crate::error::{Result, RuntimeError};
 use crate::messages::{RectifiedCamera, Work};
-use crate::sources::EncoderFeed;
+use crate::source::{BoardLink, EncoderFeed};
 use crate::stats::RunStats;
 
 /// What a stage learns of the run at its start.
@@ -17,7 +17,7 @@ pub struct StageContext<'a> {
     /// The source's encoder stream, taken by the stage that aligns frames to it.
     pub encoders: &'a mut Option<Box<dyn EncoderFeed>>,
     /// The drive board's command side (live sources), taken by the gaze stage.
-    pub board: &'a mut Option<Box<dyn crate::sources::board::BoardLink>>,
+    pub board: &'a mut Option<Box<dyn BoardLink>>,
 }
 
 /// One processing step of the graph (see the module docs for when the runner calls what).

@@ -1,5 +1,8 @@
-//! The runtime's error type: every refusal says which stream and what was wrong.
-#[derive(Debug, thiserror::Error, PartialEq)]
+//! The runtime's error type: every refusal says which stream and what was wrong. A variant that wraps another
+//! crate's error keeps it as its source (`std::error::Error::source`) and says it once in its message (the
+//! program prints the chain without repeating a cause already said); the variants a caller may act on are
+//! typed (a configuration refused, a feature not built, a thread that could not start or panicked).
+#[derive(Debug, thiserror::Error)]
 /// Why the runtime refused something: a stream, a file, a model, a frame.
 pub enum RuntimeError {
     /// A sample older than or equal to the previous one in a stream that must increase.
@@ -36,6 +39,47 @@ pub enum RuntimeError {
         /// The longest gap interpolated across (ms).
         max_ms: f64,
     },
+    /// The deployment's configuration is refused (a value, or a combination the source cannot run with).
+    #[error("invalid: configuration: {0}")]
+    Config(String),
+    /// The configuration asks for something this build left out (a cargo feature of abvs-runtime).
+    #[error("{field}: this build has no {feature} (abvs-runtime's cargo feature `{feature}`)")]
+    NotBuilt {
+        /// The configuration field that asks for it.
+        field: &'static str,
+        /// The cargo feature.
+        feature: &'static str,
+    },
+    /// A thread of the runtime could not be started.
+    #[error("invalid: {what}: {source}")]
+    Thread {
+        /// Which thread (and whose).
+        what: String,
+        /// Why the OS refused it.
+        #[source]
+        source: std::io::Error,
+    },
+    /// A thread of the runtime panicked (its work is lost).
+    #[error("invalid: {0} panicked")]
+    Panicked(String),
+    /// An eye's FK model could not be compiled or evaluated.
+    #[error("invalid: {0}")]
+    Fk(#[source] Box<dyn std::error::Error + Send + Sync>),
+    /// The iceoryx2 bridge failed (creating its services, publishing).
+    #[error("invalid: {0}")]
+    Ipc(#[source] Box<dyn std::error::Error + Send + Sync>),
+    /// A transport of the ROS 2 messages failed (a Zenoh session, an MCAP file).
+    #[error("invalid: {what}: {source}")]
+    Transport {
+        /// What was being done, naming the transport.
+        what: String,
+        /// The transport's error.
+        #[source]
+        source: Box<dyn std::error::Error + Send + Sync>,
+    },
+    /// A camera frame could not be captured or decoded.
+    #[error("invalid: {0}")]
+    Capture(#[source] Box<dyn std::error::Error + Send + Sync>),
     /// A value or a combination the runtime cannot work with (a configuration, a graph, an argument).
     #[error("invalid: {0}")]
     Invalid(String),

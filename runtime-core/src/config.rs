@@ -4,7 +4,6 @@
 //! configuration. Unknown fields are refused with the file and line. Relative paths in a file
 //! are relative to the file's directory. Field-by-field documentation: `config/fixture.toml`
 //! and `config/live.toml` (shipped examples).
-pub use crate::bridges::rmw_zenoh::{Ros2Keys, RosDistro};
 use crate::error::{Result, RuntimeError};
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
@@ -22,7 +21,7 @@ pub enum SourceKind {
     /// The eye cameras (V4L2) and the drive board's encoder stream (serial).
     Live,
     /// The closed-loop simulation of the whole head (`[source.sim]`): built by the toolkit (`abvs run --source
-    /// sim`, abvs-sim), which hands the runtime its source ([`crate::Runtime::with_source`]).
+    /// sim`, abvs-sim), which hands the runtime its source (`abvs_runtime::Runtime::with_source`).
     Sim,
 }
 
@@ -86,7 +85,57 @@ impl FkSource {
     }
 }
 
-/// One deployment: what `abvs run --config FILE` runs and [`crate::Runtime::from_config`] assembles.
+/// Frames the MCAP recorder may fall behind by before the oldest is dropped (about 0.6 s at 25 fps).
+pub const MCAP_QUEUE: usize = 16;
+
+/// Frames the Zenoh publisher may fall behind by before the oldest is dropped: the newest matter on a network.
+pub const ZENOH_QUEUE: usize = 4;
+
+/// The Zenoh key names of the ROS 2 messages (`[bridges.zenoh] keys`, `--ros2-keys`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
+#[serde(rename_all = "kebab-case")]
+pub enum Ros2Keys {
+    /// zenoh-bridge-ros2dds's: the topic without its leading slash (`abvs/depth`), plain CDR samples.
+    #[default]
+    Bridge,
+    /// rmw_zenoh's: typed keys, liveliness tokens and attachments (the runtime's `bridges::rmw_zenoh`).
+    RmwZenoh,
+}
+
+/// The ROS 2 distribution the rmw_zenoh keys are for: it decides the type hashes (`[bridges.zenoh] distro`,
+/// `--ros-distro`). A subscriber never matches a key with another hash.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
+#[serde(rename_all = "lowercase")]
+pub enum RosDistro {
+    /// Humble: no type hashes (`TypeHashNotSupported`).
+    Humble,
+    /// Jazzy (the current LTS): RIHS01 hashes.
+    #[default]
+    Jazzy,
+    /// Kilted: RIHS01 hashes, the same as Jazzy's for the five published types.
+    Kilted,
+}
+
+/// A node name or namespace that ROS 2 refuses (rcl's rules: names of letters, digits and `_`, not
+/// starting with a digit; a namespace `/` or `/` + such names joined by `/`).
+pub fn check_node(name: &str, namespace: &str) -> std::result::Result<(), String> {
+    let token_ok = |t: &str| {
+        t.chars().next().is_some_and(|c| c.is_ascii_alphabetic() || c == '_')
+            && t.chars().all(|c| c.is_ascii_alphanumeric() || c == '_')
+    };
+    if !token_ok(name) {
+        return Err(format!("node: `{name}` is not a ROS 2 node name (letters, digits, `_`; no digit first)"));
+    }
+    let ns_ok = namespace == "/" || namespace.strip_prefix('/').is_some_and(|r| r.split('/').all(token_ok));
+    if !ns_ok {
+        return Err(format!("namespace: `{namespace}` is not `/` or `/name[/name...]` (letters, digits, `_`)"));
+    }
+    Ok(())
+}
+
+/// One deployment: what `abvs run --config FILE` runs and `abvs_runtime::Runtime::from_config` assembles.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct RuntimeConfig {
@@ -133,15 +182,15 @@ pub struct GazeSettings {
 
 impl Default for GazeSettings {
     fn default() -> Self {
-        let l = crate::gaze::RateLimit::default();
+        let l = crate::params::RateLimit::default();
         GazeSettings { enabled: true, max_goals_per_s: l.max_goals_per_s, goal_burst: l.goal_burst }
     }
 }
 
 impl GazeSettings {
     /// The rate limit the gaze stage runs with.
-    pub fn rate_limit(&self) -> crate::gaze::RateLimit {
-        crate::gaze::RateLimit { max_goals_per_s: self.max_goals_per_s, goal_burst: self.goal_burst }
+    pub fn rate_limit(&self) -> crate::params::RateLimit {
+        crate::params::RateLimit { max_goals_per_s: self.max_goals_per_s, goal_burst: self.goal_burst }
     }
 }
 
@@ -168,7 +217,7 @@ pub struct FoveaSettings {
 
 impl Default for FoveaSettings {
     fn default() -> Self {
-        let f = crate::tasks::fovea::FoveaConfig::default();
+        let f = crate::params::FoveaConfig::default();
         FoveaSettings {
             enabled: true,
             width: f.width,
@@ -183,8 +232,8 @@ impl Default for FoveaSettings {
 
 impl FoveaSettings {
     /// What the pipeline runs, `None` when off.
-    pub fn fovea_config(&self) -> Option<crate::tasks::fovea::FoveaConfig> {
-        self.enabled.then_some(crate::tasks::fovea::FoveaConfig {
+    pub fn fovea_config(&self) -> Option<crate::params::FoveaConfig> {
+        self.enabled.then_some(crate::params::FoveaConfig {
             width: self.width,
             height: self.height,
             max_range_px: self.max_range_px,
@@ -420,7 +469,7 @@ pub struct DisparityConfig {
 }
 
 fn default_min_confidence() -> f64 {
-    crate::tasks::census_confidence::DEFAULT_MIN_CONFIDENCE as f64
+    crate::params::DEFAULT_MIN_CONFIDENCE as f64
 }
 
 fn default_lr_max_diff() -> f64 {
@@ -429,8 +478,8 @@ fn default_lr_max_diff() -> f64 {
 
 impl DisparityConfig {
     /// The pipeline's left-right check as this section configures it.
-    pub fn check_config(&self) -> crate::tasks::confidence::CheckConfig {
-        crate::tasks::confidence::CheckConfig {
+    pub fn check_config(&self) -> crate::params::CheckConfig {
+        crate::params::CheckConfig {
             confidence: self.confidence,
             invalidate: self.lr_check,
             max_diff: self.lr_max_diff as f32,
@@ -443,7 +492,7 @@ impl DisparityConfig {
 #[serde(deny_unknown_fields, default)]
 pub struct SinksConfig {
     /// Score depth against a synthetic session's ground truth every N-th point (0: off). The `abvs` program's:
-    /// the scoring is offline tooling ([`crate::Runtime`] adds no such sink).
+    /// the scoring is offline tooling (`abvs_runtime::Runtime` adds no such sink).
     pub truth_stride: usize,
     /// Statistics as JSON.
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -454,7 +503,7 @@ pub struct SinksConfig {
     /// rerun recording (.rrd; needs the cargo feature `rerun`).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub rerun: Option<PathBuf>,
-    /// No latency table on stdout (what the `abvs` program prints; [`crate::Report::table`] for an embedder).
+    /// No latency table on stdout (what the `abvs` program prints; `abvs_runtime::Report::table` for an embedder).
     pub quiet: bool,
     /// Length of a statistics window (s): latency p50/p99, counts and resident memory per window.
     pub stats_window_s: f64,
@@ -479,7 +528,7 @@ impl Default for SinksConfig {
     }
 }
 
-/// `[sinks.mcap]`: the ROS 2 messages of every frame recorded as MCAP (see `crate::ros2`).
+/// `[sinks.mcap]`: the ROS 2 messages of every frame recorded as MCAP (the runtime's `ros2`).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct McapSettings {
@@ -492,7 +541,7 @@ pub struct McapSettings {
 
 impl Default for McapSettings {
     fn default() -> Self {
-        McapSettings { file: None, queue: crate::sinks::mcap_log::DEFAULT_QUEUE }
+        McapSettings { file: None, queue: MCAP_QUEUE }
     }
 }
 
@@ -516,7 +565,7 @@ pub struct SelfCheckSettings {
 
 impl Default for SelfCheckSettings {
     fn default() -> Self {
-        let d = crate::sinks::self_check::SelfCheckConfig::default();
+        let d = crate::params::SelfCheckConfig::default();
         SelfCheckSettings {
             enabled: true,
             every: d.every,
@@ -584,7 +633,7 @@ impl Default for ZenohSettings {
             config: None,
             accept_gaze_goals: false,
             insecure: false,
-            queue: crate::bridges::zenoh::DEFAULT_QUEUE,
+            queue: ZENOH_QUEUE,
             keys: Ros2Keys::default(),
             distro: RosDistro::default(),
             domain: 0,
@@ -594,7 +643,7 @@ impl Default for ZenohSettings {
     }
 }
 
-/// `[bridges.iceoryx]`: depth, confidence and cloud over iceoryx2 shared memory ([`crate::bridges::iceoryx`]).
+/// `[bridges.iceoryx]`: depth, confidence and cloud over iceoryx2 shared memory (the runtime's `bridges::iceoryx`).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct IceoryxConfig {
@@ -630,12 +679,12 @@ pub struct MotionSettings {
     /// encoder_time_offset (ms: encoder stamps this much late), one value or `[left, right]`, overriding the
     /// session's (session.toml `time_offset_ms`) and the FK models'.
     #[serde(skip_serializing_if = "Option::is_none")]
-    pub time_offset_ms: Option<crate::tasks::motion::TimeOffsetMs>,
+    pub time_offset_ms: Option<crate::session::TimeOffsetMs>,
 }
 
 impl Default for MotionSettings {
     fn default() -> Self {
-        let m = crate::tasks::motion::MotionConfig::default();
+        let m = crate::params::MotionConfig::default();
         MotionSettings {
             rolling_shutter: m.rolling_shutter,
             row_bands: m.bands,
@@ -648,8 +697,8 @@ impl Default for MotionSettings {
 
 impl MotionSettings {
     /// What the pipeline's stages take.
-    pub fn motion_config(&self) -> crate::tasks::motion::MotionConfig {
-        crate::tasks::motion::MotionConfig {
+    pub fn motion_config(&self) -> crate::params::MotionConfig {
+        crate::params::MotionConfig {
             rolling_shutter: self.rolling_shutter,
             bands: self.row_bands,
             gate_blur_px: self.gate_blur_px,
@@ -780,7 +829,7 @@ impl RuntimeConfig {
         if d.threads == 0 || d.threads > 256 {
             return Err(format!("disparity.threads: {} must be in 1..=256", d.threads));
         }
-        let limit = crate::tasks::confidence::MAX_DIFF_LIMIT as f64;
+        let limit = crate::params::MAX_DIFF_LIMIT as f64;
         if !(d.lr_max_diff > 0.0 && d.lr_max_diff <= limit) {
             return Err(format!("disparity.lr_max_diff: {} must be in (0, {limit}] px", d.lr_max_diff));
         }
@@ -804,7 +853,7 @@ impl RuntimeConfig {
             }
         }
         let z = &self.bridges.zenoh;
-        crate::bridges::rmw_zenoh::check_node(&z.node, &z.namespace).map_err(|m| format!("bridges.zenoh.{m}"))?;
+        check_node(&z.node, &z.namespace).map_err(|m| format!("bridges.zenoh.{m}"))?;
         if z.domain > 232 {
             return Err(format!("bridges.zenoh.domain: {} must be in 0..=232 (ROS 2 domain ids)", z.domain));
         }
@@ -843,14 +892,6 @@ impl RuntimeConfig {
             ),
             _ => Ok(()),
         }
-    }
-
-    /// The iceoryx2 bridge of this deployment: `[bridges.iceoryx]`'s prefix, sized for the rectified
-    /// resolution. A subscriber in another process opens its services with the same value
-    /// ([`crate::bridges::iceoryx::Subscriber::new`]); any other settings are refused as foreign.
-    pub fn bridge_config(&self) -> crate::bridges::iceoryx::BridgeConfig {
-        crate::bridges::iceoryx::BridgeConfig::for_resolution(self.disparity.width, self.disparity.height)
-            .with_prefix(self.bridges.iceoryx.service_prefix.clone())
     }
 
     /// The configuration as TOML (what `--print-config` prints).
@@ -908,7 +949,7 @@ mod tests {
         .to_string();
         assert!(e.contains("lr_max_diff"), "{e}");
         // the validity mask: absent takes the documented default, out of [0, 1] is refused
-        let d = crate::tasks::census_confidence::DEFAULT_MIN_CONFIDENCE as f64;
+        let d = crate::params::DEFAULT_MIN_CONFIDENCE as f64;
         assert_eq!(c.disparity.min_confidence, d);
         let line = format!("min_confidence = {d}\n");
         assert!(c.to_toml_string().contains(&line));
@@ -925,5 +966,16 @@ mod tests {
         let rel = c.to_toml_string().replace("/data/s", "sessions/a");
         let r = RuntimeConfig::from_toml_str(&rel, Path::new("/etc/abvs/r.toml")).unwrap();
         assert_eq!(r.source.session.unwrap(), Path::new("/etc/abvs/sessions/a"));
+    }
+
+    #[test]
+    fn node_names() {
+        assert!(check_node("abvs", "/").is_ok() && check_node("_eyes2", "/robot/head_1").is_ok());
+        for (name, ns) in
+            [("2abvs", "/"), ("ab-vs", "/"), ("", "/"), ("abvs", ""), ("abvs", "robot"), ("abvs", "/a//b")]
+        {
+            assert!(check_node(name, ns).is_err(), "{name:?} {ns:?}");
+        }
+        assert!(check_node("abvs", "/robot/").is_err());
     }
 }

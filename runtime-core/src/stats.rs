@@ -9,9 +9,6 @@ use hdrhistogram::Histogram;
 use crate::cpu::RunCpu;
 use serde_json::{json, Value};
 
-/// CLOCK_MONOTONIC in nanoseconds (the one clock of frames, encoders and published headers).
-pub use crate::messages::monotonic_ns;
-
 /// Latency histogram in microseconds (1 us .. 60 s, 3 significant digits).
 pub struct Latency(Histogram<u64>);
 

@@ -6,7 +6,7 @@
 //!
 //! Lanes measure their own thread (`CLOCK_THREAD_CPUTIME_ID`); every other thread of the process (the
 //! engine's helpers, ONNX Runtime's and OpenCV's workers, the replay's decoder, the side lanes) is read by
-//! its thread id through the clock Linux gives each thread ([`thread_clock`]), before and after the run.
+//! its thread id through the clock Linux gives each thread (`thread_clock`), before and after the run.
 use std::collections::BTreeMap;
 
 /// CPU time (ns) the calling thread has used.
