@@ -15,6 +15,7 @@ use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
+use abvs_board::stream::EncoderStream;
 use abvs_camera::StereoCalibration;
 use abvs_runtime::bridges::zenoh_gaze::{self, ZenohGaze};
 use abvs_runtime::config::ZenohSettings;
@@ -23,7 +24,6 @@ use abvs_runtime::gaze::stage::GazeStage;
 use abvs_runtime::gaze::{GazeConfig, GazeHandle, Mailbox, RateLimit};
 use abvs_runtime::pipeline::{run_with_gaze, PipelineConfig, Sink};
 use abvs_runtime::sinks::stats::monotonic_ns;
-use abvs_runtime::sources::encoder_stream::EncoderStream;
 use abvs_runtime::sources::live::LiveSource;
 use abvs_runtime::sources::pairing::PairerConfig;
 use abvs_runtime::sources::v4l_capture::StereoCapture;

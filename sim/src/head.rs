@@ -40,12 +40,12 @@ use abvs_render::{RayTable, Scene};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
+use abvs_board::protocol::BoardFrame;
+use abvs_board::tracker::EncoderTracker;
 use abvs_runtime::error::{Result, RuntimeError};
 use abvs_runtime::gaze::GazeHandle;
 use abvs_runtime::messages::{EncoderSample, SourcePair};
 use abvs_runtime::sources::board::BoardLink;
-use abvs_runtime::sources::encoder_link::BoardFrame;
-use abvs_runtime::sources::encoder_stream::EncoderTracker;
 use abvs_runtime::sources::{EncoderFeed, PairSource};
 use abvs_runtime::stats::RunStats;
 use abvs_runtime::tasks::align::EncoderTrack;

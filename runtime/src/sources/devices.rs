@@ -5,10 +5,10 @@ use std::time::{Duration, Instant};
 
 use crate::config::LiveConfig;
 use crate::error::{Result, RuntimeError};
-use crate::sources::encoder_link::open_port;
-use crate::sources::encoder_stream::EncoderStream;
 use crate::sources::pairing::PairerConfig;
 use crate::sources::v4l_capture::{CaptureConfig, RowReference, StereoCapture};
+use abvs_board::port::open_port;
+use abvs_board::stream::EncoderStream;
 
 /// Encoder rows the stream's channel holds for a consumer that falls behind.
 const ENCODER_QUEUE: usize = 16_384;
@@ -18,7 +18,7 @@ const ENCODER_QUEUE: usize = 16_384;
 pub fn open_devices(l: &LiveConfig) -> Result<(StereoCapture, EncoderStream)> {
     let cfg = capture_config(l)?;
     let pairing = PairerConfig { tolerance_ns: (l.pair_tolerance_ms * 1e6).round() as i64, ..Default::default() };
-    let port = open_port(&l.encoders, l.baud).map_err(RuntimeError::Device)?;
+    let port = open_port(&l.encoders, l.baud).map_err(|e| RuntimeError::Device(e.to_string()))?;
     let capture =
         StereoCapture::open(&l.left, &l.right, cfg, pairing).map_err(|e| RuntimeError::Device(e.to_string()))?;
     // the same port carries the gaze controller's commands to the board

@@ -5,8 +5,10 @@
 //! the wire.
 use std::time::{Duration, Instant};
 
+use abvs_board::stream::EncoderStream;
+use abvs_board::tracker::HomedSample;
+
 use crate::messages::{EncoderSample, SourcePair};
-use crate::sources::encoder_stream::EncoderStream;
 use crate::sources::v4l_capture::{CaptureError, StereoCapture};
 use crate::sources::{EncoderFeed, FramePair, PairSource};
 use crate::stats::RunStats;
@@ -72,7 +74,7 @@ impl PairSource for LiveSource {
     }
 
     fn board(&mut self) -> Option<Box<dyn crate::sources::board::BoardLink>> {
-        let board = self.encoders.as_mut()?.take_board()?;
+        let board = self.encoders.as_mut()?.take_commands()?;
         Some(Box::new(board))
     }
 
@@ -143,7 +145,8 @@ struct LiveEncoders {
 }
 
 impl LiveEncoders {
-    fn push(&mut self, r: crate::session::EncoderRecord, tracks: &mut [EncoderTrack; 2]) {
+    fn push(&mut self, h: HomedSample, tracks: &mut [EncoderTrack; 2]) {
+        let r = encoder_record(&h);
         let s = r.sample();
         let eye = usize::from(r.eye.min(1));
         self.newest_ns[eye] = self.newest_ns[eye].max(r.t_ns);
@@ -166,4 +169,10 @@ impl EncoderFeed for LiveEncoders {
             }
         }
     }
+}
+
+/// A homed sample of the board link as a row of a session's encoders.csv.
+pub(crate) fn encoder_record(h: &HomedSample) -> crate::session::EncoderRecord {
+    let [count1, count2, count3] = h.counts;
+    crate::session::EncoderRecord { t_ns: h.t_ns, eye: h.eye, count1, count2, count3 }
 }
