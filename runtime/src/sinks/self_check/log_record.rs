@@ -337,7 +337,13 @@ fn field_error(path: &Path, line: u64, head: &csv::StringRecord, rec: &csv::Stri
     if let Some(column) = message.strip_prefix("missing field `").and_then(|m| m.strip_suffix('`')) {
         return LogError::MissingColumn { path, column: column.to_string() };
     }
-    match err.field().and_then(|k| Some((head.get(k as usize)?, rec.get(k as usize)?))) {
+    // csv knows the field of its own parse errors; a field's reader (`number`, `finite`) names the value it
+    // refused, and the columns are read in order, so the first holding that value is the one
+    let field = err.field().map(|k| k as usize).or_else(|| {
+        let value = message.split('`').nth(1)?;
+        rec.iter().position(|v| v.trim() == value.trim())
+    });
+    match field.and_then(|k| Some((head.get(k)?, rec.get(k)?))) {
         Some((column, value)) => {
             // the float fields name their value themselves; the others get it here
             let message = if message.contains('`') { message } else { format!("`{value}`: {message}") };
