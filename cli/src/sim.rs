@@ -249,7 +249,7 @@ fn session_board(a: BoardArgs) -> anyhow::Result<ExitCode> {
         Some(s) => s - t_first,
         None => now + 1_000_000 - t_roll,
     };
-    let mut port = abvs_runtime::sources::encoder_link::open_port(&a.port, 1_000_000).map_err(anyhow::Error::msg)?;
+    let mut port = abvs_board::port::open_port(&a.port, 1_000_000)?;
     let mut sent = 0usize;
     for (t, bytes) in &script {
         let wait = t + shift - monotonic_ns();
@@ -269,7 +269,10 @@ pub fn run(cmd: SimCmd) -> anyhow::Result<ExitCode> {
         SimCmd::AprilgridSession(a) => crate::camcal::sim_session(a),
         SimCmd::StereoSession(a) => crate::camcal::sim_stereo(a),
         SimCmd::Repeatability(a) => crate::repeat::sim(a),
-        SimCmd::Board(a) if a.serve => crate::saccade::serve_board(&a.port, a.seed, a.rate_hz, a.seconds),
+        SimCmd::Board(a) if a.serve => {
+            eprintln!("{}", abvs_sim::board_server::serve_board(&a.port, a.seed, a.rate_hz, a.seconds)?);
+            Ok(ExitCode::SUCCESS)
+        }
         SimCmd::Board(a) if a.session.is_some() => session_board(a),
         SimCmd::Board(a) => {
             use std::io::Write;
@@ -280,8 +283,7 @@ pub fn run(cmd: SimCmd) -> anyhow::Result<ExitCode> {
                 drop_every: a.drop_every,
                 reset_after: a.reset_after,
             };
-            let mut port =
-                abvs_runtime::sources::encoder_link::open_port(&a.port, 1_000_000).map_err(anyhow::Error::msg)?;
+            let mut port = abvs_board::port::open_port(&a.port, 1_000_000)?;
             let period = std::time::Duration::from_secs_f64(1.0 / a.rate_hz.max(1.0));
             let mut sent = 0usize;
             for f in sim.frames() {

@@ -207,7 +207,7 @@ fn doctor_finds_onnx_runtime_without_variables() {
 /// errors, lost frames and a board reset are counted, nothing crashes.
 #[test]
 fn encoder_stream_through_a_pseudo_terminal() {
-    use abvs_runtime::sources::encoder_link::{Decoder, LinkEvent};
+    use abvs_board::decoder::{Decoder, LinkEvent};
     use std::io::Read;
     let (mut master, slave) = serialport::TTYPort::pair().expect("pseudo-terminal pair");
     let name = serialport::SerialPort::name(&slave).expect("pty name");

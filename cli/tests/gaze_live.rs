@@ -9,12 +9,12 @@ use std::process::Command;
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
+use abvs_board::stream::EncoderStream;
 use abvs_camera::StereoCalibration;
 use abvs_runtime::gaze::controller::GazeController;
 use abvs_runtime::gaze::stage::GazeStage;
 use abvs_runtime::gaze::{GazeConfig, GazeHandle, Mailbox};
 use abvs_runtime::pipeline::{run_with_gaze, PipelineConfig};
-use abvs_runtime::sources::encoder_stream::EncoderStream;
 use abvs_runtime::sources::live::LiveSource;
 use abvs_runtime::sources::pairing::PairerConfig;
 use abvs_runtime::sources::v4l_capture::StereoCapture;

@@ -9,9 +9,9 @@ use std::process::Command;
 use std::sync::atomic::AtomicBool;
 use std::time::Duration;
 
+use abvs_board::stream::EncoderStream;
 use abvs_runtime::record::{record, RecordConfig};
 use abvs_runtime::sinks::session_writer::{CalibFiles, SessionWriter};
-use abvs_runtime::sources::encoder_stream::EncoderStream;
 use abvs_runtime::sources::pairing::PairerConfig;
 use abvs_runtime::sources::v4l_capture::{CaptureError, FrameSource, StereoCapture};
 use abvs_runtime_core::messages::monotonic_ns;

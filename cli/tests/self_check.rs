@@ -131,6 +131,10 @@ fn the_offline_report_names_the_wrong_eye_and_where() {
     assert!(out.status.success());
     let ok = report(&log, "ok");
     assert!(ok["verdict"].as_str().unwrap().starts_with("no significant error"), "{ok:#}");
+    // the library returns the same verdict, typed: a caller needs no report to parse
+    let typed = abvs_selfcheck::attribution::attribute(&log).unwrap();
+    assert_eq!(typed.verdict, abvs_selfcheck::attribution::Verdict::NoError);
+    assert_eq!(ok["verdict"], typed.verdict.to_string());
     for (eye, name) in [(1, "right"), (0, "left")] {
         let copy = wrong_eye_copy(tmp.path(), eye);
         let log = tmp.path().join(format!("wrong{eye}.csv"));
@@ -158,6 +162,13 @@ fn the_offline_report_names_the_wrong_eye_and_where() {
         assert!(String::from_utf8_lossy(&out.stderr).contains("warning: self-check"), "{out:?}");
         let v = report(&log, &format!("wrong{eye}"));
         let verdict = v["verdict"].as_str().unwrap();
+        let typed = abvs_selfcheck::attribution::attribute(&log).unwrap().verdict;
+        assert_eq!(verdict, typed.to_string());
+        let named = typed.eye().map(|e| e.name());
+        assert!(
+            named == Some(name) || matches!(typed, abvs_selfcheck::attribution::Verdict::EitherEye { .. }),
+            "{typed:?}"
+        );
         // The fixture's eyes now pursue targets together (their gazes correlate at 1.00 in yaw and pitch over
         // its fixations): the report must then say it cannot tell the eyes apart rather than guess, and
         // still find the pose-dependent error; with eyes that verge independently it names the eye.

@@ -8,11 +8,13 @@
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
+use abvs_board::stream::EncoderStream;
+use abvs_board::tracker::EncoderStats;
 use crossbeam_channel::{bounded, Receiver, Sender, TrySendError};
 use serde::Serialize;
 
 use crate::sinks::session_writer::SessionWriter;
-use crate::sources::encoder_stream::{EncoderStats, EncoderStream};
+use crate::sources::live::encoder_record;
 use crate::sources::v4l_capture::{CaptureError, StereoCapture, StereoStats};
 use abvs_runtime_core::error::{Result, RuntimeError};
 use abvs_runtime_core::messages::FramePair;
@@ -143,7 +145,7 @@ pub fn record(
 
     // Encoder rows never drop: they go through a blocking send (the writer only appends CSV).
     let forward_encoders = |tx: &Sender<ToWriter>, stats: &mut RecordStats| {
-        let rows: Vec<EncoderRecord> = encoders.records().try_iter().collect();
+        let rows: Vec<EncoderRecord> = encoders.records().try_iter().map(|h| encoder_record(&h)).collect();
         if !rows.is_empty() {
             stats.encoder_rows += rows.len() as u64;
             let _ = tx.send(ToWriter::Encoders(rows));
@@ -234,7 +236,7 @@ pub fn record(
         std::thread::sleep(Duration::from_millis(10));
     }
     forward_encoders(&tx, &mut stats);
-    let rest: Vec<EncoderRecord> = encoders.records().try_iter().collect();
+    let rest: Vec<EncoderRecord> = encoders.records().try_iter().map(|h| encoder_record(&h)).collect();
     let (enc_stats, enc_err) = encoders.finish();
     if !rest.is_empty() {
         stats.encoder_rows += rest.len() as u64;
@@ -254,7 +256,7 @@ pub fn record(
     stats.last_write_error = end.last_error;
     stats.capture = capture.stats();
     stats.encoders = enc_stats;
-    stats.encoder_error = enc_err;
+    stats.encoder_error = enc_err.map(|e| e.to_string());
     stats.elapsed_s = start.elapsed().as_secs_f64();
     progress(&stats);
     // Finish what was recorded even when the run failed: it is the user's data.

@@ -499,8 +499,8 @@ fn sinks(
             // the run's configuration beside its log: an offline estimate can replay it with other timing; the
             // run's identity in both, so that a log is never fitted or replayed with another run's
             cfg.run_id = crate::sinks::self_check::new_run_id(&toml);
-            let p = crate::sinks::self_check::run_config_path(log);
-            let text = format!("{}\n{toml}", crate::sinks::self_check::run_id_line(cfg.run_id));
+            let p = crate::sinks::self_check::log_record::run_config_path(log);
+            let text = format!("{}\n{toml}", crate::sinks::self_check::log_record::run_id_line(cfg.run_id));
             std::fs::write(&p, text).map_err(|e| RuntimeError::File {
                 path: p.clone(),
                 line: None,

@@ -6,7 +6,10 @@ use std::process::Command;
 
 use abvs_camera::StereoCalibration;
 use abvs_runtime::pipeline::{run_replay, PipelineConfig};
-use abvs_runtime::sinks::self_check::{SelfCheckSink, LOG_HEADER};
+use abvs_runtime::sinks::self_check::log_record::{read_log, FrameRecord, LogRecord};
+use abvs_runtime::sinks::self_check::SelfCheckSink;
+use abvs_runtime_core::params::SelfCheckConfig;
+use abvs_runtime_core::session::Session;
 use abvs_runtime::sources::replay::ReplaySource;
 use abvs_runtime::tasks::disparity;
 use abvs_runtime::tasks::kinematics::{EyeFk, StereoKinematics};
@@ -93,11 +96,11 @@ fn the_self_check_reads_the_fixture_as_calibrated_and_finds_a_rotated_extrinsic(
     // the log: a header and a row per checked frame
     let log = std::fs::read_to_string(tmp.path().join("bad.csv")).unwrap();
     let lines: Vec<&str> = log.lines().collect();
-    assert_eq!(lines[0], LOG_HEADER);
+    assert_eq!(lines[0], FrameRecord::header());
     // a row per checked frame: every frame but the motion-gated ones
     let checked = bad["frames"].as_u64().unwrap() as usize;
     assert_eq!(lines.len(), checked + 1);
-    assert_eq!(lines[1].split(',').count(), LOG_HEADER.split(',').count());
+    assert_eq!(lines[1].split(',').count(), FrameRecord::header().split(',').count());
 
     // frame by frame against the truth: the true relative rotation error of the calibrated FK (truth units at
     // the true link angles vs the calibrated models at the logged ones), in the same convention
@@ -185,17 +188,17 @@ fn truth_vs_log(dir: &Path, log: &Path) -> Vec<(u64, [f64; 3], [f64; 3])> {
         })
         .collect();
     let mut out = Vec::new();
-    for line in std::fs::read_to_string(log).unwrap().lines().skip(1) {
-        let c: Vec<f64> = line.split(',').map(|x| x.parse().unwrap_or(f64::NAN)).collect();
-        let seq = c[0] as u64;
+    for r in read_log::<FrameRecord>(log).unwrap().lines.into_iter().map(|l| l.record) {
+        let seq = r.seq;
         let th = &truth_theta[&seq];
-        let pc = cal.solve(&[c[2], c[3], c[4]], &[c[5], c[6], c[7]]).unwrap();
+        let [tl, tr] = r.theta();
+        let pc = cal.solve(&tl, &tr).unwrap();
         let pt = tru.solve(&[th[0], th[1], th[2]], &[th[3], th[4], th[5]]).unwrap();
         // R_cal = R_true exp([R_rel,l^T w]x)  =>  w = R_rel,l log(R_true^T R_cal)
         let r_true = turn_r * pt.left_to_right.r * turn_l.transpose();
         let e = Rotation3::from_matrix_unchecked(r_true.transpose() * pc.left_to_right.r).scaled_axis();
         let w = (pc.rel_left.r * e).map(f64::to_degrees);
-        out.push((seq, [w.x, w.y, w.z], [c[11], c[12], c[13]]));
+        out.push((seq, [w.x, w.y, w.z], r.rotation_deg()));
     }
     out
 }

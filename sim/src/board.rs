@@ -1,5 +1,5 @@
 //! Simulated drive boards (tests and `abvs sim board`): the encoder stream's frames
-//! (runtime's `encoder_link` protocol) from a synthetic link roll with injected faults
+//! (`abvs_board::protocol`) from a synthetic link roll with injected faults
 //! ([`BoardSim`]), or from a recorded session after a start-up roll through the index markers
 //! ([`SessionBoard`]). Offline: the runtime only decodes what a board sends.
 use abvs_runtime_core::session::EncoderRecord;
@@ -16,7 +16,7 @@ pub enum ScriptError {
     #[error("eye {0} in the session")]
     UnknownEye(u8),
 }
-use abvs_runtime::sources::encoder_link::BoardFrame;
+use abvs_board::protocol::BoardFrame;
 
 /// What a simulated board sends (for tests and `abvs sim board`).
 #[derive(Debug, Clone)]

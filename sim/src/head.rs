@@ -40,9 +40,9 @@ use abvs_render::{RayTable, Scene};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
+use abvs_board::protocol::BoardFrame;
+use abvs_board::tracker::EncoderTracker;
 use abvs_runtime::gaze::GazeHandle;
-use abvs_runtime::sources::encoder_link::BoardFrame;
-use abvs_runtime::sources::encoder_stream::EncoderTracker;
 use abvs_runtime_core::error::{Result, RuntimeError};
 use abvs_runtime_core::messages::{EncoderSample, SourcePair};
 use abvs_runtime_core::source::BoardLink;

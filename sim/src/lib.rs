@@ -9,6 +9,7 @@
 //! [`disparity_score`] is the one EPE / bad-k score of a disparity map against ground truth.
 //! `abvs sim session`, `abvs sim board` and `abvs run` use them.
 pub mod board;
+pub mod board_server;
 pub mod disparity_score;
 pub mod gaze_plan;
 pub mod gaze_score;

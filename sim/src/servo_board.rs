@@ -1,14 +1,14 @@
 //! A simulated drive board that executes commands (`abvs sim board --serve`): at power-up each
 //! eye rolls its links together through the index markers (start-up homing, as
 //! [`crate::board::SessionBoard`] does), then the links rest and the board streams both eyes'
-//! encoder frames while it executes the move commands it receives (runtime's `encoder_link`
+//! encoder frames while it executes the move commands it receives (`abvs_board::protocol`'s
 //! command frame): from where the links are, a minimum-jerk profile in link space
 //! ([`abvs_eye::saccade::MinJerk`]) to the target counts over the commanded duration. The motors
 //! track the profile to the count (the encoders read it rounded to counts).
 use crate::board::SessionBoard;
+use abvs_board::protocol::{CommandFrame, COMMAND_MOVE};
 use abvs_eye::encoder::{deg_to_counts, StartupRoll, DEFAULT_TOLERANCE_COUNTS};
 use abvs_eye::saccade::MinJerk;
-use abvs_runtime::sources::encoder_link::{CommandFrame, COMMAND_MOVE};
 
 #[derive(Debug, Clone, Copy)]
 struct EyeServo {
@@ -146,10 +146,9 @@ impl ServoBoard {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use abvs_board::protocol::BoardFrame;
+    use abvs_board::tracker::{EncoderTracker, HomedSample};
     use abvs_eye::saccade::{MinJerk, PEAK_SPEED_DEG_S};
-    use abvs_runtime::sources::encoder_link::BoardFrame;
-    use abvs_runtime::sources::encoder_stream::EncoderTracker;
-    use abvs_runtime_core::session::EncoderRecord;
 
     #[test]
     fn homes_then_executes_a_minimum_jerk_move() {
@@ -177,18 +176,18 @@ mod tests {
             push(b.sample(1, t), &mut bytes);
         }
         let mut tr = EncoderTracker::new();
-        let mut out: Vec<EncoderRecord> = vec![];
+        let mut out: Vec<HomedSample> = vec![];
         for (k, chunk) in bytes.chunks(29).enumerate() {
             tr.feed(chunk, 1_000_000 + k as i64 * 500_000, &mut out);
         }
         assert_eq!(tr.homed(), [true, true]);
         assert_eq!(tr.stats().home_counts, [Some(b.roll.origin[0]), Some(b.roll.origin[1])]);
-        let left: Vec<&EncoderRecord> = out.iter().filter(|r| r.eye == 0).collect();
+        let left: Vec<&HomedSample> = out.iter().filter(|r| r.eye == 0).collect();
         let last = left.last().unwrap();
-        assert_eq!(last.count1 + b.roll.origin[0][0], i64::from(target[0]));
+        assert_eq!(last.counts[0] + b.roll.origin[0][0], i64::from(target[0]));
         // Moving frames span the minimum-jerk duration (1 ms samples).
         let after = &left[left.len() - 100..];
-        let moving = after.windows(2).filter(|w| w[0].count1 != w[1].count1).count() as f64;
+        let moving = after.windows(2).filter(|w| w[0].counts[0] != w[1].counts[0]).count() as f64;
         assert!((moving - m.duration_s * 1e3).abs() <= 2.0, "{moving} vs {}", m.duration_s * 1e3);
         assert_eq!(b.executed.len(), 1);
     }

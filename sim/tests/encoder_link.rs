@@ -1,5 +1,7 @@
 //! The encoder protocol: framing round trip, resync after garbage, clock mapping under jitter.
-use abvs_runtime::sources::encoder_link::{BoardFrame, ClockMap, Decoder, LinkEvent, FRAME_LEN};
+use abvs_board::clock::ClockMap;
+use abvs_board::decoder::{Decoder, LinkEvent};
+use abvs_board::protocol::{BoardFrame, FRAME_LEN};
 use abvs_sim::board::BoardSim;
 
 #[test]
@@ -74,7 +76,7 @@ fn clock_map_recovers_board_time_under_latency_jitter() {
 /// board replays from power-on, sequence and clock from zero) both eyes home again.
 #[test]
 fn tracker_homes_maps_and_rehomes_after_a_board_reset() {
-    use abvs_runtime::sources::encoder_stream::EncoderTracker;
+    use abvs_board::tracker::EncoderTracker;
     use abvs_runtime_core::session::Session;
     use abvs_sim::board::SessionBoard;
     let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../fixtures/session");
@@ -102,17 +104,12 @@ fn tracker_homes_maps_and_rehomes_after_a_board_reset() {
         let t = r.t_ns - shift - 80_000;
         let f = session.encoders.iter().filter(|f| f.eye == r.eye).min_by_key(|f| (f.t_ns - t).abs()).unwrap();
         assert!((f.t_ns - t).abs() < 2_000, "eye {} at {t}: nearest fixture sample {}", r.eye, f.t_ns);
-        assert_eq!((f.count1, f.count2, f.count3), (r.count1, r.count2, r.count3));
+        assert_eq!([f.count1, f.count2, f.count3], r.counts);
     }
 
     // A frame from an eye that does not exist is counted, not used.
-    let bogus = abvs_runtime::sources::encoder_link::BoardFrame {
-        seq: 0,
-        board_time_us: u64::MAX / 2,
-        eye: 5,
-        counts: [0; 3],
-        index: 0,
-    };
+    let bogus =
+        abvs_board::protocol::BoardFrame { seq: 0, board_time_us: u64::MAX / 2, eye: 5, counts: [0; 3], index: 0 };
     tracker.feed(&bogus.encode(), 0, &mut out);
     assert_eq!(tracker.stats().bad_eye, 1);
 

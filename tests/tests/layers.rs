@@ -2,14 +2,16 @@
 //! pull a toolkit crate in, so the check walks their manifests: from each onboard crate, the `abvs-*` crates of
 //! `[dependencies]` (normal ones, optional ones included: a feature could turn them on; dev-dependencies never
 //! reach the robot), recursively, must hold none of abvs-calib, abvs-render, abvs-plot, abvs-sim, abvs-paper,
-//! abvs-camcal.
+//! abvs-camcal, abvs-selfcheck.
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::Path;
 
 /// The crates the robot never links: training, experiments, rendering, simulation, plots.
-const TOOLKIT: [&str; 6] = ["abvs-calib", "abvs-render", "abvs-plot", "abvs-sim", "abvs-paper", "abvs-camcal"];
+const TOOLKIT: [&str; 7] =
+    ["abvs-calib", "abvs-render", "abvs-plot", "abvs-sim", "abvs-paper", "abvs-camcal", "abvs-selfcheck"];
 /// The crates that run on the robot.
-const ONBOARD: [&str; 6] = ["abvs-runtime", "abvs-runtime-core", "abvs-eye", "abvs-fk", "abvs-camera", "abvs-onnx"];
+const ONBOARD: [&str; 7] =
+    ["abvs-runtime", "abvs-runtime-core", "abvs-eye", "abvs-fk", "abvs-camera", "abvs-onnx", "abvs-board"];
 
 /// Each workspace crate's name and the `abvs-*` crates of its `[dependencies]`.
 fn workspace_graph() -> BTreeMap<String, BTreeSet<String>> {

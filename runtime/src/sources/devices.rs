@@ -3,10 +3,10 @@
 //! open them the same way.
 use std::time::{Duration, Instant};
 
-use crate::sources::encoder_link::open_port;
-use crate::sources::encoder_stream::EncoderStream;
 use crate::sources::pairing::PairerConfig;
 use crate::sources::v4l_capture::{CaptureConfig, RowReference, StereoCapture};
+use abvs_board::port::open_port;
+use abvs_board::stream::EncoderStream;
 use abvs_runtime_core::config::LiveConfig;
 use abvs_runtime_core::error::{Result, RuntimeError};
 
@@ -18,7 +18,7 @@ const ENCODER_QUEUE: usize = 16_384;
 pub fn open_devices(l: &LiveConfig) -> Result<(StereoCapture, EncoderStream)> {
     let cfg = capture_config(l)?;
     let pairing = PairerConfig { tolerance_ns: (l.pair_tolerance_ms * 1e6).round() as i64, ..Default::default() };
-    let port = open_port(&l.encoders, l.baud).map_err(RuntimeError::Device)?;
+    let port = open_port(&l.encoders, l.baud).map_err(|e| RuntimeError::Device(e.to_string()))?;
     let capture =
         StereoCapture::open(&l.left, &l.right, cfg, pairing).map_err(|e| RuntimeError::Device(e.to_string()))?;
     // the same port carries the gaze controller's commands to the board

@@ -5,7 +5,9 @@
 //! the wire.
 use std::time::{Duration, Instant};
 
-use crate::sources::encoder_stream::EncoderStream;
+use abvs_board::stream::EncoderStream;
+use abvs_board::tracker::HomedSample;
+
 use crate::sources::v4l_capture::{CaptureError, StereoCapture};
 use abvs_runtime_core::messages::FramePair;
 use abvs_runtime_core::messages::{EncoderSample, SourcePair};
@@ -72,8 +74,8 @@ impl PairSource for LiveSource {
     }
 
     fn board(&mut self) -> Option<Box<dyn abvs_runtime_core::source::BoardLink>> {
-        let board = self.encoders.as_mut()?.take_board()?;
-        Some(Box::new(board))
+        let board = self.encoders.as_mut()?.take_commands()?;
+        Some(Box::new(crate::sources::board::SerialBoard(board)))
     }
 
     fn start(&mut self, _now_ns: i64) -> Box<dyn EncoderFeed> {
@@ -143,7 +145,8 @@ struct LiveEncoders {
 }
 
 impl LiveEncoders {
-    fn push(&mut self, r: abvs_runtime_core::session::EncoderRecord, push: &mut dyn FnMut(usize, EncoderSample)) {
+    fn push(&mut self, h: HomedSample, push: &mut dyn FnMut(usize, EncoderSample)) {
+        let r = encoder_record(&h);
         let s = r.sample();
         let eye = usize::from(r.eye.min(1));
         self.newest_ns[eye] = self.newest_ns[eye].max(r.t_ns);
@@ -166,4 +169,10 @@ impl EncoderFeed for LiveEncoders {
             }
         }
     }
+}
+
+/// A homed sample of the board link as a row of a session's encoders.csv.
+pub(crate) fn encoder_record(h: &HomedSample) -> abvs_runtime_core::session::EncoderRecord {
+    let [count1, count2, count3] = h.counts;
+    abvs_runtime_core::session::EncoderRecord { t_ns: h.t_ns, eye: h.eye, count1, count2, count3 }
 }

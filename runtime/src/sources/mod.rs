@@ -1,8 +1,6 @@
 //! Sources: where data enters the runtime (cameras, the encoder board, recorded sessions).
 pub mod board;
 pub mod devices;
-pub mod encoder_link;
-pub mod encoder_stream;
 pub mod live;
 pub mod pairing;
 pub mod pixel;

@@ -54,7 +54,8 @@
 //! encoder-to-camera offset and the readout from.
 //!
 //! By concern: `matching` (corners, band search, Lucas-Kanade), `fit` (the rotation fit and the check of
-//! one frame), `summary` (the run's statistics, the log), `timing` (the per-match timing evidence),
+//! one frame), `summary` (the run's statistics, the log's frame records), `log_record` (the logs' records, written
+//! and read), `timing` (the per-match timing evidence),
 //! `worker` (the sink and its thread).
 use std::io::Write;
 use std::path::PathBuf;
@@ -70,6 +71,7 @@ use abvs_runtime_core::sink::Sink;
 use abvs_runtime_core::stats::{Latency, RunStats};
 
 mod fit;
+pub mod log_record;
 mod matching;
 mod summary;
 mod timing;
@@ -94,10 +96,6 @@ pub fn new_run_id(config: &str) -> u64 {
     d[..6].iter().fold(0u64, |a, b| (a << 8) | *b as u64).max(1)
 }
 
-/// The line of `<log>.run.toml` that names its run (a TOML comment: the file stays a configuration).
-pub fn run_id_line(run_id: u64) -> String {
-    format!("# self-check run_id = {run_id}")
-}
 
 #[cfg(test)]
 mod tests {

@@ -1,4 +1,5 @@
 //! The run's self-check statistics (bounded memory over a long run) and the per-frame log.
+use super::log_record::FrameRecord;
 use super::*;
 use abvs_runtime_core::params::SelfCheckConfig;
 
@@ -238,55 +239,45 @@ pub fn summary_line(v: &Value) -> String {
     )
 }
 
-/// The CSV log's header. `speed_*`: each camera's angular speed (deg/s); `accel_*`: how much its mean
-/// angular velocity changed from the 15 ms before the instant to the 15 ms after (deg/s; large: the eye
-/// accelerated while the rows exposed); `readout_ms`, `exposure_ms`, `readout_anchor`, `offset_*_ms`: the
-/// timing the run applied (offsets empty without a [`TimingContext`]); `row_bands`: the row bands the
-/// rolling-shutter correction used on the frame (0: the frame was corrected as a whole, at its instant: the
-/// correction was off or there was no readout); `run_id`: [`SelfCheckConfig::run_id`].
-pub const LOG_HEADER: &str = "seq,t_ns,l1_deg,l2_deg,l3_deg,r1_deg,r2_deg,r3_deg,matches,vertical_p50_px,\
-                              vertical_p95_px,rot_x_deg,rot_y_deg,rot_z_deg,rot_sigma_x_deg,rot_sigma_y_deg,\
-                              rot_sigma_z_deg,speed_l_deg_s,speed_r_deg_s,accel_l_deg_s,accel_r_deg_s,readout_ms,\
-                              exposure_ms,readout_anchor,offset_l_ms,offset_r_ms,row_bands,run_id";
-
-pub(super) fn log_row(c: &FrameCheck, job: &Job, timing: Option<&TimingContext>, run_id: u64) -> String {
+/// The per-frame log's record of a checked frame ([`FrameRecord`]): `accel_*` is how much each camera's mean
+/// angular velocity changed from the 15 ms before the instant to the 15 ms after; the offsets are NaN (empty)
+/// without a [`TimingContext`].
+pub(super) fn frame_record(c: &FrameCheck, job: &Job, timing: Option<&TimingContext>, run_id: u64) -> FrameRecord {
     let t = &c.theta;
-    let f = |x: f64| if x.is_finite() { format!("{x:.6}") } else { String::new() };
     let (om, sg) = match &c.fit {
         Some(fit) => (fit.omega.map(f64::to_degrees), fit.sigma.map(f64::to_degrees)),
         None => (Vector3::repeat(f64::NAN), Vector3::repeat(f64::NAN)),
     };
     let offsets = timing.map_or([f64::NAN; 2], |t| t.time_offset_ms);
     let accel = job.omega_wide_rad_s.map(|[a, b]| (b - a).norm().to_degrees());
-    format!(
-        "{},{},{:.6},{:.6},{:.6},{:.6},{:.6},{:.6},{},{},{},{},{},{},{},{},{},{:.3},{:.3},{:.3},{:.3},{:.4},{:.4},{},{},{},{},{}",
-        c.seq,
-        c.t_frame_ns,
-        t[0][0],
-        t[0][1],
-        t[0][2],
-        t[1][0],
-        t[1][1],
-        t[1][2],
-        c.matches,
-        f(c.vertical_p50),
-        f(c.vertical_p95),
-        f(om.x),
-        f(om.y),
-        f(om.z),
-        f(sg.x),
-        f(sg.y),
-        f(sg.z),
-        job.speed_deg_s[0],
-        job.speed_deg_s[1],
-        accel[0],
-        accel[1],
-        job.readout_ms,
-        job.exposure_ms,
-        job.readout_anchor,
-        f(offsets[0]),
-        f(offsets[1]),
-        job.band_rot[0].len().saturating_sub(1),
-        run_id
-    )
+    FrameRecord {
+        seq: c.seq,
+        t_ns: c.t_frame_ns,
+        l1_deg: t[0][0],
+        l2_deg: t[0][1],
+        l3_deg: t[0][2],
+        r1_deg: t[1][0],
+        r2_deg: t[1][1],
+        r3_deg: t[1][2],
+        matches: c.matches as u64,
+        vertical_p50_px: c.vertical_p50,
+        vertical_p95_px: c.vertical_p95,
+        rot_x_deg: om.x,
+        rot_y_deg: om.y,
+        rot_z_deg: om.z,
+        rot_sigma_x_deg: sg.x,
+        rot_sigma_y_deg: sg.y,
+        rot_sigma_z_deg: sg.z,
+        speed_l_deg_s: job.speed_deg_s[0],
+        speed_r_deg_s: job.speed_deg_s[1],
+        accel_l_deg_s: accel[0],
+        accel_r_deg_s: accel[1],
+        readout_ms: job.readout_ms,
+        exposure_ms: job.exposure_ms,
+        readout_anchor: job.readout_anchor,
+        offset_l_ms: offsets[0],
+        offset_r_ms: offsets[1],
+        row_bands: Some(job.band_rot[0].len().saturating_sub(1) as u64),
+        run_id: Some(run_id),
+    }
 }

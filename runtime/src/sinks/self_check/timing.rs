@@ -14,6 +14,7 @@
 //! (0 = top row, of the raw image) has `eps = dT + dR (rho - anchor)`; `anchor` is the row the stamps fix
 //! ([`abvs_runtime_core::messages::SourcePair::readout_anchor`]). `abvs calib self-check` fits `dT` and `dR` per eye to
 //! the logged matches; this module only measures, per match, the raw rows and `s_l`, `s_r`.
+use super::log_record::MatchRecord;
 use super::*;
 use abvs_camera::Camera;
 
@@ -89,38 +90,24 @@ pub fn match_timing(m: &Match, job: &Job, ctx: &TimingContext) -> Option<MatchTi
     })
 }
 
-/// The match log's header (`<log>.matches.csv`): one line per match of a checked frame.
-pub const MATCH_LOG_HEADER: &str =
-    "seq,xl,yl,xr,yr,row_l,row_r,dy_px,j_x,j_y,j_z,s_l_px_per_ms,s_r_px_per_ms,u_l_px_per_ms,u_r_px_per_ms,run_id";
-
-/// The match log of a per-frame log `log`: `x.csv` -> `x.matches.csv`.
-pub fn match_log_path(log: &std::path::Path) -> PathBuf {
-    log.with_extension("matches.csv")
-}
-
-/// The run's configuration beside a log (`x.csv` -> `x.run.toml`): what `abvs calib self-check` re-runs a
-/// replay with, the timing replaced by its estimate.
-pub fn run_config_path(log: &std::path::Path) -> PathBuf {
-    log.with_extension("run.toml")
-}
-
-/// One line of the match log (`j`: the match's design row for the rotation error, px/rad).
-pub(super) fn match_row(seq: u64, m: &Match, t: &MatchTiming, j: &Vector3<f64>, run_id: u64) -> String {
-    format!(
-        "{seq},{:.3},{:.3},{:.3},{:.3},{:.5},{:.5},{:.4},{:.3},{:.3},{:.3},{:.6},{:.6},{:.6},{:.6},{run_id}",
-        m.xl,
-        m.yl,
-        m.xr,
-        m.yr,
-        t.row[0],
-        t.row[1],
-        m.dy(),
-        j.x,
-        j.y,
-        j.z,
-        t.px_per_ms[0],
-        t.px_per_ms[1],
-        t.translation_px_per_ms[0],
-        t.translation_px_per_ms[1]
-    )
+/// The match log's record of a match (`j`: the match's design row for the rotation error, px/rad).
+pub(super) fn match_record(seq: u64, m: &Match, t: &MatchTiming, j: &Vector3<f64>, run_id: u64) -> MatchRecord {
+    MatchRecord {
+        seq,
+        xl: m.xl as f64,
+        yl: m.yl as f64,
+        xr: m.xr as f64,
+        yr: m.yr as f64,
+        row_l: t.row[0],
+        row_r: t.row[1],
+        dy_px: m.dy() as f64,
+        j_x: j.x,
+        j_y: j.y,
+        j_z: j.z,
+        s_l_px_per_ms: t.px_per_ms[0],
+        s_r_px_per_ms: t.px_per_ms[1],
+        u_l_px_per_ms: t.translation_px_per_ms[0],
+        u_r_px_per_ms: t.translation_px_per_ms[1],
+        run_id: Some(run_id),
+    }
 }

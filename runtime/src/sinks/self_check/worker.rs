@@ -1,4 +1,5 @@
 //! The sink and its worker thread: pooled jobs, idle-priority checking, the summary at the end.
+use super::log_record::{match_log_path, FrameRecord, LogRecord, LogWriter, MatchRecord};
 use super::*;
 use abvs_runtime_core::params::SelfCheckConfig;
 
@@ -62,15 +63,15 @@ impl SelfCheckSink {
         cam: &RectifiedCamera,
         timing: Option<TimingContext>,
     ) -> Result<SelfCheckSink> {
-        let create = |p: &PathBuf, header: &str| -> Result<(std::io::BufWriter<std::fs::File>, PathBuf)> {
+        type Writer = LogWriter<std::io::BufWriter<std::fs::File>>;
+        fn create<R: LogRecord>(p: &PathBuf) -> Result<(Writer, PathBuf)> {
             let io = |e: std::io::Error| RuntimeError::File { path: p.clone(), line: None, msg: e.to_string() };
-            let mut w = std::io::BufWriter::new(std::fs::File::create(p).map_err(io)?);
-            writeln!(w, "{header}").map_err(io)?;
+            let w = LogWriter::new::<R>(std::io::BufWriter::new(std::fs::File::create(p).map_err(io)?)).map_err(io)?;
             Ok((w, p.clone()))
-        };
-        let mut log = cfg.log.as_ref().map(|p| create(p, LOG_HEADER)).transpose()?;
+        }
+        let mut log = cfg.log.as_ref().map(create::<FrameRecord>).transpose()?;
         let mut match_log = match (&cfg.log, &timing) {
-            (Some(p), Some(_)) => Some(create(&match_log_path(p), MATCH_LOG_HEADER)?),
+            (Some(p), Some(_)) => Some(create::<MatchRecord>(&match_log_path(p))?),
             _ => None,
         };
         let mut matcher = Matcher::new(cfg.features, cfg.band_px)?;
@@ -126,7 +127,7 @@ impl SelfCheckSink {
                         Ok(c) => {
                             sum.add(&c, &matches, &wcfg);
                             if let Some((w, p)) = &mut log {
-                                if let Err(e) = writeln!(w, "{}", log_row(&c, &job, timing.as_ref(), wcfg.run_id)) {
+                                if let Err(e) = w.write(&frame_record(&c, &job, timing.as_ref(), wcfg.run_id)) {
                                     log::warn!("self-check log {}: {e}", p.display());
                                     log = None;
                                 }
@@ -160,7 +161,7 @@ impl SelfCheckSink {
 
 /// Every match's timing evidence, one line each.
 fn write_matches(
-    w: &mut impl Write,
+    w: &mut LogWriter<impl Write>,
     job: &Job,
     ctx: &TimingContext,
     matches: &[Match],
@@ -168,7 +169,7 @@ fn write_matches(
 ) -> std::io::Result<()> {
     for m in matches {
         if let Some(t) = match_timing(m, job, ctx) {
-            writeln!(w, "{}", match_row(job.seq, m, &t, &design_row(m, &job.cam, &job.rot), run_id))?;
+            w.write(&match_record(job.seq, m, &t, &design_row(m, &job.cam, &job.rot), run_id))?;
         }
     }
     Ok(())
