@@ -49,10 +49,10 @@ pub enum EngineKind {
     /// OpenCV semi-global block matching.
     Sgbm,
     /// SGBM where its own checks accept a match, the network elsewhere: the best depth on real images, at
-    /// about the cost of both (`tasks::disparity_fused`).
+    /// about the cost of both (`abvs_disparity::fused`).
     Fused,
     /// The network's disparity refined by a census search within a few pixels of it
-    /// (`tasks::disparity_census`): the runtime's default, better than SGBM_3WAY on real images.
+    /// (`abvs_disparity::census`): the runtime's default, better than SGBM_3WAY on real images.
     #[serde(rename = "census-refine")]
     CensusRefine,
 }
@@ -408,14 +408,14 @@ pub struct DisparityConfig {
     #[serde(default = "default_lr_max_diff")]
     pub lr_max_diff: f64,
     /// The validity mask: depth (and cloud points) dropped where the engine's own confidence is below this,
-    /// in [0, 1] (census-refine: `tasks::census_confidence`; other engines publish every pixel they match).
+    /// in [0, 1] (census-refine: `abvs_disparity::census_confidence`; other engines publish every pixel they match).
     /// 0 publishes every pixel, as dense as before the mask.
     #[serde(default = "default_min_confidence")]
     pub min_confidence: f64,
 }
 
 fn default_min_confidence() -> f64 {
-    crate::tasks::census_confidence::DEFAULT_MIN_CONFIDENCE as f64
+    abvs_disparity::census_confidence::DEFAULT_MIN_CONFIDENCE as f64
 }
 
 fn default_lr_max_diff() -> f64 {
@@ -424,8 +424,8 @@ fn default_lr_max_diff() -> f64 {
 
 impl DisparityConfig {
     /// The pipeline's left-right check as this section configures it.
-    pub fn check_config(&self) -> crate::tasks::confidence::CheckConfig {
-        crate::tasks::confidence::CheckConfig {
+    pub fn check_config(&self) -> abvs_disparity::confidence::CheckConfig {
+        abvs_disparity::confidence::CheckConfig {
             confidence: self.confidence,
             invalidate: self.lr_check,
             max_diff: self.lr_max_diff as f32,
@@ -775,7 +775,7 @@ impl RuntimeConfig {
         if d.threads == 0 || d.threads > 256 {
             return Err(format!("disparity.threads: {} must be in 1..=256", d.threads));
         }
-        let limit = crate::tasks::confidence::MAX_DIFF_LIMIT as f64;
+        let limit = abvs_disparity::confidence::MAX_DIFF_LIMIT as f64;
         if !(d.lr_max_diff > 0.0 && d.lr_max_diff <= limit) {
             return Err(format!("disparity.lr_max_diff: {} must be in (0, {limit}] px", d.lr_max_diff));
         }
@@ -897,7 +897,7 @@ mod tests {
         .to_string();
         assert!(e.contains("lr_max_diff"), "{e}");
         // the validity mask: absent takes the documented default, out of [0, 1] is refused
-        let d = crate::tasks::census_confidence::DEFAULT_MIN_CONFIDENCE as f64;
+        let d = abvs_disparity::census_confidence::DEFAULT_MIN_CONFIDENCE as f64;
         assert_eq!(c.disparity.min_confidence, d);
         let line = format!("min_confidence = {d}\n");
         assert!(c.to_toml_string().contains(&line));

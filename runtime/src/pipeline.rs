@@ -24,9 +24,11 @@ pub use crate::sources::{EncoderFeed, PairSource};
 use crate::stage::Stage;
 use crate::stats::RunStats;
 use crate::tasks::align::AlignStage;
-pub use crate::tasks::confidence::CheckConfig;
 use crate::tasks::depth::{DepthConfig, DepthStage};
-use crate::tasks::disparity::{DisparityEngine, DisparityStage};
+use abvs_disparity::confidence::CheckConfig;
+use abvs_disparity::engine::DisparityEngine;
+
+use crate::tasks::disparity::DisparityStage;
 pub use crate::tasks::fovea::FoveaConfig;
 use crate::tasks::fovea::FoveaStage;
 use crate::tasks::kinematics::{KinematicsStage, StereoKinematics};
@@ -61,7 +63,7 @@ pub struct PipelineConfig {
     pub check: CheckConfig,
     /// The validity mask's threshold on the engine's own confidence (census-refine): depth NaN below it; 0
     /// keeps every pixel (default here: 0; the deployment's default is
-    /// `tasks::census_confidence::DEFAULT_MIN_CONFIDENCE`).
+    /// `abvs_disparity::census_confidence::DEFAULT_MIN_CONFIDENCE`).
     pub min_confidence: f32,
     /// Capacity of each inter-stage queue.
     pub queue: usize,

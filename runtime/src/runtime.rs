@@ -29,7 +29,9 @@ use crate::sinks::Sink;
 use crate::sources::live::LiveSource;
 use crate::sources::replay::ReplaySource;
 use crate::stats::RunStats;
-use crate::tasks::disparity::{self, DisparityEngine};
+use abvs_disparity::engine::DisparityEngine;
+
+use crate::tasks::disparity::runtime_error;
 use crate::tasks::kinematics::{EyeFk, StereoKinematics};
 use crate::tasks::rectify::{camera_for_frames, RectifiedCamera};
 
@@ -432,11 +434,12 @@ fn engine(c: &RuntimeConfig, out: &RectifiedCamera, stereo: &StereoCalibration) 
     let model = match (&d.model, d.engine) {
         (Some(m), _) => Some(m.clone()),
         (None, EngineKind::Onnx | EngineKind::Fused | EngineKind::CensusRefine) => {
-            Some(crate::shipped::model_for(d.width))
+            Some(abvs_disparity::manifest::default_model_for(d.width, d.height))
         }
         (None, EngineKind::Sgbm) => None,
     };
-    disparity::engine(d.engine.as_str(), model.as_deref(), (d.width, d.height), max_disp, d.threads)
+    abvs_disparity::factory::engine(d.engine.as_str(), model.as_deref(), (d.width, d.height), max_disp, d.threads)
+        .map_err(runtime_error)
 }
 
 /// The sinks and bridges the configuration names, in the order they run on the output lane.

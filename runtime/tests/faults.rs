@@ -7,11 +7,12 @@ use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
 use abvs_camera::StereoCalibration;
+use abvs_disparity::engine::DisparityEngine;
+use abvs_disparity::factory as disparity;
 use abvs_runtime::pipeline::{run_replay, PipelineConfig, Published, Sink};
 use abvs_runtime::session::Session;
 use abvs_runtime::sinks::stats::RunStats;
 use abvs_runtime::sources::replay::ReplaySource;
-use abvs_runtime::tasks::disparity::{self, DisparityEngine};
 use abvs_runtime::tasks::kinematics::{EyeFk, StereoKinematics};
 
 fn fixture() -> PathBuf {
@@ -53,7 +54,7 @@ impl Sink for SlowSink {
     fn name(&self) -> &'static str {
         "slow"
     }
-    fn consume(&mut self, out: &Published) -> abvs_runtime::Result<()> {
+    fn consume(&mut self, out: &Published) -> abvs_disparity::Result<()> {
         if let Some(d) = self.delay {
             std::thread::sleep(d);
         }
@@ -78,7 +79,7 @@ impl DisparityEngine for SlowEngine {
     fn max_disparity(&self) -> f64 {
         self.inner.max_disparity()
     }
-    fn compute(&mut self, left: &[u8], right: &[u8], out: &mut [f32]) -> abvs_runtime::Result<()> {
+    fn compute(&mut self, left: &[u8], right: &[u8], out: &mut [f32]) -> abvs_disparity::Result<()> {
         std::thread::sleep(self.delay);
         self.inner.compute(left, right, out)
     }

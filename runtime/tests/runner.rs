@@ -6,6 +6,7 @@ use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex};
 
 use abvs_camera::StereoCalibration;
+use abvs_disparity::factory as disparity;
 use abvs_runtime::messages::Work;
 use abvs_runtime::pipeline::{self, Graph, Lane, PipelineConfig, Published, Sink};
 use abvs_runtime::runner;
@@ -14,7 +15,6 @@ use abvs_runtime::sources::replay::ReplaySource;
 use abvs_runtime::stage::{Stage, StageContext};
 use abvs_runtime::stats::RunStats;
 use abvs_runtime::tasks::depth::{DepthConfig, DepthStage};
-use abvs_runtime::tasks::disparity;
 use abvs_runtime::tasks::kinematics::{EyeFk, StereoKinematics};
 
 const FRAMES: u64 = 20;

@@ -5,11 +5,11 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 
 use abvs_camera::StereoCalibration;
+use abvs_disparity::factory as disparity;
 use abvs_runtime::pipeline::{run_replay, PipelineConfig};
 use abvs_runtime::session::Session;
 use abvs_runtime::sinks::self_check::{SelfCheckConfig, SelfCheckSink, LOG_HEADER};
 use abvs_runtime::sources::replay::ReplaySource;
-use abvs_runtime::tasks::disparity;
 use abvs_runtime::tasks::kinematics::{EyeFk, StereoKinematics};
 use nalgebra::{Rotation3, Vector3};
 use serde_json::Value;

@@ -12,11 +12,11 @@ use std::path::Path;
 use std::sync::{Arc, Mutex};
 
 use abvs_camera::StereoCalibration;
+use abvs_disparity::factory as disparity;
 use abvs_runtime::pipeline::{run_replay, MotionConfig, PipelineConfig, Published, Sink};
 use abvs_runtime::session::Session;
 use abvs_runtime::sinks::stats::RunStats;
 use abvs_runtime::sources::replay::ReplaySource;
-use abvs_runtime::tasks::disparity;
 use abvs_runtime::tasks::kinematics::{EyeFk, StereoKinematics};
 use abvs_runtime::tasks::rectify::RectifiedCamera;
 use abvs_sim::synth::{generate, SessionSpec};

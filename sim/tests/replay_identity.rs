@@ -6,11 +6,11 @@ use std::process::Command;
 use std::sync::{Arc, Mutex};
 
 use abvs_camera::StereoCalibration;
+use abvs_disparity::factory as disparity;
 use abvs_runtime::pipeline::{run_replay, PipelineConfig, Published, Sink};
 use abvs_runtime::session::Session;
 use abvs_runtime::sinks::stats::{DepthError, RunStats};
 use abvs_runtime::sources::replay::ReplaySource;
-use abvs_runtime::tasks::disparity;
 use abvs_runtime::tasks::kinematics::{EyeFk, StereoKinematics};
 use abvs_sim::truth::TruthSink;
 

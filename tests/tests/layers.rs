@@ -9,7 +9,7 @@ use std::path::Path;
 /// The crates the robot never links: training, experiments, rendering, simulation, plots.
 const TOOLKIT: [&str; 6] = ["abvs-calib", "abvs-render", "abvs-plot", "abvs-sim", "abvs-paper", "abvs-camcal"];
 /// The crates that run on the robot.
-const ONBOARD: [&str; 5] = ["abvs-runtime", "abvs-eye", "abvs-fk", "abvs-camera", "abvs-onnx"];
+const ONBOARD: [&str; 6] = ["abvs-runtime", "abvs-disparity", "abvs-eye", "abvs-fk", "abvs-camera", "abvs-onnx"];
 
 /// Each workspace crate's name and the `abvs-*` crates of its `[dependencies]`.
 fn workspace_graph() -> BTreeMap<String, BTreeSet<String>> {
