@@ -54,7 +54,7 @@ impl Sink for SlowSink {
     fn name(&self) -> &'static str {
         "slow"
     }
-    fn consume(&mut self, out: &Published) -> abvs_disparity::Result<()> {
+    fn consume(&mut self, out: &Published) -> abvs_runtime::Result<()> {
         if let Some(d) = self.delay {
             std::thread::sleep(d);
         }
