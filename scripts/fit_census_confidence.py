@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
-"""Fits the logistic weights of runtime/src/tasks/census_confidence.rs on one development pair at 640x480.
+"""Fits the logistic weights of disparity/src/census_confidence.rs on one development pair at 640x480.
 
-    cargo run -p abvs-runtime --example census_confidence_dump -- L R /tmp/dump
+    cargo run -p abvs-disparity --example census_confidence_dump -- L R /tmp/dump
     .deps/python/bin/python3 scripts/fit_census_confidence.py /tmp/dump GT [--gt-scale S]
 
 GT: the pair's ground truth (PFM, or an 8-bit PNG divided by S; 0 / inf unknown), resampled as

@@ -7,20 +7,26 @@
 //! the left-right check's density and the bad-2 against density curve; `--resolution WxH` first resamples
 //! the pair (and the ground truth, scaled by the horizontal factor) to the runtime's size;
 //! `--at-model-resolution` scores every model at its own resolution against SGBM at the same one.
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::Instant;
 
-use abvs_runtime::tasks::disparity::{self, DisparityEngine};
+use abvs_disparity::census::CensusRefineEngine;
+use abvs_runtime_core::params::DEFAULT_MIN_CONFIDENCE;
+use abvs_disparity::confidence::mask;
+use abvs_disparity::engine::{compute, set_opencv_threads, DisparityEngine};
+use abvs_disparity::estimate::{estimate, read_gray};
+use abvs_disparity::fused::FusedEngine;
+use abvs_disparity::manifest::{default_model_for, default_models, refine_base};
+use abvs_disparity::onnx::OnnxEngine;
+use abvs_disparity::resample::{resize_mat, upsample_disparity};
+use abvs_disparity::score::{bad2_at, density_at, density_curve, load_gt, mask_curve, published_score};
+use abvs_disparity::sgbm::SgbmEngine;
 use abvs_runtime_core::config::EngineKind;
 use anyhow::{bail, Context};
 use clap::Args;
 use opencv::core::Mat;
-use opencv::imgcodecs;
 use opencv::prelude::*;
-
-use crate::disparity::{compute, default_model_for, default_models, estimate, gray, resize_to};
-use crate::pfm::read_pfm;
 
 #[derive(Args)]
 pub struct EvalArgs {
@@ -78,39 +84,6 @@ fn parse_size(s: &str) -> Result<(u32, u32), String> {
     Ok((w, h))
 }
 
-/// Ground truth at the engine resolution (nearest neighbour, values scaled by the width ratio; NaN unknown).
-fn load_gt(path: &Path, scale: f64, w: u32, h: u32) -> anyhow::Result<(usize, usize, Vec<f32>)> {
-    let (gw, gh, g) = if path.extension().is_some_and(|e| e.eq_ignore_ascii_case("pfm")) {
-        read_pfm(path)?
-    } else {
-        let m = imgcodecs::imread(path.to_str().context("path is not UTF-8")?, imgcodecs::IMREAD_UNCHANGED)?;
-        if m.empty() || m.channels() != 1 {
-            bail!("{}: not a single-channel ground-truth image", path.display());
-        }
-        let mut f = Mat::default();
-        m.convert_to(&mut f, opencv::core::CV_32F, 1.0 / scale, 0.0)?;
-        let v: Vec<f32> = f.data_typed::<f32>()?.iter().map(|x| if *x > 0.0 { *x } else { f32::NAN }).collect();
-        (m.cols() as usize, m.rows() as usize, v)
-    };
-    if gw == 0 || gh == 0 || g.len() < gw * gh {
-        bail!("{}: empty ground-truth image ({gw}x{gh})", path.display());
-    }
-    if w == 0 || h == 0 {
-        bail!("engine resolution {w}x{h} is empty");
-    }
-    let sx = w as f32 / gw as f32;
-    let mut out = vec![f32::NAN; w as usize * h as usize];
-    for y in 0..h as usize {
-        let yy = (((y as f32 + 0.5) * gh as f32 / h as f32) as usize).min(gh - 1);
-        for x in 0..w as usize {
-            let xx = (((x as f32 + 0.5) / sx) as usize).min(gw - 1);
-            let v = g[yy * gw + xx];
-            out[y * w as usize + x] = if v.is_finite() && v > 0.0 { v * sx } else { f32::NAN };
-        }
-    }
-    Ok((gw, gh, out))
-}
-
 /// EPE over pixels with both values; bad-k over valid ground truth (no estimate = bad).
 fn score(d: &[f32], gt: &[f32], max_disp: f64) -> serde_json::Value {
     let s = abvs_sim::disparity_score::score_disparity(d, gt, max_disp);
@@ -119,15 +92,15 @@ fn score(d: &[f32], gt: &[f32], max_disp: f64) -> serde_json::Value {
 }
 
 pub fn run_eval(a: EvalArgs) -> anyhow::Result<ExitCode> {
-    let (mut l, mut r) = (gray(&a.left)?, gray(&a.right)?);
+    let (mut l, mut r) = (read_gray(&a.left)?, read_gray(&a.right)?);
     if let Some((w, h)) = a.resolution {
         let to = |m: &Mat| -> anyhow::Result<Mat> {
-            let v = resize_to(m, w as i32, h as i32)?;
+            let v = resize_mat(m, w as i32, h as i32)?;
             Ok(Mat::new_rows_cols_with_data(h as i32, w as i32, &v)?.try_clone()?)
         };
         (l, r) = (to(&l)?, to(&r)?);
     }
-    disparity::set_opencv_threads(a.threads)?;
+    set_opencv_threads(a.threads)?;
     if !a.at_model_resolution {
         let rows = run_native(&a, &l, &r)?;
         return print_rows(&rows, a.json);
@@ -138,13 +111,12 @@ pub fn run_eval(a: EvalArgs) -> anyhow::Result<ExitCode> {
     }
     let mut rows = Vec::new();
     for m in &models {
-        let onnx = disparity::OnnxEngine::load(m, a.threads)?;
+        let onnx = OnnxEngine::load(m, a.threads)?;
         let (w, h, max) = (onnx.manifest.width, onnx.manifest.height, onnx.manifest.max_disparity);
-        let (lv, rv) = (resize_to(&l, w as i32, h as i32)?, resize_to(&r, w as i32, h as i32)?);
+        let (lv, rv) = (resize_mat(&l, w as i32, h as i32)?, resize_mat(&r, w as i32, h as i32)?);
         let (_, _, gt) = load_gt(&a.gt, a.gt_scale, w, h)?;
         let beyond = gt.iter().filter(|g| g.is_finite() && (**g as f64) >= max).count();
-        let engines: Vec<Box<dyn DisparityEngine>> =
-            vec![Box::new(onnx), Box::new(disparity::SgbmEngine::new(w, h, max)?)];
+        let engines: Vec<Box<dyn DisparityEngine>> = vec![Box::new(onnx), Box::new(SgbmEngine::new(w, h, max)?)];
         for mut e in engines {
             let d = compute(e.as_mut(), &lv, &rv)?;
             let mut times = Vec::with_capacity(a.runs);
@@ -206,72 +178,6 @@ fn median_ms(runs: usize, mut f: impl FnMut() -> anyhow::Result<()>) -> anyhow::
     Ok(t[t.len() / 2])
 }
 
-/// bad-2 (% of the ground-truth pixels kept) against density (fraction of ground-truth pixels kept), keeping
-/// pixels in order of falling confidence; 0-confidence (invalid) pixels are never kept.
-pub fn density_curve(d: &[f32], conf: &[f32], gt: &[f32], max_disp: f64) -> Vec<(f64, f64)> {
-    let mut px: Vec<(f32, bool)> = Vec::new();
-    let mut n = 0usize;
-    for ((p, c), g) in d.iter().zip(conf).zip(gt) {
-        if !(g.is_finite() && (*g as f64) < max_disp) {
-            continue;
-        }
-        n += 1;
-        if p.is_finite() && *c > 0.0 {
-            px.push((*c, (p - g).abs() > 2.0));
-        }
-    }
-    px.sort_by(|a, b| b.0.total_cmp(&a.0));
-    let mut out = Vec::new();
-    let mut bad = 0usize;
-    let step = (n / 200).max(1);
-    for (i, (_, b)) in px.iter().enumerate() {
-        bad += *b as usize;
-        if (i + 1) % step == 0 || i + 1 == px.len() {
-            out.push(((i + 1) as f64 / n as f64, 100.0 * bad as f64 / (i + 1) as f64));
-        }
-    }
-    out
-}
-
-/// Density (fraction of the ground-truth pixels with a published disparity) and bad-2 (%) among the
-/// published ones: what a robot acts on.
-pub fn published_score(d: &[f32], gt: &[f32], max_disp: f64) -> (f64, f64) {
-    let (mut n, mut kept, mut bad) = (0usize, 0usize, 0usize);
-    for (p, g) in d.iter().zip(gt) {
-        if !(g.is_finite() && (*g as f64) < max_disp) {
-            continue;
-        }
-        n += 1;
-        if p.is_finite() {
-            kept += 1;
-            bad += ((p - g).abs() > 2.0) as usize;
-        }
-    }
-    (kept as f64 / n.max(1) as f64, 100.0 * bad as f64 / kept.max(1) as f64)
-}
-
-/// The validity mask at each threshold of `thresholds`: (threshold, density, bad-2 % among the kept).
-fn mask_curve(d: &[f32], conf: &[f32], gt: &[f32], max_disp: f64, thresholds: &[f32]) -> Vec<[f64; 3]> {
-    thresholds
-        .iter()
-        .map(|&t| {
-            let m: Vec<f32> = d.iter().zip(conf).map(|(v, c)| if *c >= t { *v } else { f32::NAN }).collect();
-            let (dn, b) = published_score(&m, gt, max_disp);
-            [t as f64, dn, b]
-        })
-        .collect()
-}
-
-/// bad-2 among the kept at `density` on a density curve (the last point at or below it).
-fn bad2_at(curve: &[(f64, f64)], density: f64) -> Option<f64> {
-    curve.iter().rev().find(|(dn, _)| *dn <= density).map(|(_, b)| *b)
-}
-
-/// The largest density on a density curve whose bad-2 among the kept is at most `bad` (0 if none).
-fn density_at(curve: &[(f64, f64)], bad: f64) -> f64 {
-    curve.iter().filter(|(_, b)| *b <= bad).map(|(dn, _)| *dn).fold(0.0, f64::max)
-}
-
 /// The engines at the input's resolution (the default mode).
 fn run_native(a: &EvalArgs, l: &Mat, r: &Mat) -> anyhow::Result<Vec<serde_json::Value>> {
     let (iw, ih) = (l.cols() as u32, l.rows() as u32);
@@ -287,7 +193,7 @@ fn run_native(a: &EvalArgs, l: &Mat, r: &Mat) -> anyhow::Result<Vec<serde_json::
     let mut curves = Vec::new();
     // SGBM as users run it: SGBM_3WAY at the input resolution, the ground truth's range (first: its density
     // is where the others' curves are read)
-    let mut sgbm = disparity::SgbmEngine::new(iw, ih, gt_max + 1.0)?;
+    let mut sgbm = SgbmEngine::new(iw, ih, gt_max + 1.0)?;
     let sgbm_d = compute(&mut sgbm, &lb, &rb)?;
     let (sgbm_density, sgbm_bad) = published_score(&sgbm_d, &gt, max);
     let default_model = default_model_for(iw, ih);
@@ -303,13 +209,13 @@ fn run_native(a: &EvalArgs, l: &Mat, r: &Mat) -> anyhow::Result<Vec<serde_json::
         nets.into_iter().flat_map(|m| [(EngineKind::CensusRefine, m.clone(), false), (EngineKind::Onnx, m, false)]),
     );
     for (kind, model, default) in cases {
-        let est = estimate(l, r, kind, &model, a.threads, None)?;
+        let est = estimate(l, r, kind.as_str(), &model, a.threads, None)?;
         let mut s = score(&est.disparity, &gt, max);
         // what is published: the validity mask at its default where the engine scores its pixels
         let mut published = est.disparity.clone();
         if let Some((conf, why)) = &est.own {
-            let min = abvs_runtime_core::params::DEFAULT_MIN_CONFIDENCE;
-            abvs_runtime::tasks::census_confidence::mask(conf, min, &mut published, &mut why.clone());
+            let min = DEFAULT_MIN_CONFIDENCE;
+            mask(conf, min, &mut published, &mut why.clone());
             let curve = density_curve(&est.disparity, conf, &gt, max);
             let ts: Vec<f32> = (0..=20).map(|i| i as f32 * 0.05).collect();
             s["own_confidence"] = serde_json::json!({
@@ -324,36 +230,31 @@ fn run_native(a: &EvalArgs, l: &Mat, r: &Mat) -> anyhow::Result<Vec<serde_json::
         s["published"] = serde_json::json!({ "density": dn, "bad2_pct_of_valid": b });
         // time: the engine on the pair, resizing and resampling included, model loading not
         let ms = {
-            let net = if kind == EngineKind::CensusRefine { disparity::refine_base(&model)? } else { model.clone() };
-            let onnx = disparity::OnnxEngine::load(&net, a.threads)?;
+            let net = if kind == EngineKind::CensusRefine { refine_base(&model)? } else { model.clone() };
+            let onnx = OnnxEngine::load(&net, a.threads)?;
             let (mw, mh) = onnx.size();
             if kind == EngineKind::Fused {
-                let mut e = abvs_runtime::tasks::disparity_fused::FusedEngine::new(onnx, iw, ih)?;
+                let mut e = FusedEngine::new(onnx, iw, ih)?;
                 let mut out = vec![0f32; (iw * ih) as usize];
                 median_ms(a.runs, || Ok(e.compute(&lb, &rb, &mut out)?))?
             } else if kind == EngineKind::CensusRefine {
-                let mut e = abvs_runtime::tasks::disparity_census::CensusRefineEngine::new(onnx, iw, ih)?;
+                let mut e = CensusRefineEngine::new(onnx, iw, ih)?;
                 let mut out = vec![0f32; (iw * ih) as usize];
                 median_ms(a.runs, || Ok(e.compute(&lb, &rb, &mut out)?))?
             } else {
                 let mut e = onnx;
                 let mut up = vec![0f32; (iw * ih) as usize];
                 median_ms(a.runs, || {
-                    let (lm, rm) = (resize_to(l, mw as i32, mh as i32)?, resize_to(r, mw as i32, mh as i32)?);
+                    let (lm, rm) = (resize_mat(l, mw as i32, mh as i32)?, resize_mat(r, mw as i32, mh as i32)?);
                     let d = compute(&mut e, &lm, &rm)?;
-                    abvs_runtime::tasks::disparity_fused::upsample_disparity(
-                        &d,
-                        (mw as usize, mh as usize),
-                        &mut up,
-                        (iw as usize, ih as usize),
-                    );
+                    upsample_disparity(&d, (mw as usize, mh as usize), &mut up, (iw as usize, ih as usize));
                     Ok(())
                 })?
             }
         };
         if default {
             // the left-right check: what it keeps, and bad-2 against density by confidence
-            let chk = estimate(l, r, kind, &model, a.threads, Some(1.0))?;
+            let chk = estimate(l, r, kind.as_str(), &model, a.threads, Some(1.0))?;
             let (conf, _) = chk.checked.as_ref().context("left-right check")?;
             let kept = score(&chk.disparity, &gt, max);
             let curve = density_curve(&chk.disparity, conf, &gt, max);
@@ -419,45 +320,4 @@ fn run_native(a: &EvalArgs, l: &Mat, r: &Mat) -> anyhow::Result<Vec<serde_json::
         )?;
     }
     Ok(rows)
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn load_gt_refuses_an_empty_image_instead_of_underflowing() {
-        let dir = tempfile::tempdir().unwrap();
-        // a PFM cannot be empty (its reader refuses 0), a PNG can be 0 pixels only by not decoding: both errors
-        let p = dir.path().join("gt.pfm");
-        std::fs::write(&p, b"Pf\n0 0\n-1.0\n").unwrap();
-        assert!(load_gt(&p, 1.0, 8, 8).is_err());
-        let p = dir.path().join("gt.png");
-        std::fs::write(&p, b"").unwrap();
-        assert!(load_gt(&p, 1.0, 8, 8).is_err());
-        // a 1x1 ground truth scales to any size
-        let p = dir.path().join("one.pfm");
-        std::fs::write(&p, pfm_bytes(1, 1, &[2.0])).unwrap();
-        let (_, _, g) = load_gt(&p, 1.0, 4, 3).unwrap();
-        assert_eq!(g, vec![8.0; 12]);
-        assert!(load_gt(&p, 1.0, 0, 3).is_err());
-    }
-
-    fn pfm_bytes(w: usize, h: usize, data: &[f32]) -> Vec<u8> {
-        let mut b = format!("Pf\n{w} {h}\n-1.0\n").into_bytes();
-        data.iter().for_each(|v| b.extend_from_slice(&v.to_le_bytes()));
-        b
-    }
-
-    #[test]
-    fn density_curve_keeps_the_most_confident_first() {
-        let gt = [10.0, 10.0, 10.0, 10.0];
-        let d = [10.0, 15.0, 10.5, f32::NAN];
-        let conf = [0.9, 0.1, 0.5, 0.0];
-        let c = density_curve(&d, &conf, &gt, 100.0);
-        assert_eq!(c, vec![(0.25, 0.0), (0.5, 0.0), (0.75, 100.0 / 3.0)]);
-        assert_eq!(density_at(&c, 10.0), 0.5);
-        assert_eq!(density_at(&c, 0.0), 0.5);
-        assert_eq!(density_at(&c[2..], 10.0), 0.0);
-    }
 }

@@ -13,7 +13,6 @@ mod gaze;
 mod kin;
 mod logger;
 mod paper;
-mod pfm;
 mod plot;
 mod record;
 mod repeat;

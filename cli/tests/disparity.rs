@@ -6,25 +6,12 @@ fn abvs() -> Command {
     Command::new(env!("CARGO_BIN_EXE_abvs"))
 }
 
-/// Reads a grayscale PFM independently of the program (header, then rows bottom to top).
+/// Reads a PFM the program wrote, through the library's reader (the one the program's `disparity-eval` uses),
+/// refusing any but the little-endian layout `abvs disparity` writes.
 fn read_pfm(p: &Path) -> (usize, usize, Vec<f32>) {
     let b = std::fs::read(p).unwrap();
-    let text_end = b.iter().enumerate().filter(|(_, c)| **c == b'\n').nth(2).unwrap().0 + 1;
-    let head = String::from_utf8_lossy(&b[..text_end]).into_owned();
-    let mut it = head.split_whitespace();
-    assert_eq!(it.next(), Some("Pf"));
-    let w: usize = it.next().unwrap().parse().unwrap();
-    let h: usize = it.next().unwrap().parse().unwrap();
-    assert_eq!(it.next(), Some("-1.0"), "little-endian scale");
-    assert_eq!(b.len(), text_end + w * h * 4);
-    let mut d = vec![0f32; w * h];
-    for y in 0..h {
-        for x in 0..w {
-            let o = text_end + ((h - 1 - y) * w + x) * 4;
-            d[y * w + x] = f32::from_le_bytes([b[o], b[o + 1], b[o + 2], b[o + 3]]);
-        }
-    }
-    (w, h, d)
+    assert!(b.starts_with(b"Pf\n") && String::from_utf8_lossy(&b[..b.len().min(32)]).contains("\n-1.0\n"));
+    abvs_disparity::pfm::read_pfm(p).unwrap_or_else(|e| panic!("{e}"))
 }
 
 /// A rectified pair rendered from the synthetic scene through two pinhole cameras 65 mm apart, and its exact

@@ -14,24 +14,11 @@ fn abvs() -> Command {
     Command::new(env!("CARGO_BIN_EXE_abvs"))
 }
 
-/// Reads a little-endian grayscale PFM independently of the program; inf (no value) becomes NaN.
+/// Reads a PFM through the library's reader (the one the program's `disparity-eval` uses); inf (no value)
+/// becomes NaN.
 fn read_pfm(p: &Path) -> (usize, usize, Vec<f32>) {
-    let b = std::fs::read(p).unwrap_or_else(|e| panic!("{}: {e}", p.display()));
-    let text_end = b.iter().enumerate().filter(|(_, c)| **c == b'\n').nth(2).unwrap().0 + 1;
-    let head = String::from_utf8_lossy(&b[..text_end]).into_owned();
-    let f: Vec<&str> = head.split_whitespace().collect();
-    assert_eq!((f[0], f[3]), ("Pf", "-1.0"), "{}", p.display());
-    let (w, h): (usize, usize) = (f[1].parse().unwrap(), f[2].parse().unwrap());
-    assert_eq!(b.len(), text_end + w * h * 4);
-    let mut d = vec![0f32; w * h];
-    for y in 0..h {
-        for x in 0..w {
-            let o = text_end + ((h - 1 - y) * w + x) * 4;
-            let v = f32::from_le_bytes([b[o], b[o + 1], b[o + 2], b[o + 3]]);
-            d[y * w + x] = if v.is_finite() { v } else { f32::NAN };
-        }
-    }
-    (w, h, d)
+    let (w, h, d) = abvs_disparity::pfm::read_pfm(p).unwrap_or_else(|e| panic!("{e}"));
+    (w, h, d.into_iter().map(|v| if v.is_finite() { v } else { f32::NAN }).collect())
 }
 
 struct Pair {

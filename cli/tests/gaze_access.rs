@@ -101,7 +101,7 @@ impl Head {
         let stage = GazeStage::new(ctl, mailbox.clone(), kin.home_left_to_right).with_rate_limit(limit);
         let out = RectifiedCamera::with_hfov(160, 120, 100.0);
         let max_disp = out.f * stereo.baseline_mm() / 1000.0 / 0.2;
-        let engine = abvs_runtime::tasks::disparity::engine("sgbm", None, (160, 120), max_disp, 1).unwrap();
+        let engine = abvs_disparity::factory::engine("sgbm", None, (160, 120), max_disp, 1).unwrap();
         // live: a frame the pipeline cannot keep up with is dropped (counted), as on the robot
         let cfg = PipelineConfig { out, lossless: false, paced: false, frames: Some(n), ..Default::default() };
         let run = std::thread::spawn(move || {

@@ -96,7 +96,7 @@ fn a_goal_moves_the_simulated_board_on_the_port_the_runtime_reads() {
     let stage = GazeStage::new(ctl, mailbox.clone(), kin.home_left_to_right);
     let out = RectifiedCamera::with_hfov(160, 120, 100.0);
     let max_disp = out.f * stereo.baseline_mm() / 1000.0 / 0.2;
-    let engine = abvs_runtime::tasks::disparity::engine("sgbm", None, (160, 120), max_disp, 1).unwrap();
+    let engine = abvs_disparity::factory::engine("sgbm", None, (160, 120), max_disp, 1).unwrap();
     let states = Arc::new(Mutex::new(vec![]));
     let sinks: Vec<Box<dyn Sink>> = vec![Box::new(States(states.clone()))];
     let cfg = PipelineConfig { out, lossless: true, paced: false, frames: Some(n), ..Default::default() };

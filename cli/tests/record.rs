@@ -248,7 +248,7 @@ fn live_pipeline_on_the_rig_gives_depth_as_good_as_the_replay() {
     );
     let out = RectifiedCamera::with_hfov(320, 240, 100.0);
     let max_disp = out.f * stereo.baseline_mm() / 1000.0 / 0.2;
-    let engine = abvs_runtime::tasks::disparity::engine("sgbm", None, (320, 240), max_disp, 2).unwrap();
+    let engine = abvs_disparity::factory::engine("sgbm", None, (320, 240), max_disp, 2).unwrap();
     let truth: Box<dyn Sink> = Box::new(TruthSink::for_session(&fx, 8).unwrap().expect("the fixture has truth"));
     // Wait for homing as `abvs run --live` does.
     let t0 = std::time::Instant::now();
@@ -450,7 +450,7 @@ fn a_camera_that_stops_delivering_ends_the_live_run_with_the_reason() {
         stereo.translation_mm / 1000.0,
     );
     let out = RectifiedCamera::with_hfov(320, 240, 100.0);
-    let engine = abvs_runtime::tasks::disparity::engine("sgbm", None, (320, 240), 48.0, 2).unwrap();
+    let engine = abvs_disparity::factory::engine("sgbm", None, (320, 240), 48.0, 2).unwrap();
     let t0 = std::time::Instant::now();
     while encoders.homed() != [true, true] {
         assert!(t0.elapsed() < Duration::from_secs(20), "not homed: {:?}", encoders.stats());

@@ -48,10 +48,10 @@ pub enum EngineKind {
     /// OpenCV semi-global block matching.
     Sgbm,
     /// SGBM where its own checks accept a match, the network elsewhere: the best depth on real images, at
-    /// about the cost of both (`tasks::disparity_fused`).
+    /// about the cost of both (`abvs_disparity::fused`).
     Fused,
     /// The network's disparity refined by a census search within a few pixels of it
-    /// (`tasks::disparity_census`): the runtime's default, better than SGBM_3WAY on real images.
+    /// (`abvs_disparity::census`): the runtime's default, better than SGBM_3WAY on real images.
     #[serde(rename = "census-refine")]
     CensusRefine,
 }
@@ -462,7 +462,7 @@ pub struct DisparityConfig {
     #[serde(default = "default_lr_max_diff")]
     pub lr_max_diff: f64,
     /// The validity mask: depth (and cloud points) dropped where the engine's own confidence is below this,
-    /// in [0, 1] (census-refine: `tasks::census_confidence`; other engines publish every pixel they match).
+    /// in [0, 1] (census-refine: `abvs_disparity::census_confidence`; other engines publish every pixel they match).
     /// 0 publishes every pixel, as dense as before the mask.
     #[serde(default = "default_min_confidence")]
     pub min_confidence: f64,

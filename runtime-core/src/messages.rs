@@ -415,10 +415,10 @@ pub struct Work {
     pub rectified: RectifiedPair,
     /// Left-view disparity (px), NaN where there is none.
     pub disparity: Vec<f32>,
-    /// Per-pixel confidence of the disparity in [0, 1] (0 = invalid; `tasks::confidence`), at the output
+    /// Per-pixel confidence of the disparity in [0, 1] (0 = invalid; `abvs_disparity::confidence`), at the output
     /// resolution. Empty unless the disparity stage computes it (it sizes the pooled frames then).
     pub confidence: Vec<f32>,
-    /// Why each pixel is not published (`tasks::confidence::reason`; 0 = published), when the engine scores
+    /// Why each pixel is not published (`abvs_disparity::confidence::reason`; 0 = published), when the engine scores
     /// its pixels (the validity mask). Empty otherwise, sized like `confidence`.
     pub reason: Vec<u8>,
     /// Depth and cloud. Filled and published on the output lane, which lends its one buffer to the frame

@@ -4,7 +4,15 @@
 use std::path::Path;
 
 use abvs_camera::Camera;
+use abvs_disparity::census::CensusRefineEngine;
+use abvs_disparity::census_confidence::{Scorer, DEFAULT_MIN_CONFIDENCE};
+use abvs_disparity::confidence::mask;
+use abvs_disparity::engine::DisparityEngine;
+use abvs_disparity::onnx::OnnxEngine;
+use abvs_disparity::resample::nearest;
+use abvs_disparity::sgbm::SgbmEngine;
 use abvs_eye::{Fick, Pose};
+<<<<<<< HEAD
 use abvs_runtime::tasks::census_confidence::{mask, nearest, Scorer};
 use abvs_runtime::tasks::depth::DepthConfig;
 use abvs_runtime::tasks::disparity::{DisparityEngine, OnnxEngine, SgbmEngine};
@@ -13,6 +21,10 @@ use abvs_runtime::tasks::rectify::{rectify, StereoRectifier};
 use abvs_runtime_core::messages::DepthFrame;
 use abvs_runtime_core::messages::RectifiedCamera;
 use abvs_runtime_core::params::DEFAULT_MIN_CONFIDENCE;
+=======
+use abvs_runtime::tasks::depth::{DepthConfig, DepthFrame};
+use abvs_runtime::tasks::rectify::{rectify, RectifiedCamera, StereoRectifier};
+>>>>>>> disp
 use criterion::{criterion_group, criterion_main, Criterion};
 use nalgebra::Vector3;
 
@@ -53,7 +65,7 @@ fn bench(c: &mut Criterion) {
         }
         // the runtime's default engine, with and without its confidence and validity mask (issue 41: at most
         // +10 %), on the rectified noise pair
-        let base = abvs_runtime::tasks::disparity::refine_base(&models.join(variant)).unwrap();
+        let base = abvs_disparity::manifest::refine_base(&models.join(variant)).unwrap();
         if base.join("manifest.json").exists() {
             let census = |scored: bool| {
                 let e = CensusRefineEngine::new(OnnxEngine::load(&base, 2).unwrap(), w, h).unwrap();

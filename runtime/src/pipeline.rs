@@ -19,7 +19,8 @@ use crate::runner::{Graph, Lane, Progress, RunConfig};
 use crate::sources::replay::ReplaySource;
 use crate::tasks::align::AlignStage;
 use crate::tasks::depth::{DepthConfig, DepthStage};
-use crate::tasks::disparity::{DisparityEngine, DisparityStage};
+use crate::tasks::disparity::DisparityStage;
+use abvs_disparity::engine::DisparityEngine;
 use crate::tasks::fovea::FoveaStage;
 use crate::tasks::kinematics::{KinematicsStage, StereoKinematics};
 use crate::tasks::rectify::RectifyStage;
@@ -60,7 +61,7 @@ pub struct PipelineConfig {
     pub check: CheckConfig,
     /// The validity mask's threshold on the engine's own confidence (census-refine): depth NaN below it; 0
     /// keeps every pixel (default here: 0; the deployment's default is
-    /// `tasks::census_confidence::DEFAULT_MIN_CONFIDENCE`).
+    /// `abvs_disparity::census_confidence::DEFAULT_MIN_CONFIDENCE`).
     pub min_confidence: f32,
     /// Capacity of each inter-stage queue.
     pub queue: usize,

@@ -23,7 +23,8 @@ use crate::sinks::self_check::TimingContext;
 use crate::sinks::session_writer::CalibFiles;
 use crate::sources::live::LiveSource;
 use crate::sources::replay::ReplaySource;
-use crate::tasks::disparity::{self, DisparityEngine};
+use crate::tasks::disparity::runtime_error;
+use abvs_disparity::engine::DisparityEngine;
 use crate::tasks::kinematics::{EyeFk, StereoKinematics};
 use crate::tasks::rectify::camera_for_frames;
 use abvs_runtime_core::config::{EngineKind, FkSource, RuntimeConfig, SourceKind};
@@ -437,11 +438,12 @@ fn engine(c: &RuntimeConfig, out: &RectifiedCamera, stereo: &StereoCalibration) 
     let model = match (&d.model, d.engine) {
         (Some(m), _) => Some(m.clone()),
         (None, EngineKind::Onnx | EngineKind::Fused | EngineKind::CensusRefine) => {
-            Some(crate::shipped::model_for(d.width))
+            Some(abvs_disparity::manifest::default_model_for(d.width, d.height))
         }
         (None, EngineKind::Sgbm) => None,
     };
-    disparity::engine(d.engine.as_str(), model.as_deref(), (d.width, d.height), max_disp, d.threads)
+    abvs_disparity::factory::engine(d.engine.as_str(), model.as_deref(), (d.width, d.height), max_disp, d.threads)
+        .map_err(runtime_error)
 }
 
 /// The sinks and bridges the configuration names, in the order they run on the output lane.

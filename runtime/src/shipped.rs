@@ -1,5 +1,5 @@
-//! The resources shipped in the checkout (the fixture session, the disparity models), found from the running
-//! program or from the source tree it was built from.
+//! The resources shipped in the checkout (the fixture session, configurations), found from the running
+//! program or from the source tree it was built from. (The disparity models: `abvs_disparity::manifest`.)
 use std::path::{Path, PathBuf};
 
 /// The checkout's `rel` (e.g. `fixtures/session`, `models/hitnet`): next to the executable's checkout (up to four
@@ -13,9 +13,4 @@ pub fn shipped(rel: &str) -> PathBuf {
     }
     candidates.push(Path::new(env!("CARGO_MANIFEST_DIR")).join("..").join(rel));
     candidates.iter().find(|p| p.exists()).cloned().unwrap_or_else(|| candidates.pop().expect("one candidate"))
-}
-
-/// The shipped disparity network for a rectified width: `hitnet-m` from 640 px up, `hitnet-s` below.
-pub fn model_for(width: u32) -> PathBuf {
-    shipped(&format!("models/hitnet/{}", if width >= 640 { "hitnet-m" } else { "hitnet-s" }))
 }

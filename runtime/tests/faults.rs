@@ -7,9 +7,10 @@ use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
 use abvs_camera::StereoCalibration;
+use abvs_disparity::engine::DisparityEngine;
+use abvs_disparity::factory as disparity;
 use abvs_runtime::pipeline::{run_replay, PipelineConfig};
 use abvs_runtime::sources::replay::ReplaySource;
-use abvs_runtime::tasks::disparity::{self, DisparityEngine};
 use abvs_runtime::tasks::kinematics::{EyeFk, StereoKinematics};
 use abvs_runtime_core::messages::Published;
 use abvs_runtime_core::session::Session;

@@ -6,13 +6,13 @@ use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex};
 
 use abvs_camera::StereoCalibration;
+use abvs_disparity::factory as disparity;
 use abvs_runtime::pipeline;
 use abvs_runtime::pipeline::PipelineConfig;
 use abvs_runtime::runner;
 use abvs_runtime::runner::{Graph, Lane};
 use abvs_runtime::sources::replay::ReplaySource;
 use abvs_runtime::tasks::depth::{DepthConfig, DepthStage};
-use abvs_runtime::tasks::disparity;
 use abvs_runtime::tasks::kinematics::{EyeFk, StereoKinematics};
 use abvs_runtime_core::messages::Published;
 use abvs_runtime_core::messages::Work;

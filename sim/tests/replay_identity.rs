@@ -6,9 +6,9 @@ use std::process::Command;
 use std::sync::{Arc, Mutex};
 
 use abvs_camera::StereoCalibration;
+use abvs_disparity::factory as disparity;
 use abvs_runtime::pipeline::{run_replay, PipelineConfig};
 use abvs_runtime::sources::replay::ReplaySource;
-use abvs_runtime::tasks::disparity;
 use abvs_runtime::tasks::kinematics::{EyeFk, StereoKinematics};
 use abvs_runtime_core::messages::Published;
 use abvs_runtime_core::session::Session;

@@ -10,8 +10,16 @@ use std::path::Path;
 const TOOLKIT: [&str; 7] =
     ["abvs-calib", "abvs-render", "abvs-plot", "abvs-sim", "abvs-paper", "abvs-camcal", "abvs-selfcheck"];
 /// The crates that run on the robot.
-const ONBOARD: [&str; 7] =
-    ["abvs-runtime", "abvs-runtime-core", "abvs-eye", "abvs-fk", "abvs-camera", "abvs-onnx", "abvs-board"];
+const ONBOARD: [&str; 8] = [
+    "abvs-runtime",
+    "abvs-runtime-core",
+    "abvs-disparity",
+    "abvs-eye",
+    "abvs-fk",
+    "abvs-camera",
+    "abvs-onnx",
+    "abvs-board",
+];
 
 /// Each workspace crate's name and the `abvs-*` crates of its `[dependencies]`.
 fn workspace_graph() -> BTreeMap<String, BTreeSet<String>> {

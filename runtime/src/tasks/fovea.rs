@@ -25,7 +25,10 @@ use nalgebra::Vector3;
 
 use crate::gaze::stage::measured_fixation;
 use crate::tasks::depth::DepthConfig;
-use crate::tasks::disparity::{DisparityEngine, SgbmEngine};
+use abvs_disparity::engine::DisparityEngine;
+use abvs_disparity::sgbm::SgbmEngine;
+
+use crate::tasks::disparity::runtime_error;
 use crate::tasks::motion::RowRotations;
 use crate::tasks::rectify::{camera_for_frames, RectifyMaps};
 use abvs_runtime_core::error::{Result, RuntimeError};
@@ -172,7 +175,7 @@ impl Stage for FoveaStage {
         let ew = c.width + c.max_range_px;
         let out = RectifiedCamera::with_hfov(ew, c.height, 60.0);
         let maps = [RectifyMaps::new(out, self.grid_step)?, RectifyMaps::new(out, self.grid_step)?];
-        let sgbm = SgbmEngine::new(ew, c.height, c.max_range_px as f64)?;
+        let sgbm = SgbmEngine::new(ew, c.height, c.max_range_px as f64).map_err(runtime_error)?;
         let n = (ew * c.height) as usize;
         let ext = (vec![0u8; n], vec![0u8; n], vec![f32::NAN; n]);
         let hist_len = (ctx.out.width as f64 * HIST_BINS_PER_PX) as usize + 1;
@@ -264,9 +267,9 @@ impl Stage for FoveaStage {
         s.maps[0].remap(raw_left, rw, rh, el)?;
         s.maps[1].remap(raw_right, rw, rh, er)?;
         if s.sgbm.max_disparity() as u32 != range {
-            s.sgbm.set_range(range as i32)?;
+            s.sgbm.set_range(range as i32).map_err(runtime_error)?;
         }
-        s.sgbm.compute(el, er, ed)?;
+        s.sgbm.compute(el, er, ed).map_err(runtime_error)?;
         let (w, ew, off) = (cam.width as usize, ext_cam.width as usize, start as f32);
         let map_x = s.maps[0].map_x();
         for v in 0..cam.height as usize {

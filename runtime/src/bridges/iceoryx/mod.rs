@@ -6,7 +6,7 @@
 //! | service | payload | user header | event service |
 //! | --- | --- | --- | --- |
 //! | `{prefix}/depth` | `[f32]`: row-major depth (m), `width * height` values, NaN = invalid | [`FrameHeader`] | `{prefix}/depth/event` |
-//! | `{prefix}/confidence` | `[f32]`: row-major confidence of each depth pixel in [0, 1], `width * height` values, 0 = invalid; whenever the run computes it: by default with census-refine (its own confidence, `crate::tasks::census_confidence`), or `[disparity] confidence` (the left-right check) | [`FrameHeader`] (the depth sample's, same `seq`) | `{prefix}/confidence/event` |
+//! | `{prefix}/confidence` | `[f32]`: row-major confidence of each depth pixel in [0, 1], `width * height` values, 0 = invalid; whenever the run computes it: by default with census-refine (its own confidence, `abvs_disparity::census_confidence`), or `[disparity] confidence` (the left-right check) | [`FrameHeader`] (the depth sample's, same `seq`) | `{prefix}/confidence/event` |
 //! | `{prefix}/cloud` | `[CloudPoint]`: valid points only (m, left home camera frame) | [`FrameHeader`] | `{prefix}/cloud/event` |
 //!
 //! The confidence (census-refine's own by default, the validity mask's; with `[disparity] confidence`

@@ -14,12 +14,15 @@
 //! it. The parameters were chosen on Aloe (Middlebury, opencv-doc); Motorcycle is held out
 //! (models/hitnet/README.md). Every buffer of its own is allocated at construction: nothing per frame
 //! (OpenCV's SGBM keeps its working buffers inside the call).
-use super::census_confidence::{nearest, Scorer};
-use super::disparity::{DisparityEngine, OnnxEngine, SgbmEngine};
-use super::disparity_fused::{resize_gray, upsample_disparity};
 use std::ops::Range;
 
-use abvs_runtime_core::error::{Result, RuntimeError};
+use crate::census_confidence::{Scorer, AT_EDGE, MARGIN_ONE};
+use crate::confidence::reason;
+use crate::engine::{check_sizes, DisparityEngine};
+use crate::error::{DisparityError, Result};
+use crate::onnx::OnnxEngine;
+use crate::resample::{nearest, resize_gray, upsample_disparity};
+use crate::sgbm::SgbmEngine;
 
 /// Offsets searched around the network's disparity: -SEARCH_PX..=SEARCH_PX (px at the engine's resolution).
 pub const SEARCH_PX: i32 = 3;
@@ -233,7 +236,7 @@ impl Helper {
                                 let n = w * h;
                                 let Some(win) = wins.iter_mut().find(|r| r.w == w) else {
                                     let e = format!("census-refine: no row window for width {w}");
-                                    let _ = done_tx.send(Err(RuntimeError::Invalid(e)));
+                                    let _ = done_tx.send(Err(DisparityError::Invalid(e)));
                                     continue;
                                 };
                                 refine(
@@ -255,7 +258,7 @@ impl Helper {
                     }
                 }
             })
-            .map_err(|e| RuntimeError::Invalid(format!("census-refine: helper thread: {e}")))?;
+            .map_err(|e| DisparityError::Invalid(format!("census-refine: helper thread: {e}")))?;
         let helper = Helper { jobs: Some(jobs), done, thread: Some(thread) };
         // a round trip now, so the channels' waiter lists exist before the first frame
         let (img, mut out) = ([0u8; 64], [[0u32; 64]; 2]);
@@ -278,13 +281,13 @@ impl Helper {
 
     /// Hands `job` to the thread; [`Helper::wait`] must follow before its buffers are used again.
     fn run(&self, job: Job) -> Result<()> {
-        let gone = || RuntimeError::Invalid("census-refine: the helper thread ended".into());
+        let gone = || DisparityError::Invalid("census-refine: the helper thread ended".into());
         self.jobs.as_ref().ok_or_else(gone)?.send(job).map_err(|_| gone())
     }
 
     /// The job's answer (the prior's SGBM can fail).
     fn wait(&self) -> Result<()> {
-        self.done.recv().map_err(|_| RuntimeError::Invalid("census-refine: the helper thread ended".into()))?
+        self.done.recv().map_err(|_| DisparityError::Invalid("census-refine: the helper thread ended".into()))?
     }
 }
 
@@ -326,7 +329,7 @@ impl CensusRefineEngine {
     /// The network `net` refined at `width` x `height` (any size; the network's input is resized).
     pub fn new(net: OnnxEngine, width: u32, height: u32) -> Result<CensusRefineEngine> {
         if width < WINDOW as u32 || height < WINDOW as u32 {
-            return Err(RuntimeError::Invalid(format!("census-refine: {width}x{height} is too small")));
+            return Err(DisparityError::Invalid(format!("census-refine: {width}x{height} is too small")));
         }
         let (mw, mh) = net.size();
         let (n, m) = ((width * height) as usize, (mw * mh) as usize);
@@ -368,7 +371,7 @@ impl CensusRefineEngine {
 
     /// The last frame's inputs of the confidence at the network's resolution (left and right images, search
     /// outcome bytes, refined answer, the network's own answer, SGBM's accepted matches), where the engine
-    /// runs a prior: for fitting the confidence (runtime/examples/census_confidence_dump.rs).
+    /// runs a prior: for fitting the confidence (disparity/examples/census_confidence_dump.rs).
     #[doc(hidden)]
     #[allow(clippy::type_complexity)]
     pub fn internals(&self) -> Option<(&[u8], &[u8], &[u8], &[f32], &[f32], &[f32])> {
@@ -397,20 +400,12 @@ impl DisparityEngine for CensusRefineEngine {
     }
     fn compute(&mut self, left: &[u8], right: &[u8], out: &mut [f32]) -> Result<()> {
         let (w, h) = (self.size.0 as usize, self.size.1 as usize);
-        if left.len() != w * h || right.len() != w * h || out.len() != w * h {
-            return Err(RuntimeError::Invalid(format!(
-                "{}: images of {} / {} pixels and output of {} for a {w}x{h} engine",
-                self.name,
-                left.len(),
-                right.len(),
-                out.len()
-            )));
-        }
+        check_sizes(&self.name, self.size, left, right, out)?;
         let msize = self.net.size();
         let (mw, mh) = (msize.0 as usize, msize.1 as usize);
         if msize == self.size {
             // one pass at the engine's resolution: both censuses on the helper while the network runs
-            let fine = self.fine.as_mut().ok_or_else(|| RuntimeError::Invalid("census-refine: no pass".into()))?;
+            let fine = self.fine.as_mut().ok_or_else(|| DisparityError::Invalid("census-refine: no pass".into()))?;
             self.helper.run(Job::Prepare { census: [Some(fine.census_job(left, right)), None], sgbm: None })?;
             let net = self.net.compute(left, right, &mut self.guess);
             self.helper.wait()?;
@@ -481,7 +476,7 @@ impl DisparityEngine for CensusRefineEngine {
                 if stat.is_empty() {
                     // no search ran (the network alone, resized): no evidence beyond its answer
                     self.conf.fill(0.0);
-                    self.why.fill(super::confidence::reason::AMBIGUOUS);
+                    self.why.fill(reason::AMBIGUOUS);
                     return Ok(());
                 }
                 let prior = self.prior.as_ref().map(|p| &p.disp[..]);
@@ -612,11 +607,6 @@ fn search_stat(best: i16, second: i16, arg: i16) -> u8 {
     let m = (s.saturating_sub(b) * MARGIN_ONE / s).min(MARGIN_ONE) as u8;
     m | if arg == 0 || arg as usize == OFFSETS - 1 { AT_EDGE } else { 0 }
 }
-
-/// The margin of a search outcome byte that stands for 1 (the second best infinitely worse).
-pub const MARGIN_ONE: u32 = 127;
-/// The window-edge bit of a search outcome byte.
-pub const AT_EDGE: u8 = 0x80;
 
 /// 5x5 census code of every pixel (bit set where the neighbour is darker than the centre), the image's
 /// border replicated.

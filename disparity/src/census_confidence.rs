@@ -1,5 +1,5 @@
 //! The census-refine engine's per-pixel confidence, from what one run of it computes anyway (no second run,
-//! unlike the left-right check of [`super::confidence`]): a logistic model of whether the pixel is right to
+//! unlike the left-right check of [`crate::confidence`]): a logistic model of whether the pixel is right to
 //! 2 px, fitted on the development pair (Aloe at 640x480) over these features of the search's pass:
 //!
 //! - `acc`: whether SGBM's own checks (uniqueness, left-right, speckles) accepted the pixel as the search's
@@ -27,8 +27,7 @@
 //! accepted (not calibrated there). Motorcycle is held out (cli/tests/disparity_real.rs). Each pixel also gets
 //! the reason its confidence is not higher ([`reason`]): low texture, ambiguous, out of range, occluded /
 //! depth edge.
-use super::confidence::reason;
-use super::disparity_census::{AT_EDGE, MARGIN_ONE};
+use crate::confidence::reason;
 
 /// The logistic model's bias (see the module docs; fitted on Aloe at 640x480).
 pub const B: f32 = -0.13;
@@ -49,6 +48,13 @@ pub const MARGIN_LOW: f32 = 0.175;
 /// Steps of the tables of ln(1 + v) for the span and the agreement (per px) and their reach (px).
 const LN_STEPS: f32 = 32.0;
 const LN_REACH: f32 = 64.0;
+
+/// The margin of a search outcome byte that stands for 1 (the second best infinitely worse). The byte is
+/// what census-refine's search ([`crate::census`]) records per pixel and this scoring reads: the winner's
+/// margin in 1/`MARGIN_ONE` steps (0 ..= 127) and [`AT_EDGE`].
+pub const MARGIN_ONE: u32 = 127;
+/// The window-edge bit of a search outcome byte (the winner is an end of the search window).
+pub const AT_EDGE: u8 = 0x80;
 
 /// Buffers of the scoring at one resolution, allocated once.
 pub struct Scorer {
@@ -154,34 +160,6 @@ impl Scorer {
                     reason::OCCLUDED
                 };
             }
-        }
-    }
-}
-
-/// The validity mask: every pixel of `disparity` whose confidence is below `min` becomes NaN (`min` 0:
-/// none is touched, the dense map bit for bit); the reason of each pixel kept with a disparity becomes
-/// `VALID`, the others keep theirs (`NO_ESTIMATE` where the engine had no disparity).
-pub fn mask(conf: &[f32], min: f32, disparity: &mut [f32], why: &mut [u8]) {
-    for ((d, c), r) in disparity.iter_mut().zip(conf).zip(why.iter_mut()) {
-        if !d.is_finite() {
-            if *r == reason::VALID {
-                *r = reason::NO_ESTIMATE;
-            }
-        } else if *c >= min {
-            *r = reason::VALID;
-        } else if min > 0.0 {
-            *d = f32::NAN;
-        }
-    }
-}
-
-/// Nearest-neighbour resample of a `(sw, sh)` map into `(dw, dh)`.
-pub fn nearest<T: Copy>(src: &[T], (sw, sh): (usize, usize), dst: &mut [T], (dw, dh): (usize, usize)) {
-    for (y, row) in dst.chunks_exact_mut(dw).enumerate().take(dh) {
-        let sy = (y * sh / dh).min(sh - 1);
-        let s = &src[sy * sw..(sy + 1) * sw];
-        for (x, o) in row.iter_mut().enumerate() {
-            *o = s[(x * sw / dw).min(sw - 1)];
         }
     }
 }

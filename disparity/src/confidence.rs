@@ -15,15 +15,17 @@
 //! of the rectified left image that do not see the raw image get 0 too. With `invalidate`, every pixel of
 //! confidence 0 also loses its disparity (NaN), so depth and cloud drop it.
 //!
+//! An engine that defines its own check ([`DisparityEngine::own_lr_check`]: the fused engine,
+//! [`crate::fused`]) is checked by it instead; [`LrCheck`] is the one entry point of both, for
+//! `abvs disparity`, `abvs disparity-eval` and the runtime's disparity stage alike.
+//!
 //! The check runs the engine a second time (about doubling the disparity stage) on mirror buffers allocated
-//! at start: it does not allocate per frame. It runs inside the disparity stage
-//! ([`super::disparity::DisparityStage::with_check`]), which owns the engine; the confidence travels in
-//! [`Work::confidence`].
-use abvs_runtime_core::error::{Result, RuntimeError};
-use abvs_runtime_core::messages::Work;
-
-use super::disparity::DisparityEngine;
-use abvs_runtime_core::params::CheckConfig;
+//! at start: it does not allocate per frame. [`mask`] is the validity mask of an engine's own confidence
+//! (census-refine's, [`crate::census_confidence`]). What the check does ([`CheckConfig`]) is plain data of the
+//! runtime's bottom crate, which the deployment file fills.
+use crate::engine::DisparityEngine;
+use crate::error::{DisparityError, Result};
+use abvs_runtime_core::params::{CheckConfig, MAX_DIFF_LIMIT};
 
 /// Each row of a `width`-wide image reversed into `dst` (the mirror that turns a right view into a left one).
 pub fn mirror_rows<T: Copy>(src: &[T], width: usize, dst: &mut [T]) {
@@ -45,7 +47,7 @@ pub mod reason {
     /// The right view's disparity there disagrees (occlusion or mismatch).
     pub const LR_FAILED: u8 = 3;
     /// The engine's own confidence is below the threshold, weakest for low texture (a flat area the
-    /// network filled: `super::census_confidence`).
+    /// network filled: [`crate::census_confidence`]).
     pub const LOW_TEXTURE: u8 = 4;
     /// ... for an ambiguous census search (its winner barely better than other offsets).
     pub const AMBIGUOUS: u8 = 5;
@@ -115,7 +117,24 @@ pub fn lr_check_with_reasons(
     passed
 }
 
-/// The check's buffers at the pipeline's output resolution, allocated once.
+/// The validity mask: every pixel of `disparity` whose confidence is below `min` becomes NaN (`min` 0:
+/// none is touched, the dense map bit for bit); the reason of each pixel kept with a disparity becomes
+/// `VALID`, the others keep theirs (`NO_ESTIMATE` where the engine had no disparity).
+pub fn mask(conf: &[f32], min: f32, disparity: &mut [f32], why: &mut [u8]) {
+    for ((d, c), r) in disparity.iter_mut().zip(conf).zip(why.iter_mut()) {
+        if !d.is_finite() {
+            if *r == reason::VALID {
+                *r = reason::NO_ESTIMATE;
+            }
+        } else if *c >= min {
+            *r = reason::VALID;
+        } else if min > 0.0 {
+            *d = f32::NAN;
+        }
+    }
+}
+
+/// The check's buffers at one resolution, allocated once.
 pub struct LrCheck {
     /// What the check produces.
     pub cfg: CheckConfig,
@@ -124,14 +143,21 @@ pub struct LrCheck {
     right_m: Vec<u8>,
     disp_m: Vec<f32>,
     right_disp: Vec<f32>,
-    /// Where the confidence goes when the frames do not carry it (`invalidate` only).
+    /// Where the confidence goes when the caller does not keep it (`invalidate` only).
     scratch: Vec<f32>,
+    /// The reasons when the caller does not keep them.
+    why: Vec<u8>,
 }
 
 impl LrCheck {
     /// A check with `cfg` (refused when out of range); [`LrCheck::start`] sizes its buffers.
     pub fn new(cfg: CheckConfig) -> Result<LrCheck> {
-        cfg.check()?;
+        if !(cfg.max_diff > 0.0 && cfg.max_diff <= MAX_DIFF_LIMIT) {
+            return Err(DisparityError::Invalid(format!(
+                "left-right check: max_diff {} px must be in (0, {MAX_DIFF_LIMIT}]",
+                cfg.max_diff
+            )));
+        }
         Ok(LrCheck {
             cfg,
             width: 0,
@@ -140,6 +166,7 @@ impl LrCheck {
             disp_m: Vec::new(),
             right_disp: Vec::new(),
             scratch: Vec::new(),
+            why: Vec::new(),
         })
     }
 
@@ -152,40 +179,71 @@ impl LrCheck {
         self.disp_m = vec![f32::NAN; n];
         self.right_disp = vec![f32::NAN; n];
         self.scratch = if self.cfg.confidence { Vec::new() } else { vec![0.0; n] };
+        self.why = vec![reason::VALID; n];
     }
 
-    /// Sizes a pooled frame's confidence buffer (only when the frames carry it).
-    pub fn prepare_work(&self, w: &mut Work) {
-        if self.cfg.confidence {
-            w.confidence = vec![0.0; w.disparity.len()];
-        }
-    }
-
-    /// Runs the check on a frame whose left-view disparity `engine` just computed: the right view's
-    /// disparity through the same engine, then [`lr_check`]; confidence into [`Work::confidence`].
-    pub fn process(&mut self, engine: &mut dyn DisparityEngine, w: &mut Work) -> Result<()> {
+    /// Runs the check on a pair whose left-view disparity `engine` just computed into `disparity`: the
+    /// engine's own check ([`DisparityEngine::own_lr_check`]) where it has one, else the right view's
+    /// disparity through the same engine and [`lr_check`]. Confidence into `conf` (`None`: not kept, only
+    /// with `invalidate`), reasons into `why` when given. `valid` (the rectified pixels that see the raw
+    /// image) zeroes the confidence elsewhere: a pixel matched on padding. Returns how many pixels passed.
+    #[allow(clippy::too_many_arguments)]
+    pub fn run(
+        &mut self,
+        engine: &mut dyn DisparityEngine,
+        left: &[u8],
+        right: &[u8],
+        valid: Option<&[u8]>,
+        disparity: &mut [f32],
+        conf: Option<&mut [f32]>,
+        why: Option<&mut [u8]>,
+    ) -> Result<usize> {
         let n = self.left_m.len();
-        let Work { rectified, disparity, confidence, .. } = w;
-        if n == 0 || disparity.len() != n || (self.cfg.confidence && confidence.len() != n) {
-            return Err(RuntimeError::Invalid("left-right check: buffers not sized (not started?)".into()));
+        let sized = |l: Option<usize>| l.is_none_or(|l| l == n);
+        if n == 0
+            || disparity.len() != n
+            || left.len() != n
+            || right.len() != n
+            || !sized(valid.map(|v| v.len()))
+            || !sized(conf.as_ref().map(|c| c.len()))
+            || !sized(why.as_ref().map(|w| w.len()))
+            || (conf.is_none() && self.scratch.len() != n)
+        {
+            return Err(DisparityError::Invalid("left-right check: buffers not sized (not started?)".into()));
         }
-        let width = self.width;
-        mirror_rows(&rectified.right, width, &mut self.left_m);
-        mirror_rows(&rectified.left, width, &mut self.right_m);
-        engine.compute(&self.left_m, &self.right_m, &mut self.disp_m)?;
-        mirror_rows(&self.disp_m, width, &mut self.right_disp);
-        let conf: &mut [f32] = if self.cfg.confidence { confidence } else { &mut self.scratch };
-        lr_check(disparity, &self.right_disp, width, self.cfg.max_diff, self.cfg.invalidate, conf);
+        let conf: &mut [f32] = match conf {
+            Some(c) => c,
+            None => &mut self.scratch,
+        };
+        let why: &mut [u8] = match why {
+            Some(w) => w,
+            None => &mut self.why,
+        };
+        let (max_diff, invalidate) = (self.cfg.max_diff, self.cfg.invalidate);
+        let mut passed = match engine.own_lr_check(max_diff, invalidate, disparity, conf, why) {
+            Some(p) => p?,
+            None => {
+                let width = self.width;
+                mirror_rows(right, width, &mut self.left_m);
+                mirror_rows(left, width, &mut self.right_m);
+                engine.compute(&self.left_m, &self.right_m, &mut self.disp_m)?;
+                mirror_rows(&self.disp_m, width, &mut self.right_disp);
+                lr_check_with_reasons(disparity, &self.right_disp, width, max_diff, invalidate, conf, Some(why))
+            }
+        };
         // a rectified pixel that does not see the raw image is matched on padding: no confidence
-        for ((c, v), d) in conf.iter_mut().zip(&rectified.valid).zip(disparity.iter_mut()) {
-            if *v == 0 {
-                *c = 0.0;
-                if self.cfg.invalidate {
-                    *d = f32::NAN;
+        if let Some(valid) = valid {
+            for (((c, v), d), r) in conf.iter_mut().zip(valid).zip(disparity.iter_mut()).zip(why.iter_mut()) {
+                if *v == 0 {
+                    passed -= (*r == reason::VALID) as usize;
+                    (*c, *r) = (0.0, reason::NO_ESTIMATE);
+                    if invalidate {
+                        *d = f32::NAN;
+                    }
                 }
             }
         }
-        Ok(())
+        Ok(passed)
     }
 }
 
@@ -279,26 +337,23 @@ mod tests {
                 right[y * w + x] = tex[y * (w + shift) + x + shift];
             }
         }
-        let mut engine = super::super::disparity::SgbmEngine::new(w as u32, h as u32, 16.0).unwrap();
-        let mut work = Work::new((w as u32, h as u32), (w as u32, h as u32));
-        work.rectified.left.copy_from_slice(&left);
-        work.rectified.right.copy_from_slice(&right);
-        work.rectified.valid.fill(1);
+        let mut engine = crate::sgbm::SgbmEngine::new(w as u32, h as u32, 16.0).unwrap();
+        let valid = vec![1u8; w * h];
+        let (mut disparity, mut confidence) = (vec![f32::NAN; w * h], vec![0f32; w * h]);
         let cfg = CheckConfig { confidence: true, invalidate: true, max_diff: 1.0 };
         let mut check = LrCheck::new(cfg).unwrap();
         check.start(w as u32, h as u32);
-        check.prepare_work(&mut work);
-        engine.compute(&work.rectified.left, &work.rectified.right, &mut work.disparity).unwrap();
-        check.process(&mut engine, &mut work).unwrap();
+        engine.compute(&left, &right, &mut disparity).unwrap();
+        check.run(&mut engine, &left, &right, Some(&valid), &mut disparity, Some(&mut confidence), None).unwrap();
         let interior: Vec<usize> = (8..h - 8).flat_map(|y| (24..w - 8).map(move |x| y * w + x)).collect();
-        let good = interior.iter().filter(|&&i| work.confidence[i] > 0.8).count();
+        let good = interior.iter().filter(|&&i| confidence[i] > 0.8).count();
         assert!(good as f64 > 0.9 * interior.len() as f64, "{good} of {} confident", interior.len());
         for &i in &interior {
-            if work.confidence[i] > 0.8 {
-                assert!((work.disparity[i] - shift as f32).abs() < 1.0, "pixel {i}: {}", work.disparity[i]);
+            if confidence[i] > 0.8 {
+                assert!((disparity[i] - shift as f32).abs() < 1.0, "pixel {i}: {}", disparity[i]);
             }
         }
-        for (c, d) in work.confidence.iter().zip(&work.disparity) {
+        for (c, d) in confidence.iter().zip(&disparity) {
             assert!((0.0..=1.0).contains(c));
             assert_eq!(*c == 0.0, d.is_nan(), "confidence 0 exactly where the disparity was invalidated");
         }

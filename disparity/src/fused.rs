@@ -8,11 +8,19 @@
 //! resolution (the input's, offline), the network at its own; SGBM's search range comes from the network's
 //! answer, so no range has to be configured and the band SGBM leaves at the left edge is no wider than the
 //! scene needs.
-use opencv::core::{Mat, Size};
-use opencv::prelude::*;
-
-use super::disparity::{DisparityEngine, OnnxEngine, SgbmEngine};
-use abvs_runtime_core::error::{Result, RuntimeError};
+//!
+//! Its left-right check ([`DisparityEngine::own_lr_check`], the one definition of `abvs disparity --engine
+//! fused --confidence` and of `abvs run --engine fused` with `[disparity] confidence`): SGBM's matches passed
+//! its own left-right check already, and two independent matchers that agree are surer than one, so an SGBM
+//! pixel scores `0.5 (1 + exp(-|d_sgbm - d_network| / 2 px))` in [0.5, 1]; the network's pixels get the
+//! generic check ([`crate::confidence::lr_check`]) at the network's resolution, scaled below every accepted
+//! SGBM match: `0.5 exp(-|d_left - d_right|)`, and fail (reason and, with `invalidate`, NaN) where it fails.
+use crate::confidence::{lr_check_with_reasons, mirror_rows, reason};
+use crate::engine::{check_sizes, DisparityEngine};
+use crate::error::{DisparityError, Result};
+use crate::onnx::OnnxEngine;
+use crate::resample::{nearest_centred, resize_gray, upsample_disparity};
+use crate::sgbm::SgbmEngine;
 
 /// Where a fused pixel's disparity came from.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -47,61 +55,30 @@ pub struct FusedEngine {
     /// Largest SGBM range: 1.5x the network's range, below the image width.
     max_range: i32,
     range: i32,
+    /// The left-right check's buffers, sized at its first run (nothing per frame after it): the mirrored
+    /// pair, its disparity, the right view, the network's checked map, confidence and reasons at the
+    /// network's resolution, then at the engine's.
+    mirror: [Vec<u8>; 2],
+    mirror_disp: Vec<f32>,
+    right_disp: Vec<f32>,
+    check_disp: Vec<f32>,
+    check_conf: (Vec<f32>, Vec<f32>),
+    check_why: (Vec<u8>, Vec<u8>),
 }
 
-fn cv(e: opencv::Error) -> RuntimeError {
-    RuntimeError::Invalid(format!("fused: {}", e.message))
-}
+/// The fused engine's confidence scale for network pixels: below every accepted SGBM match, which is right
+/// to a fraction of a pixel where the network is not.
+pub const NETWORK_CONFIDENCE: f32 = 0.5;
 
-/// Resizes an 8-bit gray image (area averaging when shrinking, bilinear when enlarging).
-pub(crate) fn resize_gray(src: &[u8], (sw, sh): (u32, u32), dst: &mut [u8], (dw, dh): (u32, u32)) -> Result<()> {
-    if (sw, sh) == (dw, dh) {
-        dst.copy_from_slice(src);
-        return Ok(());
-    }
-    let s = Mat::new_rows_cols_with_data(sh as i32, sw as i32, src).map_err(cv)?;
-    let mut d = Mat::default();
-    let interp = if dw <= sw && dh <= sh { opencv::imgproc::INTER_AREA } else { opencv::imgproc::INTER_LINEAR };
-    opencv::imgproc::resize(&s, &mut d, Size::new(dw as i32, dh as i32), 0.0, 0.0, interp).map_err(cv)?;
-    dst.copy_from_slice(d.data_bytes().map_err(cv)?);
-    Ok(())
-}
-
-/// Bilinear resample of a disparity map to another resolution, values scaled by the width ratio. A pixel
-/// next to an invalid one takes its nearest neighbour instead, so invalid (NaN) never spreads nor blends.
-pub fn upsample_disparity(src: &[f32], (sw, sh): (usize, usize), dst: &mut [f32], (dw, dh): (usize, usize)) {
-    let scale = dw as f32 / sw as f32;
-    let (fx, fy) = (sw as f32 / dw as f32, sh as f32 / dh as f32);
-    // the coordinates are clamped to >= 0, so a cast is the floor: no libm call per pixel (the baseline
-    // x86-64 target has no rounding instruction), which made this a tenth of the refinement's frame
-    for (y, row) in dst.chunks_exact_mut(dw).enumerate().take(dh) {
-        let syf = ((y as f32 + 0.5) * fy - 0.5).clamp(0.0, (sh - 1) as f32);
-        let y0 = syf as usize;
-        let ty = syf - y0 as f32;
-        let y1 = (y0 + 1).min(sh - 1);
-        let (r0, r1) = (&src[y0 * sw..(y0 + 1) * sw], &src[y1 * sw..(y1 + 1) * sw]);
-        let yn = if ty < 0.5 { r0 } else { r1 };
-        for (x, o) in row.iter_mut().enumerate() {
-            let sxf = ((x as f32 + 0.5) * fx - 0.5).clamp(0.0, (sw - 1) as f32);
-            let x0 = sxf as usize;
-            let tx = sxf - x0 as f32;
-            let x1 = (x0 + 1).min(sw - 1);
-            let (a, b, c, d) = (r0[x0], r0[x1], r1[x0], r1[x1]);
-            let v = if a.is_finite() && b.is_finite() && c.is_finite() && d.is_finite() {
-                (a * (1.0 - tx) + b * tx) * (1.0 - ty) + (c * (1.0 - tx) + d * tx) * ty
-            } else {
-                yn[if tx < 0.5 { x0 } else { x1 }]
-            };
-            *o = v * scale;
-        }
-    }
-}
+/// Scale (px) of the fused engine's agreement between SGBM and the network: at the bad-2 threshold the two
+/// agree to exp(-1).
+pub const AGREEMENT_PX: f32 = 2.0;
 
 impl FusedEngine {
     /// The network `net` fused with SGBM at `width` x `height` (any size; the network's input is resized).
     pub fn new(net: OnnxEngine, width: u32, height: u32) -> Result<FusedEngine> {
         if width < 32 || height < 8 {
-            return Err(RuntimeError::Invalid(format!("fused: {width}x{height} is too small for SGBM")));
+            return Err(DisparityError::Invalid(format!("fused: {width}x{height} is too small for SGBM")));
         }
         let (mw, mh) = net.size();
         let sx = width as f64 / mw as f64;
@@ -125,6 +102,12 @@ impl FusedEngine {
             sources: vec![Source::None; n],
             max_range,
             range: max_range,
+            mirror: [Vec::new(), Vec::new()],
+            mirror_disp: Vec::new(),
+            right_disp: Vec::new(),
+            check_disp: Vec::new(),
+            check_conf: (Vec::new(), Vec::new()),
+            check_why: (Vec::new(), Vec::new()),
         })
     }
 
@@ -173,18 +156,7 @@ impl DisparityEngine for FusedEngine {
         self.max_range as f64
     }
     fn compute(&mut self, left: &[u8], right: &[u8], out: &mut [f32]) -> Result<()> {
-        let n = (self.size.0 * self.size.1) as usize;
-        if left.len() != n || right.len() != n || out.len() != n {
-            return Err(RuntimeError::Invalid(format!(
-                "{}: images of {} / {} pixels and output of {} for a {}x{} engine",
-                self.name,
-                left.len(),
-                right.len(),
-                out.len(),
-                self.size.0,
-                self.size.1
-            )));
-        }
+        check_sizes(&self.name, self.size, left, right, out)?;
         let msize = self.net.size();
         resize_gray(left, self.size, &mut self.net_left, msize)?;
         resize_gray(right, self.size, &mut self.net_right, msize)?;
@@ -208,27 +180,74 @@ impl DisparityEngine for FusedEngine {
         }
         Ok(())
     }
+    fn own_lr_check(
+        &mut self,
+        max_diff: f32,
+        invalidate: bool,
+        disparity: &mut [f32],
+        conf: &mut [f32],
+        why: &mut [u8],
+    ) -> Option<Result<usize>> {
+        Some(self.lr_check(max_diff, invalidate, disparity, conf, why))
+    }
 }
 
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn upsampling_scales_values_and_never_blends_invalid() {
-        // a 4x2 ramp to 8x4: values double, a constant stays constant (times 2)
-        let src = [1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0];
-        let mut dst = [0f32; 32];
-        upsample_disparity(&src, (4, 2), &mut dst, (8, 4));
-        assert!(dst.iter().all(|v| (*v - 2.0).abs() < 1e-6), "{dst:?}");
-        // one invalid source pixel: the output is NaN only where it is the nearest, never a blend
-        let mut src = [4.0f32; 8];
-        src[0] = f32::NAN;
-        upsample_disparity(&src, (4, 2), &mut dst, (8, 4));
-        for v in dst {
-            assert!(v.is_nan() || (v - 8.0).abs() < 1e-6, "{v}");
+impl FusedEngine {
+    /// The fused engine's left-right check of its last answer `disparity` (see the module docs).
+    fn lr_check(
+        &mut self,
+        max_diff: f32,
+        invalidate: bool,
+        disparity: &mut [f32],
+        conf: &mut [f32],
+        why: &mut [u8],
+    ) -> Result<usize> {
+        let n = (self.size.0 * self.size.1) as usize;
+        if disparity.len() != n || conf.len() != n || why.len() != n {
+            return Err(DisparityError::Invalid(format!("{}: left-right check of a map not its size", self.name)));
         }
-        assert!(dst[0].is_nan() && dst[1].is_nan());
-        assert_eq!(dst.iter().filter(|v| v.is_nan()).count(), 4);
+        let (mw, mh) = (self.net.size().0 as usize, self.net.size().1 as usize);
+        let m = mw * mh;
+        if self.right_disp.len() != m {
+            self.mirror = [vec![0; m], vec![0; m]];
+            self.mirror_disp = vec![f32::NAN; m];
+            self.right_disp = vec![f32::NAN; m];
+            self.check_disp = vec![f32::NAN; m];
+            self.check_conf = (vec![0.0; m], vec![0.0; n]);
+            self.check_why = (vec![reason::VALID; m], vec![reason::VALID; n]);
+        }
+        // the network's right view: the mirrored right image is a left view of the mirrored left one
+        let [ml, mr] = &mut self.mirror;
+        mirror_rows(&self.net_right, mw, ml);
+        mirror_rows(&self.net_left, mw, mr);
+        self.net.compute(ml, mr, &mut self.mirror_disp)?;
+        mirror_rows(&self.mirror_disp, mw, &mut self.right_disp);
+        self.check_disp.copy_from_slice(&self.net_disp);
+        let ((c_net, net_conf), (w_net, net_why)) = (&mut self.check_conf, &mut self.check_why);
+        lr_check_with_reasons(&mut self.check_disp, &self.right_disp, mw, max_diff, false, c_net, Some(w_net));
+        let isize = (self.size.0 as usize, self.size.1 as usize);
+        nearest_centred(w_net, (mw, mh), net_why, isize);
+        nearest_centred(c_net, (mw, mh), net_conf, isize);
+        let mut passed = 0;
+        for (i, s) in self.sources.iter().enumerate() {
+            (conf[i], why[i]) = match s {
+                // two independent matchers that agree are surer than one
+                Source::Sgbm => {
+                    let agree = (-(disparity[i] - self.up[i]).abs() / AGREEMENT_PX).exp();
+                    (NETWORK_CONFIDENCE * (1.0 + if agree.is_finite() { agree } else { 0.0 }), reason::VALID)
+                }
+                // a network pixel is never as sure as an accepted SGBM match
+                Source::Network if net_why[i] == reason::VALID => (NETWORK_CONFIDENCE * net_conf[i], reason::VALID),
+                Source::Network => {
+                    if invalidate {
+                        disparity[i] = f32::NAN;
+                    }
+                    (0.0, net_why[i])
+                }
+                Source::None => (0.0, reason::NO_ESTIMATE),
+            };
+            passed += (why[i] == reason::VALID) as usize;
+        }
+        Ok(passed)
     }
 }

@@ -1,11 +1,15 @@
 //! PFM, the disparity maps' file format (grayscale "Pf", little- or big-endian, rows bottom to top): the
-//! writer and a parser that refuses every malformed input with a message instead of panicking.
+//! writer and a parser that refuses every malformed input with a message instead of panicking (the one
+//! reader of the program, its tests and the scoring).
 use std::path::Path;
 
-use anyhow::Context;
+use crate::error::{DisparityError, Result};
 
 /// Writes a PFM (grayscale, little-endian, rows bottom to top); NaN is written as +inf (the format's "no value").
-pub fn write_pfm(path: &Path, w: usize, h: usize, data: &[f32]) -> anyhow::Result<()> {
+pub fn write_pfm(path: &Path, w: usize, h: usize, data: &[f32]) -> Result<()> {
+    if data.len() != w * h {
+        return Err(DisparityError::Invalid(format!("PFM of {w}x{h} from {} values", data.len())));
+    }
     let mut out = format!("Pf\n{w} {h}\n-1.0\n").into_bytes();
     out.reserve(w * h * 4);
     for y in (0..h).rev() {
@@ -14,22 +18,22 @@ pub fn write_pfm(path: &Path, w: usize, h: usize, data: &[f32]) -> anyhow::Resul
             out.extend_from_slice(&v.to_le_bytes());
         }
     }
-    std::fs::write(path, out).with_context(|| format!("writing {}", path.display()))
+    std::fs::write(path, out).map_err(|source| DisparityError::Write { path: path.to_path_buf(), source })
 }
 
 /// Largest PFM the tools read (values): 2^28 floats = 1 GiB, far above any disparity map.
 pub const MAX_PFM_VALUES: usize = 1 << 28;
 
 /// Reads a grayscale PFM into row-major top-to-bottom order.
-pub fn read_pfm(path: &Path) -> anyhow::Result<(usize, usize, Vec<f32>)> {
-    let bytes = std::fs::read(path).with_context(|| format!("reading {}", path.display()))?;
-    parse_pfm(&bytes).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))
+pub fn read_pfm(path: &Path) -> Result<(usize, usize, Vec<f32>)> {
+    let bytes = std::fs::read(path).map_err(|source| DisparityError::Read { path: path.to_path_buf(), source })?;
+    parse_pfm(&bytes).map_err(|msg| DisparityError::Format { path: path.to_path_buf(), msg })
 }
 
 /// Parses a grayscale PFM ("Pf", width, height, scale: negative = little-endian, then rows bottom to top).
 /// Every malformed input is an error, never a panic: a bad or truncated header, a size of 0 or beyond
 /// [`MAX_PFM_VALUES`], a scale that is 0 or not a number, too little data. Trailing bytes are ignored.
-pub fn parse_pfm(bytes: &[u8]) -> Result<(usize, usize, Vec<f32>), String> {
+pub fn parse_pfm(bytes: &[u8]) -> std::result::Result<(usize, usize, Vec<f32>), String> {
     let mut fields: Vec<&[u8]> = Vec::with_capacity(4);
     let mut pos = 0;
     while fields.len() < 4 {
@@ -57,7 +61,7 @@ pub fn parse_pfm(bytes: &[u8]) -> Result<(usize, usize, Vec<f32>), String> {
     if fields[0] != b"Pf" {
         return Err(format!("`{}` is not a grayscale PFM (expected Pf)", text(fields[0])));
     }
-    let dim = |f: &[u8], what: &str| -> Result<usize, String> {
+    let dim = |f: &[u8], what: &str| -> std::result::Result<usize, String> {
         let v: usize = std::str::from_utf8(f)
             .ok()
             .and_then(|s| s.parse().ok())

@@ -1,10 +1,11 @@
 //! census-refine's internals at 640x480 as raw files, the input of scripts/fit_census_confidence.py (which
-//! fitted the weights of runtime/src/tasks/census_confidence.rs):
-//! `cargo run -p abvs-runtime --example census_confidence_dump -- LEFT RIGHT OUTDIR`. The pair is resampled
+//! fitted the weights of disparity/src/census_confidence.rs):
+//! `cargo run -p abvs-disparity --example census_confidence_dump -- LEFT RIGHT OUTDIR`. The pair is resampled
 //! as `abvs disparity-eval --resolution 640x480` does (INTER_AREA); the engine is the runtime's default
 //! (hitnet-m's refine base, hitnet-s, with the SGBM prior at 320x240).
-use abvs_runtime::tasks::disparity::{set_opencv_threads, DisparityEngine, OnnxEngine};
-use abvs_runtime::tasks::disparity_census::CensusRefineEngine;
+use abvs_disparity::census::CensusRefineEngine;
+use abvs_disparity::engine::{set_opencv_threads, DisparityEngine};
+use abvs_disparity::onnx::OnnxEngine;
 use opencv::core::{Mat, Size};
 use opencv::prelude::*;
 use opencv::{imgcodecs, imgproc};
@@ -32,7 +33,7 @@ fn main() {
     let lb = resize(&load(l, imgcodecs::IMREAD_GRAYSCALE), w as i32, h as i32);
     let rb = resize(&load(r, imgcodecs::IMREAD_GRAYSCALE), w as i32, h as i32);
     let models = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../models/hitnet/hitnet-m");
-    let base = abvs_runtime::tasks::disparity::refine_base(&models).unwrap();
+    let base = abvs_disparity::manifest::refine_base(&models).unwrap();
     let mut e = CensusRefineEngine::new(OnnxEngine::load(&base, 2).unwrap(), w, h).unwrap();
     let mut d = vec![0f32; (w * h) as usize];
     e.compute(&lb, &rb, &mut d).unwrap();
