@@ -3,7 +3,7 @@ use std::io::Write;
 
 use crate::error::BoardError;
 use crate::protocol::{CommandFrame, COMMAND_LEN, COMMAND_MOVE};
-use crate::stream::EncoderWatch;
+use crate::watch::EncoderWatch;
 
 /// Both eyes' command frames of one move to `target_counts` (homed, per eye) over `duration_us`: raw targets
 /// are the home counts plus the homed ones. `seq` numbers the commands (+1 each).

@@ -21,3 +21,4 @@ pub mod protocol;
 pub mod saccade;
 pub mod stream;
 pub mod tracker;
+pub mod watch;

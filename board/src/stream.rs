@@ -1,5 +1,5 @@
 //! [`crate::tracker::EncoderTracker`] on its own thread, reading a port until stopped or the port fails,
-//! and the homing and liveness it saw for other threads ([`EncoderWatch`]).
+//! and the homing and liveness it saw for other threads ([`crate::watch::EncoderWatch`]).
 use std::io::{ErrorKind, Read};
 use std::sync::atomic::{AtomicBool, AtomicI64, Ordering};
 use std::sync::{Arc, Mutex};
@@ -10,6 +10,7 @@ use crossbeam_channel::{Receiver, Sender, TrySendError};
 use crate::commands::CommandPort;
 use crate::error::BoardError;
 use crate::tracker::{EncoderStats, EncoderTracker, HomedSample};
+use crate::watch::EncoderWatch;
 
 /// CLOCK_MONOTONIC now (ns): the receive time of the bytes read (the runtime's frame clock).
 // (time_t and c_long are 32-bit on 32-bit targets: the casts are not no-ops everywhere)
@@ -30,29 +31,6 @@ pub struct EncoderStream {
     thread: Option<JoinHandle<Result<(), BoardError>>>,
     /// The same port for writing (the drive board's commands), when it was given one.
     commands: Option<(Box<dyn std::io::Write + Send>, String)>,
-}
-
-/// Homing and liveness of an [`EncoderStream`], for another thread (the gaze controller's).
-#[derive(Clone)]
-pub struct EncoderWatch {
-    shared: Arc<Mutex<(EncoderStats, [bool; 2])>>,
-    last_ns: Arc<AtomicI64>,
-}
-
-impl EncoderWatch {
-    /// Both eyes' home counts once both are homed.
-    pub fn home_counts(&self) -> Option<[[i64; 3]; 2]> {
-        let s = self.shared.lock().expect("encoder stats lock");
-        match (s.1, s.0.home_counts) {
-            ([true, true], [Some(l), Some(r)]) => Some([l, r]),
-            _ => None,
-        }
-    }
-
-    /// CLOCK_MONOTONIC ns at which the newest homed record arrived.
-    pub fn last_record_ns(&self) -> Option<i64> {
-        Some(self.last_ns.load(Ordering::Relaxed)).filter(|&t| t != i64::MIN)
-    }
 }
 
 impl EncoderStream {

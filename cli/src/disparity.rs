@@ -5,13 +5,13 @@
 use std::path::PathBuf;
 use std::process::ExitCode;
 
-use abvs_runtime_core::params::DEFAULT_MIN_CONFIDENCE;
 use abvs_disparity::confidence::mask;
-use abvs_runtime_core::params::MAX_DIFF_LIMIT;
 use abvs_disparity::estimate::{estimate, read_gray};
 use abvs_disparity::manifest::default_model_for;
 use abvs_disparity::pfm::write_pfm;
 use abvs_runtime_core::config::EngineKind;
+use abvs_runtime_core::params::DEFAULT_MIN_CONFIDENCE;
+use abvs_runtime_core::params::MAX_DIFF_LIMIT;
 use anyhow::Context;
 use clap::Args;
 use opencv::prelude::*;

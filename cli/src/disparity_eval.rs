@@ -12,7 +12,6 @@ use std::process::ExitCode;
 use std::time::Instant;
 
 use abvs_disparity::census::CensusRefineEngine;
-use abvs_runtime_core::params::DEFAULT_MIN_CONFIDENCE;
 use abvs_disparity::confidence::mask;
 use abvs_disparity::engine::{compute, set_opencv_threads, DisparityEngine};
 use abvs_disparity::estimate::{estimate, read_gray};
@@ -23,6 +22,7 @@ use abvs_disparity::resample::{resize_mat, upsample_disparity};
 use abvs_disparity::score::{bad2_at, density_at, density_curve, load_gt, mask_curve, published_score};
 use abvs_disparity::sgbm::SgbmEngine;
 use abvs_runtime_core::config::EngineKind;
+use abvs_runtime_core::params::DEFAULT_MIN_CONFIDENCE;
 use anyhow::{bail, Context};
 use clap::Args;
 use opencv::core::Mat;

@@ -4,7 +4,6 @@
 //! estimate written into a configuration or a session.
 use std::path::{Path, PathBuf};
 
-use abvs_runtime_core::config::{RuntimeConfig, SourceKind};
 use abvs_runtime_core::session::TimeOffsetMs;
 use abvs_selfcheck::rounds::{self, TimingOutcome};
 use abvs_selfcheck::timing_fit::{error_by_speed, offset_setting, round2, Est, Named, TimingFit};

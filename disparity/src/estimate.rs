@@ -13,7 +13,7 @@ use opencv::core::Mat;
 use opencv::prelude::*;
 
 use crate::census::CensusRefineEngine;
-use crate::confidence::{reason, CheckConfig, LrCheck};
+use crate::confidence::{reason, LrCheck};
 use crate::engine::{compute, set_opencv_threads, DisparityEngine};
 use crate::error::{cv, DisparityError, Result};
 use crate::fused::FusedEngine;
@@ -21,6 +21,7 @@ use crate::manifest::refine_base;
 use crate::onnx::OnnxEngine;
 use crate::resample::{nearest_centred, resize_mat, upsample_disparity};
 use crate::sgbm::SgbmEngine;
+use abvs_runtime_core::params::CheckConfig;
 
 /// One engine's answer at the input resolution.
 pub struct Estimate {

@@ -2,12 +2,13 @@
 //! [`LrCheck::run`] on an engine from the factory (what the runtime's disparity stage runs) give the same
 //! confidence, bit for bit, for the fused engine (its own check) and for SGBM (the generic one). Real ONNX
 //! Runtime with the shipped hitnet-s at its 320x240.
-use abvs_disparity::confidence::{reason, CheckConfig, LrCheck};
+use abvs_disparity::confidence::{reason, LrCheck};
 use abvs_disparity::estimate::estimate;
 use abvs_disparity::factory::engine;
 use abvs_disparity::fused::{FusedEngine, Source};
 use abvs_disparity::manifest::shipped;
 use abvs_disparity::onnx::OnnxEngine;
+use abvs_runtime_core::params::CheckConfig;
 use opencv::core::Mat;
 use opencv::prelude::*;
 

@@ -5,26 +5,18 @@ use std::path::Path;
 
 use abvs_camera::Camera;
 use abvs_disparity::census::CensusRefineEngine;
-use abvs_disparity::census_confidence::{Scorer, DEFAULT_MIN_CONFIDENCE};
+use abvs_disparity::census_confidence::Scorer;
 use abvs_disparity::confidence::mask;
 use abvs_disparity::engine::DisparityEngine;
 use abvs_disparity::onnx::OnnxEngine;
 use abvs_disparity::resample::nearest;
 use abvs_disparity::sgbm::SgbmEngine;
 use abvs_eye::{Fick, Pose};
-<<<<<<< HEAD
-use abvs_runtime::tasks::census_confidence::{mask, nearest, Scorer};
 use abvs_runtime::tasks::depth::DepthConfig;
-use abvs_runtime::tasks::disparity::{DisparityEngine, OnnxEngine, SgbmEngine};
-use abvs_runtime::tasks::disparity_census::CensusRefineEngine;
 use abvs_runtime::tasks::rectify::{rectify, StereoRectifier};
 use abvs_runtime_core::messages::DepthFrame;
 use abvs_runtime_core::messages::RectifiedCamera;
 use abvs_runtime_core::params::DEFAULT_MIN_CONFIDENCE;
-=======
-use abvs_runtime::tasks::depth::{DepthConfig, DepthFrame};
-use abvs_runtime::tasks::rectify::{rectify, RectifiedCamera, StereoRectifier};
->>>>>>> disp
 use criterion::{criterion_group, criterion_main, Criterion};
 use nalgebra::Vector3;
 

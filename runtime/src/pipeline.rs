@@ -20,10 +20,10 @@ use crate::sources::replay::ReplaySource;
 use crate::tasks::align::AlignStage;
 use crate::tasks::depth::{DepthConfig, DepthStage};
 use crate::tasks::disparity::DisparityStage;
-use abvs_disparity::engine::DisparityEngine;
 use crate::tasks::fovea::FoveaStage;
 use crate::tasks::kinematics::{KinematicsStage, StereoKinematics};
 use crate::tasks::rectify::RectifyStage;
+use abvs_disparity::engine::DisparityEngine;
 use abvs_runtime_core::error::Result;
 use abvs_runtime_core::messages::RectifiedCamera;
 use abvs_runtime_core::params::CheckConfig;
@@ -61,7 +61,7 @@ pub struct PipelineConfig {
     pub check: CheckConfig,
     /// The validity mask's threshold on the engine's own confidence (census-refine): depth NaN below it; 0
     /// keeps every pixel (default here: 0; the deployment's default is
-    /// `abvs_disparity::census_confidence::DEFAULT_MIN_CONFIDENCE`).
+    /// `abvs_runtime_core::params::DEFAULT_MIN_CONFIDENCE`).
     pub min_confidence: f32,
     /// Capacity of each inter-stage queue.
     pub queue: usize,

@@ -361,7 +361,12 @@ fn unshared<'a>(b: &'a mut Arc<Vec<u32>>, replaced: &mut u32) -> &'a mut Vec<u32
 }
 
 impl ImageSnapshot {
-    fn fill(&mut self, cam: &crate::messages::RectifiedCamera, d: &crate::messages::DepthFrame, replaced: &mut u32) {
+    fn fill(
+        &mut self,
+        cam: &abvs_runtime_core::messages::RectifiedCamera,
+        d: &abvs_runtime_core::messages::DepthFrame,
+        replaced: &mut u32,
+    ) {
         (self.width, self.height) = (cam.width, cam.height);
         (self.f, self.cx, self.cy) = (cam.f, cam.cx, cam.cy);
         let depth = unshared(&mut self.depth, replaced);

@@ -81,7 +81,7 @@ impl DisparityEngine for SlowEngine {
     fn max_disparity(&self) -> f64 {
         self.inner.max_disparity()
     }
-    fn compute(&mut self, left: &[u8], right: &[u8], out: &mut [f32]) -> abvs_runtime_core::error::Result<()> {
+    fn compute(&mut self, left: &[u8], right: &[u8], out: &mut [f32]) -> abvs_disparity::Result<()> {
         std::thread::sleep(self.delay);
         self.inner.compute(left, right, out)
     }

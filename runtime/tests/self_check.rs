@@ -9,8 +9,6 @@ use abvs_disparity::factory as disparity;
 use abvs_runtime::pipeline::{run_replay, PipelineConfig};
 use abvs_runtime::sinks::self_check::log_record::{read_log, FrameRecord, LogRecord};
 use abvs_runtime::sinks::self_check::SelfCheckSink;
-use abvs_runtime_core::params::SelfCheckConfig;
-use abvs_runtime_core::session::Session;
 use abvs_runtime::sources::replay::ReplaySource;
 use abvs_runtime::tasks::kinematics::{EyeFk, StereoKinematics};
 use abvs_runtime_core::params::SelfCheckConfig;

@@ -103,7 +103,7 @@ pub enum SelfCheckError {
     Kinematics(#[from] abvs_eye::EyeError),
     /// A replay round of the runtime.
     #[error(transparent)]
-    Runtime(#[from] abvs_runtime::error::RuntimeError),
+    Runtime(#[from] abvs_runtime_core::error::RuntimeError),
 }
 
 /// The crate's result.

@@ -3,9 +3,9 @@
 //! first order: far from the truth it only points the way).
 use std::path::{Path, PathBuf};
 
-use abvs_runtime::config::{RuntimeConfig, SourceKind};
 use abvs_runtime::sinks::self_check::log_record::{match_log_path, run_config_path, run_id_of_config};
-use abvs_runtime::tasks::motion::TimeOffsetMs;
+use abvs_runtime_core::config::{RuntimeConfig, SourceKind};
+use abvs_runtime_core::session::TimeOffsetMs;
 
 use crate::error::{Result, SelfCheckError};
 use crate::timing_fit::{fit, offset_setting, round2, TimingFit};

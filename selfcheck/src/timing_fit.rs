@@ -31,12 +31,12 @@
 //! does not tell them apart and the report says so.
 use std::collections::BTreeMap;
 
-use abvs_runtime::tasks::motion::TimeOffsetMs;
+use abvs_runtime_core::session::TimeOffsetMs;
 use nalgebra::{DMatrix, DVector};
 use serde_json::{json, Value};
 
 use crate::error::{Result, SelfCheckError};
-use crate::timing_log::{FrameTiming, MatchEvidence};
+use crate::timing_log::{steady, FrameTiming, MatchEvidence};
 
 /// A value and its 1-sigma.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -151,12 +151,6 @@ pub struct Named {
     pub readout: bool,
     /// The eyes' offsets differ: one per eye is written.
     pub per_eye: bool,
-}
-
-/// A frame's motion was steady enough for the first-order model: its mean angular velocity changed by at
-/// most a quarter of its speed across the instant (or by 2 deg/s when slower than 8 deg/s).
-pub fn steady(f: &FrameTiming) -> bool {
-    (0..2).all(|e| f.accel[e] <= (0.25 * f.speed[e]).max(2.0))
 }
 
 /// Which design: the timing terms (per-eye mid-row offset, readout), or the alternative (the same terms
@@ -385,4 +379,37 @@ pub fn error_by_speed(frames: &[FrameTiming]) -> Vec<(f64, f64)> {
         }
     }
     out
+}
+
+#[cfg(test)]
+mod fuzz {
+    use crate::timing_log::{read_frames, read_matches};
+    use abvs_runtime::sinks::self_check::log_record::{FrameRecord, LogRecord, MatchRecord};
+    use proptest::prelude::*;
+
+    proptest! {
+        #![proptest_config(ProptestConfig { cases: 256, ..ProptestConfig::default() })]
+        /// Arbitrary bytes after a valid header: an answer or a named error from the parsers and the fit, never
+        /// a panic.
+        #[test]
+        fn the_logs_parsers_and_the_fit_never_panic(body in proptest::collection::vec(any::<u8>(), 0..400)) {
+            let dir = tempfile::tempdir().unwrap();
+            let m = dir.path().join("l.matches.csv");
+            let mut bytes = MatchRecord::header().into_bytes();
+            bytes.push(b'\n');
+            bytes.extend(&body);
+            std::fs::write(&m, &bytes).unwrap();
+            let _ = read_matches(&m);
+            let f = dir.path().join("l.csv");
+            let mut bytes = FrameRecord::header().into_bytes();
+            bytes.push(b'\n');
+            bytes.extend(&body);
+            std::fs::write(&f, &bytes).unwrap();
+            if let Ok(Some(frames)) = read_frames(&f) {
+                if let Ok(ms) = read_matches(&m) {
+                    let _ = super::fit(&frames, &ms);
+                }
+            }
+        }
+    }
 }

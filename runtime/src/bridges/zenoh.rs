@@ -70,13 +70,21 @@ impl ZenohWriter {
     /// Opens the session and declares a publisher per topic (the main five, and the fovea's three when
     /// `fovea`) with the key layout of `settings` (in the rmw_zenoh format also the node's and the
     /// publishers' liveliness tokens).
-    pub fn open(config: Config, settings: &ZenohSettings, fovea: bool) -> abvs_runtime_core::error::Result<ZenohWriter> {
+    pub fn open(
+        config: Config,
+        settings: &ZenohSettings,
+        fovea: bool,
+    ) -> abvs_runtime_core::error::Result<ZenohWriter> {
         let session = ::zenoh::open(config).wait().map_err(|e| err("opening the session", e))?;
         Self::on_session(session, settings, fovea)
     }
 
     /// The same on an open session (shared with the gaze topics, `bridges::zenoh_gaze`).
-    pub fn on_session(session: Session, settings: &ZenohSettings, fovea: bool) -> abvs_runtime_core::error::Result<ZenohWriter> {
+    pub fn on_session(
+        session: Session,
+        settings: &ZenohSettings,
+        fovea: bool,
+    ) -> abvs_runtime_core::error::Result<ZenohWriter> {
         let mut node =
             rmw_zenoh::Node::new(settings.domain, session.zid().to_string(), &settings.namespace, &settings.node);
         let mut tokens = Vec::new();

@@ -6,9 +6,9 @@ use std::fs::File;
 use std::io::BufWriter;
 use std::path::Path;
 
-use abvs_runtime_core::error::RuntimeError;
 use crate::ros2::{topics, Cdr, Topic};
 use crate::sinks::ros2_out::{OutputError, Ros2OutSink, Ros2Writer};
+use abvs_runtime_core::error::RuntimeError;
 
 /// The ROS 2 messages written to an MCAP file (profile ros2), one channel per topic.
 pub struct McapWriter {

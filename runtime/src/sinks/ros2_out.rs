@@ -10,10 +10,10 @@ use std::time::{Duration, Instant};
 use crossbeam_channel::{bounded, Receiver, Sender, TrySendError};
 use serde::Serialize;
 
+use crate::ros2::{Cdr, EncodeError, Encoded, FrameSnapshot, Topic};
 use abvs_runtime_core::error::{Result, RuntimeError};
 use abvs_runtime_core::messages::Published;
 use abvs_runtime_core::sink::Sink;
-use crate::ros2::{Cdr, EncodeError, Encoded, FrameSnapshot, Topic};
 use abvs_runtime_core::stats::RunStats;
 
 /// Why a ROS 2 output could not encode or write a frame.

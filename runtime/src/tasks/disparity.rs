@@ -2,9 +2,9 @@
 //! the left-right check and the validity mask live in that crate; this module only moves a frame's buffers
 //! through them and turns their errors into the runtime's).
 use abvs_disparity::confidence::{mask, reason, LrCheck};
-use abvs_runtime_core::params::CheckConfig;
 use abvs_disparity::engine::DisparityEngine;
 use abvs_disparity::DisparityError;
+use abvs_runtime_core::params::CheckConfig;
 
 use abvs_runtime_core::error::{Result, RuntimeError};
 use abvs_runtime_core::messages::Work;

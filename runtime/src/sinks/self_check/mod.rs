@@ -96,7 +96,6 @@ pub fn new_run_id(config: &str) -> u64 {
     d[..6].iter().fold(0u64, |a, b| (a << 8) | *b as u64).max(1)
 }
 
-
 #[cfg(test)]
 mod tests {
     use super::*;
