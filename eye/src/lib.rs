@@ -9,7 +9,7 @@
 //! - [`psc`]: the pose sensitivity coefficient of the paper and its workspace map.
 //! - [`encoder`]: counts <-> angles and start-up homing on the shared code wheel.
 //! - [`saccade`]: minimum-jerk link-space moves at a peak speed (saccades).
-//! - [`unit`]: a real unit = nominal geometry + named physical effects (effects.md); its true FK.
+//! - `unit`: a real unit = nominal geometry + named physical effects (effects.md); its true FK.
 //! - [`dataset`]: calibration dataset files (dataset.md).
 //! - [`sim`]: draws plausible units and reproduces the paper's data collection.
 //! - [`lm`]: the Levenberg-Marquardt loop both calibrations (FK, camera poses) run.

@@ -10,7 +10,7 @@
 //!
 //! "Depth" numbers layers along a path from the input: trunk layers `0..trunk.len()`, then
 //! each head's layers continue from `trunk.len()`. Freezing the first `k` layers
-//! ([`TrainConfig::frozen_layers`]) freezes by depth, so `k = net.trunk.len()` freezes exactly
+//! (`TrainConfig::frozen_layers`) freezes by depth, so `k = net.trunk.len()` freezes exactly
 //! the shared trunk (what M4 needs), and `k = 4` on a 7-layer M1 or a 4+3 M2 gives the paper's
 //! m1f/m2f fine-tuning.
 //!
@@ -25,7 +25,7 @@ use serde::{Deserialize, Serialize};
 pub const INPUT_COLUMNS: [&str; 3] = ["theta1", "theta2", "theta3"];
 /// Output column names (for messages).
 pub const OUTPUT_COLUMNS: [&str; 6] = ["alpha", "beta", "gamma", "x", "y", "z"];
-/// The paper's 2:1 rotation:translation loss weighting for M2 ([`TrainConfig::output_weights`]).
+/// The paper's 2:1 rotation:translation loss weighting for M2 (`TrainConfig::output_weights`).
 pub const M2_OUTPUT_WEIGHTS: [f64; 6] = [2.0, 2.0, 2.0, 1.0, 1.0, 1.0];
 
 /// Widest layer [`Net::eval`] runs on stack buffers; wider nets use a heap buffer per call.

@@ -18,7 +18,7 @@
 //! directories live in `<out>/models/` and are removed at the end unless
 //! [`PaperConfig::keep_models`] is set.
 //!
-//! Split by concern: [`config`] (what to run, the units), [`run`] (the driver), [`reference`]
+//! Split by concern: [`config`] (what to run, the units), [`run`] (the driver), [`reference`](mod@reference)
 //! (the paper's numbers), [`figures`], [`conclusions`], [`report`] (report.md) and [`summary`]
 //! (every number, as summary.json). Nothing here is linked into the runtime or the calibration
 //! library; the `abvs calib paper` subcommand is a thin shell over [`run_paper`].

@@ -454,8 +454,8 @@ impl RunStats {
         } else if let Some(e) = &self.depth_error {
             let j = e.json();
             s += &format!(
-                "depth error vs truth: abs_rel {}  rmse {:.4} m  valid {:.3}\n",
-                j["abs_rel"],
+                "depth error vs truth: abs_rel {:.4}  rmse {:.4} m  valid {:.3}\n",
+                j["abs_rel"].as_f64().unwrap_or(f64::NAN),
                 j["rmse_m"].as_f64().unwrap_or(f64::NAN),
                 j["valid_fraction"].as_f64().unwrap_or(0.0)
             );

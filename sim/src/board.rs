@@ -71,7 +71,7 @@ fn impair(k: usize, mut bytes: Vec<u8>, corrupt_every: usize, drop_every: usize)
 /// only while homing).
 #[derive(Debug, Clone)]
 pub struct SessionBoard {
-    /// Raw count of each link at theta = 0, [eye][link] (what homing must find).
+    /// Raw count of each link at theta = 0, `[eye][link]` (what homing must find).
     pub origin: [[i64; 3]; 2],
     /// Roll start angle of each eye, deg (the links start within the homing tolerance of it).
     pub roll_start_deg: [f64; 2],

@@ -19,7 +19,7 @@
 //!   lockstep, so every frame is drawn from every command that precedes it, whatever the computer's speed: a
 //!   run is deterministic, bit for bit, and runs as fast as rendering allows (always lossless).
 //! - Rendering: each eye's camera from the true unit at the true link angles at every row's time samples,
-//!   with rolling shutter and motion blur, exactly as `abvs sim session` renders ([`crate::synth::EyeView`]).
+//!   with rolling shutter and motion blur, exactly as `abvs sim session` renders (`synth::EyeView`).
 //! - Truth: each frame's true poses (both eyes at the frame's instant, the left eye at its row nodes) and true
 //!   link angles go to a bounded [`TruthFeed`], which the depth scoring ([`crate::truth::TruthSink::for_head`])
 //!   and the gaze scoring ([`crate::gaze_score::GazeScore`]) read by seq.
@@ -216,7 +216,7 @@ pub struct FrameTruth {
     pub travel_deg: f64,
 }
 
-/// The head's truth for the sinks: the latest [`TRUTH_FRAMES`] frames by seq (bounded).
+/// The head's truth for the sinks: the latest `TRUTH_FRAMES` frames by seq (bounded).
 #[derive(Debug, Default)]
 pub struct TruthFeed {
     ring: Mutex<VecDeque<FrameTruth>>,

@@ -2,19 +2,19 @@
 //! missing physical effects from the library (effects.md), add them, and show the held-out gap
 //! shrink; stop when nothing significant is left, and describe what no effect explains.
 //!
-//! 1. **Start** ([`start`]): the given model, or, without one, the nominal unit with the
+//! 1. **Start** (`start`): the given model, or, without one, the nominal unit with the
 //!    geometric effects every real unit has, fitted in stages (hand-eye first).
-//! 2. **Noise floor** ([`structure`]): second differences of the residual along runs of evenly
+//! 2. **Noise floor** (`structure`): second differences of the residual along runs of evenly
 //!    spaced samples.
-//! 3. **Rounds**: linearise around the fitted model ([`design`]) and choose jointly which
-//!    candidate effects to add ([`select`]): sets of up to three effects scored by 3-fold
+//! 3. **Rounds**: linearise around the fitted model (`design`) and choose jointly which
+//!    candidate effects to add (`select`): sets of up to three effects scored by 3-fold
 //!    cross-validated chi-square, every member necessary and plausible, outside structure
 //!    (ripples, with their harmonics, drifts) competing with library sets under the same
 //!    penalty, substitutes reported as ambiguity with the experiment
-//!    that would separate them ([`separate`]). The chosen effects are then fitted for real
+//!    that would separate them (`separate`). The chosen effects are then fitted for real
 //!    (Levenberg-Marquardt on the unit model) and their held-out residual measured by real
 //!    cross-validated refits.
-//! 4. **Report** ([`report`]): what was named, with evidence and sizes; parameters stuck at a
+//! 4. **Report** (`report`): what was named, with evidence and sizes; parameters stuck at a
 //!    plausibility bound with what they are probably absorbing; unexplained structure.
 mod design;
 mod report;

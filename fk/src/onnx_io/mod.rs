@@ -1,4 +1,4 @@
-//! [`Net`]s as ONNX files, and plain-MLP ONNX graphs (ours or trained elsewhere) as [`Net`]s.
+//! `Net`s as ONNX files, and plain-MLP ONNX graphs (ours or trained elsewhere) as `Net`s.
 //!
 //! # Graph contract
 //! This is how a network trained elsewhere (e.g. PyTorch + `torch.onnx.export`) drops in:
@@ -13,7 +13,7 @@
 //!
 //! [`export_onnx`] writes exactly that (opset 17, IR version 8), plus the normalisation in
 //! full f64 precision as metadata (`abvs.input_mean`, ...) so that an import gives back the
-//! identical [`Net`]; the graph itself computes in f32.
+//! identical `Net`; the graph itself computes in f32.
 //!
 //! [`import_onnx`] reads any graph that is an MLP in disguise: `Gemm` (any `transB`, `alpha`,
 //! `beta`, bias of shape `[out]`/`[1, out]`/scalar or absent), `MatMul` with a constant
