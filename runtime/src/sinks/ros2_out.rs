@@ -23,6 +23,7 @@ pub enum OutputError {
     #[error(transparent)]
     Encode(#[from] EncodeError),
     /// Zenoh refused a publication.
+    #[cfg(feature = "zenoh")]
     #[error("zenoh {key}: {source}")]
     Zenoh {
         /// The key expression.
@@ -32,6 +33,7 @@ pub enum OutputError {
         source: ::zenoh::Error,
     },
     /// The MCAP writer failed.
+    #[cfg(feature = "mcap")]
     #[error("{path}: {source}")]
     Mcap {
         /// The MCAP file.
