@@ -4,6 +4,8 @@
 //! `abvs disparity`, `abvs disparity-eval` and `abvs run` alike.
 use std::path::{Component, Path, PathBuf};
 
+use abvs_runtime_core::session::check_inside;
+
 use serde::{Deserialize, Serialize};
 
 use crate::error::{DisparityError, Result};
@@ -73,23 +75,6 @@ impl DisparityManifest {
             .map_err(|e| DisparityError::Model { path: mp.clone(), msg: format!("bad manifest: `file`: {e}") })?;
         Ok(m)
     }
-}
-
-/// Refuses a path that leaves its directory or is absolute (the same rule as the session format's).
-fn check_inside(rel: &str) -> std::result::Result<(), String> {
-    if rel.is_empty() {
-        return Err("empty path".into());
-    }
-    for c in Path::new(rel).components() {
-        match c {
-            Component::Normal(_) | Component::CurDir => {}
-            Component::ParentDir => return Err(format!("path `{rel}` leaves its directory (`..`)")),
-            Component::RootDir | Component::Prefix(_) => {
-                return Err(format!("path `{rel}` is absolute (paths are relative to their directory)"))
-            }
-        }
-    }
-    Ok(())
 }
 
 /// The network census-refine runs for the model at `path`: the sibling its manifest names as `refine_base`,
