@@ -174,4 +174,16 @@ mod tests {
         let still = GazePlan::new(&mut ChaCha8Rng::seed_from_u64(3), 4.0, 0.0, DEFAULT_TARGET_DEPTH_M);
         assert_eq!(still.pursuit_s(), 0.0);
     }
+
+    #[test]
+    fn the_targets_stay_in_the_requested_depth_range() {
+        // pursuits and saccades blend two targets, so every point of the plan lies between them in depth
+        let plan = GazePlan::new(&mut ChaCha8Rng::seed_from_u64(5), 4.0, 90.0, [1.5, 2.0]);
+        let z: Vec<f64> = (0..4000).map(|i| plan.at(i as f64 * 1e-3).z).collect();
+        assert!(
+            z.iter().all(|z| (1.5..=2.0).contains(z)),
+            "{:?}",
+            z.iter().fold((9.0f64, 0.0f64), |(a, b), z| (a.min(*z), b.max(*z)))
+        );
+    }
 }
