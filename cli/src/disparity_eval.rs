@@ -72,6 +72,12 @@ pub struct EvalArgs {
     /// the horizontal factor) and score there: e.g. 640x480, the runtime's resolution.
     #[arg(long, conflicts_with = "at_model_resolution", value_parser = parse_size)]
     resolution: Option<(u32, u32)>,
+    /// Score the runtime's fovea (issue 38) instead: a WxH window at the pair's centre, matched at the
+    /// pair's own scale around the runtime's main map (census-refine at 640 px wide, its validity mask,
+    /// upsampled), against that main map over the same pixels (end-point error and bad-1 where both answer;
+    /// each one's density of the ground-truth pixels). E.g. 320x240, the runtime's default window.
+    #[arg(long, value_parser = parse_size, conflicts_with_all = ["at_model_resolution", "resolution", "curve"])]
+    fovea: Option<(u32, u32)>,
 }
 
 fn parse_size(s: &str) -> Result<(u32, u32), String> {
@@ -101,6 +107,11 @@ pub fn run_eval(a: EvalArgs) -> anyhow::Result<ExitCode> {
         (l, r) = (to(&l)?, to(&r)?);
     }
     set_opencv_threads(a.threads)?;
+    if let Some(win) = a.fovea {
+        let (_, _, gt) = load_gt(&a.gt, a.gt_scale, l.cols() as u32, l.rows() as u32)?;
+        let e = abvs_disparity::fovea_eval::eval_fovea(&l, &r, &gt, win, a.threads)?;
+        return print_fovea(&e, a.json);
+    }
     if !a.at_model_resolution {
         let rows = run_native(&a, &l, &r)?;
         return print_rows(&rows, a.json);
@@ -163,6 +174,35 @@ fn print_rows(rows: &[serde_json::Value], json: bool) -> anyhow::Result<ExitCode
             );
         }
     }
+    Ok(ExitCode::SUCCESS)
+}
+
+fn print_fovea(e: &abvs_disparity::fovea_eval::FoveaEval, json: bool) -> anyhow::Result<ExitCode> {
+    if json {
+        println!("{}", serde_json::to_string_pretty(e)?);
+        return Ok(ExitCode::SUCCESS);
+    }
+    let [x0, y0, w, h] = e.window;
+    println!(
+        "fovea {w}x{h} at ({x0}, {y0}) of {}x{}; main map {} at {}x{} (validity mask {}), upsampled",
+        e.size[0], e.size[1], e.engine, e.main_resolution[0], e.main_resolution[1], e.min_confidence
+    );
+    println!(
+        "search [{}, {}) px{}; {} ground-truth pixels, {} answered by both",
+        e.search_px[0],
+        e.search_px[1],
+        if e.from_main { "" } else { " (not from the main map)" },
+        e.gt_pixels,
+        e.common_pixels
+    );
+    println!("{:<16} {:>8} {:>8} {:>8}", "map", "density", "EPE px", "bad-1 %");
+    for (name, s) in [("main, upsampled", &e.main), ("fovea", &e.fovea)] {
+        println!("{name:<16} {:>8.3} {:>8.3} {:>8.2}", s.density, s.epe_px, s.bad1_pct);
+    }
+    println!(
+        "EPE fovea / main: {:.3}; the main map filled {}, overruled {}, masked {} fovea pixels",
+        e.epe_ratio, e.filled_from_main, e.overruled_by_main, e.masked_by_main
+    );
     Ok(ExitCode::SUCCESS)
 }
 

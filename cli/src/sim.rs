@@ -65,6 +65,10 @@ pub struct SessionArgs {
     /// 0 = fixations and saccades only.
     #[arg(long, default_value_t = 30.0, value_parser = crate::args::finite_in(0.0, 500.0))]
     pursuit_deg_s: f64,
+    /// Depth range of the gaze targets, NEAR..FAR (m, along the left home camera's axis; 0.2 <= NEAR < FAR
+    /// <= 5): where the eyes fixate and verge. The default draws exactly what sessions always drew.
+    #[arg(long, default_value = "0.55..1.3", value_parser = parse_depth_range)]
+    fixation_m: [f64; 2],
     /// encoder_time_offset of both eyes (ms): the encoder stream is stamped this much later than the
     /// camera clock (effects.md; default: each simulated unit's own, 0.1-5 ms).
     #[arg(long, value_parser = crate::args::finite_in(0.0, 10.0))]
@@ -308,6 +312,7 @@ pub fn run(cmd: SimCmd) -> anyhow::Result<ExitCode> {
                 readout_ms: a.readout_ms,
                 exposure_ms: a.exposure_ms,
                 pursuit_deg_s: a.pursuit_deg_s,
+                fixation_m: a.fixation_m,
                 time_offset_ms: a.time_offset_ms,
                 ..Default::default()
             };
@@ -373,4 +378,15 @@ pub fn run(cmd: SimCmd) -> anyhow::Result<ExitCode> {
             Ok(ExitCode::SUCCESS)
         }
     }
+}
+
+/// `NEAR..FAR` in metres (e.g. `0.5..2`), 0.2 <= NEAR < FAR <= 5.
+fn parse_depth_range(s: &str) -> Result<[f64; 2], String> {
+    let bad = || format!("`{s}` is not NEAR..FAR in metres (e.g. 0.5..2)");
+    let (a, b) = s.split_once("..").ok_or_else(bad)?;
+    let (near, far): (f64, f64) = (a.trim().parse().map_err(|_| bad())?, b.trim().parse().map_err(|_| bad())?);
+    if !(0.2..=5.0).contains(&near) || !(0.2..=5.0).contains(&far) || near >= far {
+        return Err(format!("{s}: need 0.2 <= NEAR < FAR <= 5 (m)"));
+    }
+    Ok([near, far])
 }

@@ -272,3 +272,63 @@ fn held_out_motorcycle_runtime_default_beats_sgbm_3way_at_640x480() {
 fn aloe_runtime_default_beats_sgbm_3way_at_640x480() {
     runtime_default_at_640x480(aloe());
 }
+
+/// Issue 38: `disparity-eval --fovea 320x240`, the runtime's fovea (the same library code) on the pair's
+/// central window at its own scale against the runtime's main map (640 px wide, masked, upsampled) over the
+/// same pixels. Returns (fovea EPE / main EPE, fovea bad-1 / main bad-1).
+fn fovea_against_main(p: &Pair) -> (f64, f64) {
+    let o = abvs()
+        .args(["disparity-eval", "--json", "--fovea", "320x240", "--left"])
+        .arg(&p.left)
+        .arg("--right")
+        .arg(&p.right)
+        .arg("--gt")
+        .arg(&p.gt_arg.0)
+        .args(["--gt-scale", &p.gt_arg.1.to_string()])
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}: {}", p.name, String::from_utf8_lossy(&o.stderr));
+    let e: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    let f = |v: &serde_json::Value| v.as_f64().unwrap_or_else(|| panic!("{}: not a number: {v}", p.name));
+    // the central window, and its ground-truth pixels counted here
+    let (w, h) = p.size;
+    let (x0, y0) = ((w - 320) / 2, (h - 240) / 2);
+    assert_eq!(e["window"], serde_json::json!([x0, y0, 320, 240]), "{}", p.name);
+    let known = (y0..y0 + 240).flat_map(|y| (x0..x0 + 320).map(move |x| y * w + x)).filter(|&i| p.gt[i].is_finite());
+    assert_eq!(f(&e["gt_pixels"]) as usize, known.count(), "{}", p.name);
+    let (main, fovea) = (&e["main"], &e["fovea"]);
+    // the fovea answers where the main map's mask does (its nearest main pixel; the upsampled map's NaN
+    // borders fall a little differently): nearly the same pixels, most of the window's
+    assert!((f(&fovea["density"]) - f(&main["density"])).abs() <= 0.01, "{}: {e}", p.name);
+    assert!(f(&e["common_pixels"]) >= 0.5 * f(&e["gt_pixels"]), "{}: {e}", p.name);
+    let (epe, bad1) = (f(&fovea["epe_px"]) / f(&main["epe_px"]), f(&fovea["bad1_pct"]) / f(&main["bad1_pct"]));
+    eprintln!(
+        "{} fovea 320x240: EPE {:.3} px against the main map's {:.3} ({epe:.3}x), bad-1 {:.2} % against {:.2} %, \
+         density {:.3}, search {}",
+        p.name,
+        f(&fovea["epe_px"]),
+        f(&main["epe_px"]),
+        f(&fovea["bad1_pct"]),
+        f(&main["bad1_pct"]),
+        f(&main["density"]),
+        e["search_px"]
+    );
+    (epe, bad1)
+}
+
+/// Issue 38's bar on the pair its one choice (the widest search, `max_range_px`) was made on: the fovea's
+/// end-point error at most 0.75x the upsampled 640-wide map's.
+#[test]
+fn aloe_fovea_at_native_scale_beats_the_upsampled_main_map() {
+    let (epe, bad1) = fovea_against_main(&aloe());
+    assert!(epe <= 0.75, "EPE ratio {epe}");
+    assert!(bad1 < 1.0, "bad-1 ratio {bad1}");
+}
+
+/// Held out. Motorcycle ships at quarter size (741 px wide), only 1.16x the main map's width, so the fovea
+/// has little resolution to add: 0.75x is not expected there (measured 0.88x); fewer errors still are.
+#[test]
+fn held_out_motorcycle_fovea_beats_the_upsampled_main_map() {
+    let (epe, bad1) = fovea_against_main(&motorcycle());
+    assert!(epe < 1.0 && bad1 < 1.0, "EPE ratio {epe}, bad-1 ratio {bad1}");
+}

@@ -242,3 +242,17 @@ fn sim_session_refuses_an_existing_directory_and_force_leaves_no_stale_frames() 
     std::fs::create_dir(&empty).unwrap();
     ok(&["--validate-only", "sim", "session", "--out", empty.to_str().unwrap()]);
 }
+
+/// `sim session --fixation-m NEAR..FAR` (issue 38: the gaze plan's target depths): refused by name unless
+/// 0.2 <= NEAR < FAR <= 5 m; a usable range passes the checks before any rendering.
+#[test]
+fn sim_session_fixation_depths_are_checked() {
+    let t = tempfile::tempdir().unwrap();
+    let out = t.path().join("s");
+    let out = out.to_str().unwrap();
+    for bad in ["2..1", "0.1..1", "1..9", "0.5", "0.5..NaN", "a..b"] {
+        refused(&["sim", "session", "--out", out, "--fixation-m", bad], &["--fixation-m"]);
+    }
+    ok(&["--validate-only", "sim", "session", "--out", out, "--fixation-m", "0.5..2"]);
+    assert!(!t.path().join("s").join("frames").exists(), "validation renders nothing");
+}

@@ -113,7 +113,7 @@ impl Default for FoveaConfig {
         FoveaConfig {
             width: 320,
             height: 240,
-            max_range_px: 64,
+            max_range_px: 96,
             min_distance_m: 0.15,
             max_distance_m: 3.0,
             default_distance_m: 1.0,

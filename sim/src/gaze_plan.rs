@@ -16,6 +16,8 @@ use rand_chacha::ChaCha8Rng;
 
 /// The eyes' fastest saccade (deg/s).
 pub const SACCADE_PEAK_DEG_S: f64 = 1561.0;
+/// Depth range (z, m, world = left home camera frame) of the targets by default.
+pub const DEFAULT_TARGET_DEPTH_M: [f64; 2] = [0.55, 1.3];
 /// Point between the two eyes from which gaze angles are measured (world, m).
 const CYCLOPEAN: Vector3<f64> = Vector3::new(-0.0325, 0.0, 0.0);
 
@@ -49,10 +51,11 @@ fn glide(s: f64) -> f64 {
 
 impl GazePlan {
     /// A plan of `period` seconds. `pursuit_peak_deg_s`: the fastest pursuit (each pursuit peaks at 0.6-1.0
-    /// of it); 0 = fixations and saccades only.
-    pub fn new(rng: &mut ChaCha8Rng, period: f64, pursuit_peak_deg_s: f64) -> GazePlan {
+    /// of it); 0 = fixations and saccades only. The targets' depth z (m) is drawn uniformly from `depth_m`
+    /// ([`DEFAULT_TARGET_DEPTH_M`] unless a session asks otherwise: the same draws, other values).
+    pub fn new(rng: &mut ChaCha8Rng, period: f64, pursuit_peak_deg_s: f64, depth_m: [f64; 2]) -> GazePlan {
         let target = |rng: &mut ChaCha8Rng| {
-            Vector3::new(rng.gen_range(-0.3..0.3), rng.gen_range(-0.22..0.2), rng.gen_range(0.55..1.3))
+            Vector3::new(rng.gen_range(-0.3..0.3), rng.gen_range(-0.22..0.2), rng.gen_range(depth_m[0]..depth_m[1]))
         };
         let saccade_s = |from: &Vector3<f64>, to: &Vector3<f64>| {
             let amp = angle_deg(from, to).max(1.0);
@@ -157,7 +160,7 @@ mod tests {
     #[test]
     fn pursuits_peak_at_the_requested_speed_and_the_plan_is_periodic() {
         let mut rng = ChaCha8Rng::seed_from_u64(3);
-        let plan = GazePlan::new(&mut rng, 4.0, 90.0);
+        let plan = GazePlan::new(&mut rng, 4.0, 90.0, DEFAULT_TARGET_DEPTH_M);
         assert!(plan.pursuit_s() > 0.3, "pursuit {} s", plan.pursuit_s());
         for s in &plan.segments {
             if s.pursuit_end > s.hold_end {
@@ -168,7 +171,19 @@ mod tests {
         }
         assert!((plan.at(0.0) - plan.at(4.0)).norm() < 1e-12);
         assert!((plan.at(-0.5) - plan.at(3.5)).norm() < 1e-12);
-        let still = GazePlan::new(&mut ChaCha8Rng::seed_from_u64(3), 4.0, 0.0);
+        let still = GazePlan::new(&mut ChaCha8Rng::seed_from_u64(3), 4.0, 0.0, DEFAULT_TARGET_DEPTH_M);
         assert_eq!(still.pursuit_s(), 0.0);
+    }
+
+    #[test]
+    fn the_targets_stay_in_the_requested_depth_range() {
+        // pursuits and saccades blend two targets, so every point of the plan lies between them in depth
+        let plan = GazePlan::new(&mut ChaCha8Rng::seed_from_u64(5), 4.0, 90.0, [1.5, 2.0]);
+        let z: Vec<f64> = (0..4000).map(|i| plan.at(i as f64 * 1e-3).z).collect();
+        assert!(
+            z.iter().all(|z| (1.5..=2.0).contains(z)),
+            "{:?}",
+            z.iter().fold((9.0f64, 0.0f64), |(a, b), z| (a.min(*z), b.max(*z)))
+        );
     }
 }

@@ -39,7 +39,7 @@ use rand_chacha::ChaCha8Rng;
 use abvs_runtime_core::error::{Result, RuntimeError};
 use abvs_runtime_core::session::{EncoderRecord, FrameRecord, Session, SessionMeta, Truth, SESSION_FORMAT};
 
-use crate::gaze_plan::GazePlan;
+use crate::gaze_plan::{GazePlan, DEFAULT_TARGET_DEPTH_M};
 
 pub const SCENE_GENERATOR: &str = "abvs-scene/1";
 
@@ -202,6 +202,8 @@ pub struct SessionSpec {
     pub readout_ms: f64,
     /// Peak angular speed of the smooth pursuits (deg/s); 0 = fixations and saccades only.
     pub pursuit_deg_s: f64,
+    /// Depth range of the gaze plan's targets (z, m, near and far; [`DEFAULT_TARGET_DEPTH_M`] by default).
+    pub fixation_m: [f64; 2],
     /// encoder_time_offset of both eyes (ms: the encoder stream is stamped this much late); `None` keeps
     /// each drawn unit's own.
     pub time_offset_ms: Option<f64>,
@@ -226,6 +228,7 @@ impl Default for SessionSpec {
             exposure_ms: 4.0,
             readout_ms: 0.0,
             pursuit_deg_s: 30.0,
+            fixation_m: DEFAULT_TARGET_DEPTH_M,
             time_offset_ms: None,
             width: 800,
             height: 600,
@@ -262,6 +265,10 @@ impl SessionSpec {
         }
         if !(0.0..=500.0).contains(&self.pursuit_deg_s) {
             return bad(format!("pursuit peak {} deg/s must be in [0, 500]", self.pursuit_deg_s));
+        }
+        let [near, far] = self.fixation_m;
+        if !(0.2 <= near && near < far && far <= 5.0) {
+            return bad(format!("fixation depths {near}..{far} m must satisfy 0.2 <= near < far <= 5"));
         }
         if let Some(t) = self.time_offset_ms {
             if !(0.0..=10.0).contains(&t) {
@@ -454,7 +461,7 @@ pub fn generate(spec: &SessionSpec, dir: &Path, progress: &mut dyn FnMut(&str, u
 
     // ---- motion and encoders
     let period = spec.frames as f64 / spec.fps;
-    let gaze = GazePlan::new(&mut rng, period, spec.pursuit_deg_s);
+    let gaze = GazePlan::new(&mut rng, period, spec.pursuit_deg_s, spec.fixation_m);
     let nominal = SpmGeometry::nominal();
     let homes = [Pose::identity(), home_l_to_r];
     let readings = |eye: usize, t: f64| -> Result<[f64; 3]> {
@@ -566,7 +573,11 @@ pub fn generate(spec: &SessionSpec, dir: &Path, progress: &mut dyn FnMut(&str, u
             spec.exposure_ms,
             spec.pursuit_deg_s,
             spec.fk_method
-        ),
+        ) + &if spec.fixation_m == DEFAULT_TARGET_DEPTH_M {
+            String::new()
+        } else {
+            format!(", fixations at {}-{} m", spec.fixation_m[0], spec.fixation_m[1])
+        },
         readout_ms: spec.readout_ms,
         exposure_ms: Some(spec.exposure_ms),
         time_offset_ms: None,

@@ -25,8 +25,7 @@ use nalgebra::Vector3;
 
 use crate::gaze::stage::measured_fixation;
 use crate::tasks::depth::DepthConfig;
-use abvs_disparity::engine::DisparityEngine;
-use abvs_disparity::sgbm::SgbmEngine;
+use abvs_disparity::fovea::{main_histogram, search_range, FoveaMatcher, MainAt, HIST_BINS_PER_PX};
 
 use crate::tasks::disparity::runtime_error;
 use crate::tasks::motion::RowRotations;
@@ -35,12 +34,6 @@ use abvs_runtime_core::error::{Result, RuntimeError};
 use abvs_runtime_core::messages::{FoveaFrame, RectifiedCamera, Work};
 use abvs_runtime_core::params::FoveaConfig;
 use abvs_runtime_core::stage::{Stage, StageContext};
-
-/// Bins per pixel of the histogram of the main map's disparities over the window.
-const HIST_BINS_PER_PX: f64 = 4.0;
-/// Fewer main-map disparities than this fraction of the window's pixels (at the main scale): the search
-/// is centred on the fixation instead.
-const MIN_MAIN_FRACTION: f64 = 0.05;
 
 /// The fovea stage (see the module doc). Runs on a lane of its own between disparity and output.
 pub struct FoveaStage {
@@ -59,11 +52,14 @@ struct Started {
     main: RectifiedCamera,
     focal: f64,
     maps: [RectifyMaps; 2],
-    sgbm: SgbmEngine,
-    /// The pair and the disparity at the matched width: the window plus `max_range_px` columns on its left,
-    /// so that SGBM, which gives the first `range` columns no match, still answers the whole window.
-    ext: (Vec<u8>, Vec<u8>, Vec<f32>),
+    /// The matching core, shared with `abvs disparity-eval --fovea` (abvs_disparity::fovea).
+    matcher: FoveaMatcher,
+    /// The pair at the matched width: the window plus `max_range_px` columns on its left, so that SGBM,
+    /// which gives the first `range` columns no match, still answers the whole window.
+    ext: (Vec<u8>, Vec<u8>),
     hist: Vec<u32>,
+    /// The main map at each window pixel, scaled to the fovea.
+    main_at: Vec<MainAt>,
 }
 
 #[derive(Default)]
@@ -110,49 +106,6 @@ pub fn window(width: u32, height: u32, focal: f64, p: &Vector3<f64>) -> Rectifie
     }
 }
 
-/// The disparity search `[start, start + range)` (px at the fovea's scale) from the main map's disparities
-/// over the window (a histogram of `HIST_BINS_PER_PX` bins per main-map pixel), or around `d_fix`.
-/// `scale` = fovea focal / main focal, `lim` = the disparities of the depth range (near, far).
-fn search_range(
-    hist: &[u32],
-    n: u64,
-    window_px: f64,
-    scale: f64,
-    d_fix: f64,
-    max_range: u32,
-    lim: [f64; 2],
-) -> (f64, u32, bool) {
-    let pct = |q: f64| -> f64 {
-        let target = (q * n as f64).ceil().max(1.0) as u64;
-        let mut acc = 0u64;
-        for (i, &c) in hist.iter().enumerate() {
-            acc += c as u64;
-            if acc >= target {
-                return (i as f64 + 0.5) / HIST_BINS_PER_PX;
-            }
-        }
-        hist.len() as f64 / HIST_BINS_PER_PX
-    };
-    let max_range = max_range.max(16) / 16 * 16;
-    let from_main = n as f64 >= MIN_MAIN_FRACTION * window_px;
-    let (mut lo, mut hi, centre) = if from_main {
-        // the main map's error is about a pixel of its own: a margin of two of them at the fovea's scale
-        let margin = (2.0 * scale).max(4.0);
-        (pct(0.05) * scale - margin, pct(0.95) * scale + margin, pct(0.5) * scale)
-    } else {
-        let half = max_range as f64 / 2.0;
-        (d_fix - half, d_fix + half, d_fix)
-    };
-    lo = lo.max(lim[1] - 1.0);
-    hi = hi.min(lim[0] + 1.0).max(lo + 16.0);
-    let range = (((hi - lo).ceil() as u32).div_ceil(16) * 16).clamp(16, max_range);
-    if hi - lo > range as f64 {
-        // wider than the widest search: centred on the median, within the depth range
-        lo = (centre - range as f64 / 2.0).max(lim[1] - 1.0);
-    }
-    (lo.floor(), range, from_main)
-}
-
 impl Stage for FoveaStage {
     fn name(&self) -> &'static str {
         "fovea"
@@ -175,11 +128,13 @@ impl Stage for FoveaStage {
         let ew = c.width + c.max_range_px;
         let out = RectifiedCamera::with_hfov(ew, c.height, 60.0);
         let maps = [RectifyMaps::new(out, self.grid_step)?, RectifyMaps::new(out, self.grid_step)?];
-        let sgbm = SgbmEngine::new(ew, c.height, c.max_range_px as f64).map_err(runtime_error)?;
+        let matcher = FoveaMatcher::new(c.width, c.height, c.max_range_px).map_err(runtime_error)?;
         let n = (ew * c.height) as usize;
-        let ext = (vec![0u8; n], vec![0u8; n], vec![f32::NAN; n]);
+        let ext = (vec![0u8; n], vec![0u8; n]);
         let hist_len = (ctx.out.width as f64 * HIST_BINS_PER_PX) as usize + 1;
-        self.started = Some(Started { cam_l, cam_r, main: ctx.out, focal, maps, sgbm, ext, hist: vec![0; hist_len] });
+        let main_at = vec![MainAt::Outside; (c.width * c.height) as usize];
+        let hist = vec![0; hist_len];
+        self.started = Some(Started { cam_l, cam_r, main: ctx.out, focal, maps, matcher, ext, hist, main_at });
         Ok(())
     }
 
@@ -217,17 +172,7 @@ impl Stage for FoveaStage {
         let (v0, v1) = (to_main(0.0, cam.cy, m.cy).floor(), to_main(cam.height as f64 - 1.0, cam.cy, m.cy).ceil());
         let clampx = |x: f64, n: u32| x.clamp(0.0, n as f64 - 1.0) as usize;
         let (u0, u1, v0, v1) = (clampx(u0, m.width), clampx(u1, m.width), clampx(v0, m.height), clampx(v1, m.height));
-        s.hist.fill(0);
-        let mut n = 0u64;
-        let last = s.hist.len() - 1;
-        for v in v0..=v1 {
-            for &d in &disparity[v * m.width as usize + u0..=v * m.width as usize + u1] {
-                if d > 0.0 {
-                    s.hist[((d as f64 * HIST_BINS_PER_PX) as usize).min(last)] += 1;
-                    n += 1;
-                }
-            }
-        }
+        let n = main_histogram(disparity, m.width as usize, (u0, u1), (v0, v1), &mut s.hist);
         let window_px = (cam.width as f64 / scale) * (cam.height as f64 / scale);
         let lim = [fb / dcfg.min_m as f64, fb / dcfg.max_m as f64];
         let (start, range, from_main) = search_range(&s.hist, n, window_px, scale, d_fix, cfg.max_range_px, lim);
@@ -263,65 +208,52 @@ impl Stage for FoveaStage {
         s.maps[0].build_rows(&s.cam_l, &rect.rect_from_left, rows(0).as_ref());
         s.maps[1].build_rows(&s.cam_r, &rect.rect_from_right, rows(1).as_ref());
         let (rw, rh) = (s.cam_l.width, s.cam_l.height);
-        let (el, er, ed) = &mut s.ext;
+        let (el, er) = &mut s.ext;
         s.maps[0].remap(raw_left, rw, rh, el)?;
         s.maps[1].remap(raw_right, rw, rh, er)?;
-        if s.sgbm.max_disparity() as u32 != range {
-            s.sgbm.set_range(range as i32).map_err(runtime_error)?;
-        }
-        s.sgbm.compute(el, er, ed).map_err(runtime_error)?;
-        let (w, ew, off) = (cam.width as usize, ext_cam.width as usize, start as f32);
+        let (w, ew) = (cam.width as usize, ext_cam.width as usize);
         let map_x = s.maps[0].map_x();
         for v in 0..cam.height as usize {
             let (o, e) = (v * w..(v + 1) * w, v * ew + pad..(v + 1) * ew);
             f.left[o.clone()].copy_from_slice(&el[e.clone()]);
             f.right[o.clone()].copy_from_slice(&er[e.clone()]);
-            for ((d, val), (de, x)) in
-                f.disparity[o.clone()].iter_mut().zip(&mut f.valid[o]).zip(ed[e.clone()].iter().zip(&map_x[e]))
-            {
-                *d = de + off;
+            for (val, x) in f.valid[o].iter_mut().zip(&map_x[e]) {
                 *val = (*x >= 0.0) as u8;
             }
         }
-        // The main map's answer at the nearest main pixel along the same ray, scaled to the fovea, stands where
-        // the narrow search gave none (SGBM's uniqueness check) and where the search's answer leaves the main
-        // map's by more than the main map's own error (two of its pixels: a match on the wrong structure, often
-        // at the edge of the search, or one out of the depth range). Where the main map's validity mask (`min_confidence`) has no depth, the
-        // fovea has none either: those are the pixels no engine matches reliably (low texture, occlusions).
-        // So the fovea publishes the main map's depths over its window, refined, never contradicted.
-        let (mut filled, mut overruled, mut masked) = (0u64, 0u64, 0u64);
-        let (mw, tol) = (m.width as usize, (2.0 * scale) as f32);
-        // a refinement that leaves the depth range (a far wall's few pixels of disparity) keeps the main map's
-        let (d_lo, d_hi) = (lim[1] as f32, lim[0] as f32);
+        // The main map's answer at the nearest main pixel along the same ray, scaled to the fovea: the
+        // refinement rule (abvs_disparity::fovea::refine) keeps it where the narrow search has none or leaves
+        // it by more than the main map's own error, and gives no depth where the main map's validity mask
+        // (`min_confidence`) has none. So the fovea publishes the main map's depths over its window,
+        // refined, never contradicted.
+        let mw = m.width as usize;
         for v in 0..cam.height as usize {
             let vm = to_main(v as f64, cam.cy, m.cy).round();
+            let row = &mut s.main_at[v * w..(v + 1) * w];
             if !(0.0..m.height as f64).contains(&vm) {
+                row.fill(MainAt::Outside);
                 continue;
             }
-            let row = vm as usize * mw;
-            for u in 0..w {
-                let i = v * w + u;
+            let base = vm as usize * mw;
+            for (u, o) in row.iter_mut().enumerate() {
                 let um = to_main(u as f64, cam.cx, m.cx).round();
-                if f.valid[i] == 0 || !(0.0..m.width as f64).contains(&um) {
-                    continue;
-                }
-                let d = disparity[row + um as usize];
-                if d > 0.0 {
-                    let main = (d as f64 * scale) as f32;
-                    let fd = f.disparity[i];
-                    if !fd.is_finite() {
-                        f.disparity[i] = main;
-                        filled += 1;
-                    } else if (fd - main).abs() > tol || !(d_lo..=d_hi).contains(&fd) {
-                        f.disparity[i] = main;
-                        overruled += 1;
+                *o = if !(0.0..m.width as f64).contains(&um) {
+                    MainAt::Outside
+                } else {
+                    let d = disparity[base + um as usize];
+                    if d > 0.0 {
+                        MainAt::Disparity((d as f64 * scale) as f32)
+                    } else {
+                        MainAt::Masked
                     }
-                } else if f.disparity[i].is_finite() {
-                    f.disparity[i] = f32::NAN;
-                    masked += 1;
-                }
+                };
             }
         }
+        let counts = s
+            .matcher
+            .fovea(el, er, (start, range), &f.valid, &s.main_at, scale, lim, &mut f.disparity)
+            .map_err(runtime_error)?;
+        let (filled, overruled, masked) = (counts.filled, counts.overruled, counts.masked);
         self.counts.overruled_by_main += overruled;
         self.counts.masked_by_main += masked;
         self.counts.filled_from_main += filled;
@@ -360,35 +292,5 @@ impl Stage for FoveaStage {
                 "wall_ms_per_frame": c.wall_ns as f64 * 1e-6 / matched,
             }),
         );
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn the_search_follows_the_main_map_or_else_the_fixation() {
-        // main map: disparities 10..12 px at its scale over the window, fovea at 2.5x
-        let mut hist = vec![0u32; 4 * 640 + 1];
-        for b in 40..48 {
-            hist[b] = 100;
-        }
-        let lim = [400.0, 5.0];
-        let (start, range, from_main) = search_range(&hist, 800, 4000.0, 2.5, 80.0, 64, lim);
-        assert!(from_main);
-        assert!(start <= 25.0 - 5.0 && start + range as f64 >= 30.0 + 5.0, "{start} {range}");
-        assert_eq!(range % 16, 0);
-        // too few main-map disparities: around the fixation's
-        let (start, range, from_main) = search_range(&hist, 100, 40000.0, 2.5, 80.0, 64, lim);
-        assert!(!from_main);
-        assert_eq!((start, range), (48.0, 64));
-        // a spread wider than the widest search: centred on the median
-        let mut wide = vec![0u32; 4 * 640 + 1];
-        wide[4] = 100;
-        wide[400] = 100;
-        let (start, range, _) = search_range(&wide, 200, 4000.0, 2.5, 80.0, 64, lim);
-        assert_eq!(range, 64);
-        assert!((4.0..250.0).contains(&start), "{start}");
     }
 }
