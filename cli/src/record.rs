@@ -34,7 +34,7 @@ pub struct DeviceArgs {
     /// Capture height (px, 16 to 8192).
     #[arg(long, default_value_t = 1200, value_parser = crate::args::count(16u32, 8192))]
     pub height: u32,
-    /// Camera frame rate (Hz, 1 to 1000).
+    /// Camera frame rate (Hz, 1 to 1000; `run --source sim`: up to 200).
     #[arg(long, default_value_t = 25, value_parser = crate::args::count(1u32, 1000))]
     pub fps: u32,
     /// V4L2 FourCC to ask for: pgAA (RAW10 MIPI-packed GRBG, the OV8856 default), BA10, YUYV, NV12, ...

@@ -434,6 +434,16 @@ fn timing_values_are_checked_against_the_frame_period_by_name() {
     refused(&["sim", "session", "--out", "s", "--fps", "50", "--exposure-ms", "30"], &["--exposure-ms 30", "20.000"]);
     refused(&["record", "--calib", "c", "--out", "o", "--fps", "50"], &["--readout-ms 30", "--fps 50"]);
     refused(&["record", "--calib", "c", "--out", "o", "--exposure-ms", "50"], &["--exposure-ms 50", "40.000"]);
+    // the simulated head's timing (`[source.sim]`): refused by field and flag
+    for (flag, v, field) in [
+        ("--fps", "300", "source.sim.fps (--fps)"),
+        ("--readout-ms", "39", "source.sim.readout_ms (--readout-ms)"),
+        ("--exposure-ms", "45", "source.sim.exposure_ms (--exposure-ms)"),
+    ] {
+        let o = Command::new(ABVS).args(["run", "--source", "sim", "--no-publish", "--frames", "1", flag, v]).output();
+        let err = String::from_utf8_lossy(&o.as_ref().unwrap().stderr).into_owned();
+        assert!(!o.unwrap().status.success() && err.contains(field), "{flag} {v}: {err}");
+    }
     // a live run's exposure: refused before the cameras are opened
     let tmp = tempfile::tempdir().unwrap();
     let fixture = Path::new(env!("CARGO_MANIFEST_DIR")).join("../fixtures/session");
