@@ -34,24 +34,47 @@ pub struct DeviceArgs {
     /// Capture height (px, 16 to 8192).
     #[arg(long, default_value_t = 1200, value_parser = crate::args::count(16u32, 8192))]
     pub height: u32,
-    /// Camera frame rate (Hz, 1 to 1000).
+    /// Camera frame rate (Hz, 1 to 1000; `run --source sim`: up to 200).
     #[arg(long, default_value_t = 25, value_parser = crate::args::count(1u32, 1000))]
     pub fps: u32,
     /// V4L2 FourCC to ask for: pgAA (RAW10 MIPI-packed GRBG, the OV8856 default), BA10, YUYV, NV12, ...
     #[arg(long, default_value = "pgAA")]
     pub fourcc: String,
-    /// Exposure (ms, up to 1000); default: read once from the camera (exposure must be manual).
+    /// The cameras' exposure (ms, above 0 up to one frame period: 40 at 25 fps; the flag takes up to 1000 and
+    /// the run checks it against the rate) [default: read once from the camera (exposure must be manual)].
     #[arg(long, value_parser = crate::args::positive_up_to(1000.0))]
     pub exposure_ms: Option<f64>,
-    /// Rolling-shutter readout time (ms, 0 to 1000), to move end-of-frame timestamps to the start of exposure.
-    #[arg(long, default_value_t = 30.0, value_parser = crate::args::finite_in(0.0, 1000.0))]
+    /// Rolling-shutter readout (ms, 0 up to one frame period: 40 at 25 fps; the flag takes up to 1000 and the
+    /// run checks it against the rate), to move end-of-frame timestamps to the start of exposure; for `run`
+    /// also the per-row correction's [default: 30 live and for `record`; a replay: the session's readout_ms].
+    #[arg(long, default_value_t = 30.0, hide_default_value = true, value_parser = crate::args::finite_in(0.0, 1000.0))]
     pub readout_ms: f64,
     /// Largest left/right start-of-exposure difference of a pair (ms, up to 1000).
     #[arg(long, default_value_t = 2.0, value_parser = crate::args::positive_up_to(1000.0))]
     pub pair_tolerance_ms: f64,
-    /// Seconds both eyes have to home (their links roll through the index markers at start-up).
+    /// Seconds both eyes have to home (s, above 0 up to 1e9; their links roll through the index markers at
+    /// start-up).
     #[arg(long, default_value_t = 30.0, value_parser = crate::args::seconds())]
     pub homing_timeout: f64,
+}
+
+impl DeviceArgs {
+    /// The cameras' timing against their frame period (`record`; `run` checks it against the rate it applies
+    /// to, the session's in a replay): the readout at most a period, the exposure above 0 and at most a period.
+    pub fn check_timing(&self) -> anyhow::Result<()> {
+        let period_ms = 1000.0 / f64::from(self.fps);
+        if self.readout_ms > period_ms {
+            anyhow::bail!(
+                "--readout-ms {}: longer than one frame period ({period_ms:.3} ms at --fps {})",
+                self.readout_ms,
+                self.fps
+            );
+        }
+        if let Some(e) = self.exposure_ms.filter(|&e| e > period_ms) {
+            anyhow::bail!("--exposure-ms {e}: longer than one frame period ({period_ms:.3} ms at --fps {})", self.fps);
+        }
+        Ok(())
+    }
 }
 
 impl From<&DeviceArgs> for LiveConfig {
@@ -86,7 +109,7 @@ pub struct RecordArgs {
     /// Stop after this many pairs (at least 1; default: run until --seconds or Ctrl-C).
     #[arg(long, value_parser = crate::args::count(1u64, u64::MAX))]
     pub frames: Option<u64>,
-    /// Stop after this many seconds.
+    /// Stop after this many seconds (s, above 0 up to 1e9) [default: until stopped, or --frames].
     #[arg(long, value_parser = crate::args::seconds())]
     pub seconds: Option<f64>,
     /// Write the recording's counts as JSON.
@@ -97,6 +120,7 @@ pub struct RecordArgs {
 impl RecordArgs {
     /// The outputs before the devices are opened and homed.
     pub fn check(&self) -> anyhow::Result<()> {
+        self.devices.check_timing()?;
         abvs_runtime::outputs::check_dir_creatable("--out", &self.out)?;
         match &self.stats_json {
             Some(p) => Ok(abvs_runtime::outputs::check_file_writable("--stats-json", p)?),

@@ -51,11 +51,12 @@ pub struct RunArgs {
     /// Loop the session without end: until --seconds (or --frames), or until stopped.
     #[arg(long = "loop")]
     pub looping: bool,
-    /// Stop taking frames this many seconds after the start (with --loop: a soak test).
+    /// Stop taking frames this many seconds after the start (s, above 0 up to 1e9; with --loop: a soak test)
+    /// [default: no limit: one pass, or --frames].
     #[arg(long, value_parser = crate::args::seconds())]
     pub seconds: Option<f64>,
-    /// Length of a statistics window in seconds: latency p50/p99, counts and resident memory (RSS) per
-    /// window, in the table and the stats JSON (`windows`, `rss`).
+    /// Length of a statistics window (s, above 0 up to 1e9): latency p50/p99, counts and resident memory (RSS)
+    /// per window, in the table and the stats JSON (`windows`, `rss`).
     #[arg(long, default_value_t = 60.0, value_parser = crate::args::seconds())]
     pub stats_window: f64,
     /// Write the statistics as JSON.
@@ -172,13 +173,16 @@ pub struct RunArgs {
     /// wherever the frames have a readout; off: one pose per frame, for comparison).
     #[arg(long, value_enum, value_name = "on|off")]
     pub rolling_shutter: Option<OnOff>,
-    /// Motion gate (rectified px): frames whose blur (the faster eye's speed x exposure) exceeds this are
-    /// published with depth NaN and an empty cloud, flagged in the header [default: 3].
+    /// Motion gate (rectified px, above 0 up to 1e9): frames whose blur (the faster eye's speed x exposure)
+    /// exceeds this are published with depth NaN and an empty cloud, flagged in the header [default: 3, or
+    /// the configuration's [motion] gate_blur_px].
     #[arg(long, value_name = "PX", value_parser = crate::args::positive_up_to(1e9))]
     pub motion_gate_px: Option<f64>,
-    /// encoder_time_offset of both eyes (ms; the encoder stream is stamped this much late), overriding the
-    /// FK models' (e.g. a timing measured by `abvs calib self-check`, or a wrong one on purpose).
-    /// (`--readout-ms` overrides the session's or the cameras' rolling-shutter readout the same way.)
+    /// encoder_time_offset of both eyes (ms, -1000 to 1000; the encoder stream is stamped this much late),
+    /// overriding the FK models' (e.g. a timing measured by `abvs calib self-check`, or a wrong one on
+    /// purpose) [default: the configuration's [motion] time_offset_ms, else the session's, else the FK
+    /// models']. (`--readout-ms` overrides the
+    /// session's or the cameras' rolling-shutter readout the same way.)
     #[arg(long, value_name = "MS", allow_negative_numbers = true, value_parser = crate::args::finite_in(-1000.0, 1000.0))]
     pub time_offset_ms: Option<f64>,
     /// The fovea: depth at the raw frames' native scale around the fixation point, a window of WxH raw pixels

@@ -36,8 +36,8 @@ pub struct SelfCheckArgs {
     #[arg(long, value_name = "LOG")]
     pub before: Option<PathBuf>,
     /// When the log is of a replay (its `.run.toml` names a session that is still there): re-run the replay
-    /// with the timing estimate and fit again, up to this many rounds while the correction is large (the
-    /// model is first order); 0 fits the log alone. Each round's log lands in the output directory.
+    /// with the timing estimate and fit again, up to this many rounds (0 to 10) while the correction is large
+    /// (the model is first order); 0 fits the log alone. Each round's log lands in the output directory.
     #[arg(long, default_value_t = 3, value_parser = crate::args::count(0u32, 10))]
     pub rounds: u32,
 }

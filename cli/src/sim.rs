@@ -36,8 +36,8 @@ pub struct SessionArgs {
     /// Number of stereo frames to render (1 to 100000).
     #[arg(long, default_value_t = 50, value_parser = crate::args::count(1usize, 100_000))]
     frames: usize,
-    /// Frame rate (Hz, up to 1000).
-    #[arg(long, default_value_t = 25.0, value_parser = crate::args::positive_up_to(1000.0))]
+    /// Frame rate (Hz, above 0 up to 200).
+    #[arg(long, default_value_t = 25.0, value_parser = crate::args::positive_up_to(200.0))]
     fps: f64,
     /// Frame width (px, 16 to 8192; the OV8856 binned 2x2 by default; the lens is scaled).
     #[arg(long, default_value_t = 800, value_parser = crate::args::count(16u32, 8192))]
@@ -54,23 +54,24 @@ pub struct SessionArgs {
     /// Anti-aliasing samples per pixel side (1 to 8).
     #[arg(long, default_value_t = 2, value_parser = crate::args::count(1u32, 8))]
     supersample: u32,
-    /// Rolling-shutter readout (ms): first row's start of exposure to the last row's (the OV8856 binned
-    /// mode: ~32 ms); 0 = global shutter.
+    /// Rolling-shutter readout (ms, 0 up to one frame period - 4 ms: 36 at 25 fps): first row's start of
+    /// exposure to the last row's (the OV8856 binned mode: ~32 ms); 0 = global shutter.
     #[arg(long, default_value_t = 30.0, value_parser = crate::args::finite_in(0.0, 1000.0))]
     readout_ms: f64,
-    /// Exposure of each row (ms); every row integrates it (motion blur); 0 = an instant.
+    /// Exposure of each row (ms, 0 up to one frame period: 40 at 25 fps); every row integrates it (motion
+    /// blur); 0 = an instant.
     #[arg(long, default_value_t = 4.0, value_parser = crate::args::finite_in(0.0, 1000.0))]
     exposure_ms: f64,
-    /// Peak angular speed of the smooth pursuits (deg/s); the targets also move in depth (the eyes verge);
-    /// 0 = fixations and saccades only.
+    /// Peak angular speed of the smooth pursuits (deg/s, 0 to 500); the targets also move in depth (the eyes
+    /// verge); 0 = fixations and saccades only.
     #[arg(long, default_value_t = 30.0, value_parser = crate::args::finite_in(0.0, 500.0))]
     pursuit_deg_s: f64,
     /// Depth range of the gaze targets, NEAR..FAR (m, along the left home camera's axis; 0.2 <= NEAR < FAR
     /// <= 5): where the eyes fixate and verge. The default draws exactly what sessions always drew.
     #[arg(long, default_value = "0.55..1.3", value_parser = parse_depth_range)]
     fixation_m: [f64; 2],
-    /// encoder_time_offset of both eyes (ms): the encoder stream is stamped this much later than the
-    /// camera clock (effects.md; default: each simulated unit's own, 0.1-5 ms).
+    /// encoder_time_offset of both eyes (ms, 0 to 10): the encoder stream is stamped this much later than the
+    /// camera clock (effects.md) [default: each simulated unit's own, 0.1-5 ms].
     #[arg(long, value_parser = crate::args::finite_in(0.0, 10.0))]
     time_offset_ms: Option<f64>,
     /// Write over an existing, non-empty --out: the session there (frames/, calib/, truth/, session.toml,
@@ -86,6 +87,24 @@ impl SessionArgs {
     /// --out before any work: a new or empty directory, or with --force any directory (a session there
     /// would otherwise be overwritten in part, its extra frames left behind).
     pub fn check(&self) -> anyhow::Result<()> {
+        // the timing against the frame period, by flag, before the directory is looked at
+        let period_ms = 1e3 / self.fps;
+        if self.exposure_ms > period_ms {
+            bail!(
+                "--exposure-ms {}: longer than one frame period ({period_ms:.3} ms at --fps {})",
+                self.exposure_ms,
+                self.fps
+            );
+        }
+        // every row's mid-exposure, and 1 ms either side, within the encoder stream's loop (SessionSpec)
+        if self.readout_ms > period_ms - 4.0 {
+            bail!(
+                "--readout-ms {}: outside [0, {:.3}] ms (one frame period - 4 ms at --fps {})",
+                self.readout_ms,
+                (period_ms - 4.0).max(0.0),
+                self.fps
+            );
+        }
         abvs_runtime::outputs::check_dir_creatable("--out", &self.out)?;
         let nonempty = self.out.is_dir()
             && std::fs::read_dir(&self.out)
@@ -157,7 +176,7 @@ pub struct BoardArgs {
     /// --rate-hz) for --seconds; `abvs gaze saccade` drives it.
     #[arg(long)]
     serve: bool,
-    /// With --serve: how long to serve (s).
+    /// With --serve: how long to serve (s, above 0 up to 1e9).
     #[arg(long, default_value_t = 10.0, value_parser = crate::args::seconds())]
     seconds: f64,
 }

@@ -367,3 +367,111 @@ fn a_readout_longer_than_a_frame_is_refused_by_name() {
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(!o.status.success() && err.contains("[motion] readout_ms") && err.contains("one frame period"), "{err}");
 }
+
+/// A flag's paragraph of `abvs <cmd> --help`: from its line to the next flag's.
+fn help_of(cmd: &[&str], flag: &str) -> String {
+    let o = Command::new(ABVS).args(cmd).arg("--help").output().unwrap();
+    let help = String::from_utf8_lossy(&o.stdout).into_owned();
+    let start = help
+        .lines()
+        .position(|l| l.trim_start().starts_with(&format!("{flag} ")))
+        .unwrap_or_else(|| panic!("abvs {} --help has no {flag}:\n{help}", cmd.join(" ")));
+    let lines: Vec<&str> = help.lines().skip(start).collect();
+    let end = lines.iter().skip(1).position(|l| l.trim_start().starts_with('-')).map_or(lines.len(), |e| e + 1);
+    lines[..end].join(" ")
+}
+
+/// Help gives each timing flag's unit, range and true default (issue 37: the ranges of `--readout-ms`,
+/// `--exposure-ms`, `--pursuit-deg-s`, `--time-offset-ms`, `--motion-gate-px`, `--seconds`, `--stats-window`
+/// and `--rounds` were left out; `run --readout-ms` showed "[default: 30]" though a replay uses the session's;
+/// `sim session --fps` said "up to 1000" and refused 1000).
+#[test]
+fn help_states_each_timing_flags_unit_range_and_true_default() {
+    for (cmd, flag, must) in [
+        (&["run"][..], "--readout-ms", &["(ms, 0 up to one frame period", "a replay: the session's"][..]),
+        (&["run"], "--exposure-ms", &["(ms, above 0 up to one frame period"]),
+        (&["run"], "--time-offset-ms", &["(ms, -1000 to 1000", "the session's"]),
+        (&["run"], "--motion-gate-px", &["(rectified px, above 0 up to 1e9)", "[default: 3"]),
+        (&["run"], "--seconds", &["(s, above 0 up to 1e9"]),
+        (&["run"], "--stats-window", &["(s, above 0 up to 1e9)", "[default: 60]"]),
+        (&["record"], "--readout-ms", &["(ms, 0 up to one frame period", "30 live and for `record`"]),
+        (&["sim", "session"], "--fps", &["(Hz, above 0 up to 200)"]),
+        (&["sim", "session"], "--readout-ms", &["(ms, 0 up to one frame period - 4 ms"]),
+        (&["sim", "session"], "--exposure-ms", &["(ms, 0 up to one frame period"]),
+        (&["sim", "session"], "--pursuit-deg-s", &["(deg/s, 0 to 500)"]),
+        (&["sim", "session"], "--time-offset-ms", &["(ms, 0 to 10)"]),
+        (&["calib", "self-check"], "--rounds", &["(0 to 10)"]),
+    ] {
+        let h = help_of(cmd, flag);
+        for m in must {
+            assert!(h.contains(m), "abvs {} {flag}: no `{m}` in: {h}", cmd.join(" "));
+        }
+    }
+    let h = help_of(&["run"], "--readout-ms");
+    assert!(!h.contains("[default: 30]"), "a replay's readout is the session's: {h}");
+    // what help says is what the flag takes
+    let o = process(&["sim", "session", "--out", "new-session", "--fps", "200"].map(String::from));
+    assert_eq!(o.code, Some(1), "200 Hz passes the flag (refused with the default readout): {}", o.stderr);
+    assert!(o.stderr.contains("--readout-ms") && o.stderr.contains("--fps 200"), "{}", o.stderr);
+    let o = process(&["sim", "session", "--out", "new-session", "--fps", "1000"].map(String::from));
+    assert!(o.code == Some(2) && o.stderr.contains("--fps") && o.stderr.contains("200"), "{}", o.stderr);
+}
+
+/// Every timing value is checked against the frame period where it enters, the refusal naming the flag or the
+/// file's field, before any work (issue 37): sim session's readout and exposure, record's, a live run's
+/// exposure, and session.toml's exposure_ms.
+#[test]
+fn timing_values_are_checked_against_the_frame_period_by_name() {
+    let refused = |args: &[&str], names: &[&str]| {
+        let args: Vec<String> = args.iter().map(|s| s.to_string()).collect();
+        let o = process(&args);
+        assert_eq!(o.code, Some(1), "abvs {args:?}: {}", o.stderr);
+        for n in names {
+            assert!(o.stderr.contains(n), "abvs {args:?}: no `{n}` in {}", o.stderr);
+        }
+    };
+    refused(&["sim", "session", "--out", "s", "--fps", "100"], &["--readout-ms 30", "--fps 100", "6.000"]);
+    refused(&["sim", "session", "--out", "s", "--fps", "50", "--exposure-ms", "30"], &["--exposure-ms 30", "20.000"]);
+    refused(&["record", "--calib", "c", "--out", "o", "--fps", "50"], &["--readout-ms 30", "--fps 50"]);
+    refused(&["record", "--calib", "c", "--out", "o", "--exposure-ms", "50"], &["--exposure-ms 50", "40.000"]);
+    // the simulated head's timing (`[source.sim]`): refused by field and flag
+    for (flag, v, field) in [
+        ("--fps", "300", "source.sim.fps (--fps)"),
+        ("--readout-ms", "39", "source.sim.readout_ms (--readout-ms)"),
+        ("--exposure-ms", "45", "source.sim.exposure_ms (--exposure-ms)"),
+    ] {
+        let o = Command::new(ABVS).args(["run", "--source", "sim", "--no-publish", "--frames", "1", flag, v]).output();
+        let err = String::from_utf8_lossy(&o.as_ref().unwrap().stderr).into_owned();
+        assert!(!o.unwrap().status.success() && err.contains(field), "{flag} {v}: {err}");
+    }
+    // a live run's exposure: refused before the cameras are opened
+    let tmp = tempfile::tempdir().unwrap();
+    let fixture = Path::new(env!("CARGO_MANIFEST_DIR")).join("../fixtures/session");
+    let o = Command::new(ABVS)
+        .args(["run", "--live", "--no-publish", "--exposure-ms", "50", "--left", "/nonexistent/video"])
+        .arg("--calib")
+        .arg(fixture.join("calib"))
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        !o.status.success() && err.contains("exposure_ms (--exposure-ms)") && err.contains("one frame period"),
+        "{err}"
+    );
+    // session.toml: an exposure longer than its frame period, named by file, line and field
+    let s = tmp.path().join("session");
+    std::fs::create_dir(&s).unwrap();
+    for e in std::fs::read_dir(&fixture).unwrap() {
+        let e = e.unwrap();
+        if e.file_name() != "session.toml" {
+            std::os::unix::fs::symlink(e.path(), s.join(e.file_name())).unwrap();
+        }
+    }
+    let toml = std::fs::read_to_string(fixture.join("session.toml")).unwrap();
+    assert!(toml.contains("exposure_ms = 4.0"), "{toml}");
+    std::fs::write(s.join("session.toml"), toml.replace("exposure_ms = 4.0", "exposure_ms = 50.0")).unwrap();
+    let o = Command::new(ABVS).args(["run", "--no-publish", "--frames", "1", "--session"]).arg(&s).output().unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success() && err.contains("session.toml:") && err.contains("exposure_ms"), "{err}");
+    assert!(err.contains("one frame period"), "{err}");
+}

@@ -245,7 +245,8 @@ fn self_check_outputs_are_checked_first_and_a_failed_write_keeps_the_report() {
 }
 
 /// A log is fitted and replayed only with its own run (issue 37): a match log of another run is refused by
-/// name, another run's `.run.toml` is not replayed (said why), a missing one is reported, and a run whose
+/// name, another run's `.run.toml` is not replayed (said why), nor its own edited after the run or naming a
+/// session other than the one the run read (both by SHA-256), a missing one is reported, and a run whose
 /// rolling-shutter correction was off is not fitted as if it had been on.
 #[test]
 fn logs_are_tied_to_their_run() {
@@ -271,6 +272,22 @@ fn logs_are_tied_to_their_run() {
     let (ok, _, err) = check("a.csv", "r1");
     assert!(!ok && err.contains("logs of different runs") && err.contains("a.matches.csv"), "{err}");
     std::fs::rename(p("a.keep"), p("a.matches.csv")).unwrap();
+    // its own configuration, edited after the run (pointed at another session): not replayed, said why
+    let own = std::fs::read_to_string(p("a.run.toml")).unwrap();
+    assert!(own.contains("# self-check config_sha256 = ") && own.contains("# self-check session_sha256 = "), "{own}");
+    let line = own.lines().find(|l| l.starts_with("session = ")).expect("the run.toml names its session");
+    let edited = own.replace(line, &format!("session = {:?}", tmp.path().join("other-session")));
+    std::fs::write(p("a.run.toml"), &edited).unwrap();
+    let (ok, out, err) = check("a.csv", "r5");
+    assert!(ok && out.contains("no rounds") && out.contains("was edited after its run"), "{out}\n{err}");
+    assert!(!err.contains("round 1"), "{err}");
+    // the session is not the one the run read (its session.toml changed since, or another one there)
+    let header = own.lines().find(|l| l.starts_with("# self-check session_sha256 = ")).unwrap();
+    std::fs::write(p("a.run.toml"), own.replace(header, &format!("# self-check session_sha256 = {}", "0".repeat(64))))
+        .unwrap();
+    let (ok, out, err) = check("a.csv", "r6");
+    assert!(ok && out.contains("no rounds") && out.contains("is not the session the run replayed"), "{out}\n{err}");
+    assert!(!err.contains("round 1"), "{err}");
     // another run's configuration: not replayed, and said so
     std::fs::copy(p("b.run.toml"), p("a.run.toml")).unwrap();
     let (ok, out, err) = check("a.csv", "r2");

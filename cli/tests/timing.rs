@@ -50,10 +50,10 @@ fn run(session: &Path, log: &Path, extra: &[&str]) -> Value {
     serde_json::from_str(&std::fs::read_to_string(stats).unwrap()).unwrap()
 }
 
-/// `abvs calib self-check` on `log`; summary.json's `timing` and the console.
+/// `abvs calib self-check` on `log`; summary.json's `timing` and the console (stdout, then stderr: the rounds).
 fn estimate(log: &Path, out: &Path, extra: &[&str]) -> (Value, String) {
-    let stdout =
-        ok(abvs().args(["calib", "self-check", "--log"]).arg(log).arg("--out").arg(out).args(extra).output().unwrap());
+    let o = abvs().args(["calib", "self-check", "--log"]).arg(log).arg("--out").arg(out).args(extra).output().unwrap();
+    let stdout = ok(o.clone()) + &String::from_utf8_lossy(&o.stderr);
     let s: Value = serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
     (s["timing"].clone(), stdout)
 }
@@ -108,6 +108,11 @@ fn timing_is_measured_from_the_images_and_closes_the_loop() {
     let rounds = t["rounds"].as_array().unwrap().len();
     assert!((2..=4).contains(&rounds), "{rounds} fits: {t:#}\n{stdout}");
     assert_eq!(t["rounds"][0]["encoder_time_offset_ms"]["value"], t0["encoder_time_offset_ms"]["value"]);
+    // each round says what it applies, per eye where the estimate is per eye (issue 37: one number was printed
+    // for a round that applied 5.64 left / 9.23 right)
+    let line =
+        stdout.lines().find(|l| l.starts_with("timing: round 1: replaying")).unwrap_or_else(|| panic!("{stdout}"));
+    assert!(line.contains("(both eyes)") || (line.contains(" ms left, ") && line.contains(" ms right")), "{line}");
     let (o, so) = value(&t, "encoder_time_offset_ms");
     let (r, sr) = value(&t, "readout_ms");
     // 0.4 ms: since the self-check matches a 640-wide pair at half size (the fixture's false alarm, issue 37)

@@ -350,15 +350,18 @@ impl SimConfig {
             return Err(format!("source.sim.width/height: {}x{} is not a usable size", self.width, self.height));
         }
         if !(self.fps > 0.0 && self.fps <= 200.0) {
-            return Err(format!("source.sim.fps: {} must be in (0, 200]", self.fps));
+            return Err(format!("source.sim.fps (--fps): {} must be in (0, 200]", self.fps));
         }
         let frame_ms = 1e3 / self.fps;
         if !(0.0..=frame_ms).contains(&self.exposure_ms) {
-            return Err(format!("source.sim.exposure_ms: {} must be in [0, {frame_ms}]", self.exposure_ms));
+            return Err(format!(
+                "source.sim.exposure_ms (--exposure-ms): {} must be in [0, {frame_ms}] (one frame period)",
+                self.exposure_ms
+            ));
         }
         if !(0.0..=frame_ms - 4.0).contains(&self.readout_ms) {
             return Err(format!(
-                "source.sim.readout_ms: {} must be in [0, {}] (frame period - 4 ms)",
+                "source.sim.readout_ms (--readout-ms): {} must be in [0, {}] (frame period - 4 ms)",
                 self.readout_ms,
                 frame_ms - 4.0
             ));

@@ -388,8 +388,14 @@ fn parse_meta(mp: &Path, text: &str) -> Result<(SessionMeta, MetaSpans)> {
         );
     }
     if let Some(e) = meta.exposure_ms {
-        if !(0.0..=MAX_EXPOSURE_NS as f64 * 1e-6).contains(&e) {
-            return bad(sp(&spans.exposure_ms), "exposure_ms", format!("{e} is out of range (0 ..= 1000 ms)"));
+        // a row exposes within its frame period (the next frame's row starts one period later)
+        let max_ms = frame_ms.min(MAX_EXPOSURE_NS as f64 * 1e-6);
+        if !(0.0..=max_ms).contains(&e) {
+            return bad(
+                sp(&spans.exposure_ms),
+                "exposure_ms",
+                format!("{e} is out of range (0 ..= {max_ms} ms, at most one frame period)"),
+            );
         }
     }
     if let Some(t) = &meta.time_offset_ms {

@@ -502,7 +502,15 @@ fn sinks(
             // run's identity in both, so that a log is never fitted or replayed with another run's
             cfg.run_id = crate::sinks::self_check::new_run_id(&toml);
             let p = crate::sinks::self_check::log_record::run_config_path(log);
-            let text = format!("{}\n{toml}", crate::sinks::self_check::log_record::run_id_line(cfg.run_id));
+            // the replayed session's session.toml as read now, so that a replay of another session shows
+            let session_toml = match (c.source.kind, &c.source.session) {
+                (abvs_runtime_core::config::SourceKind::Session, Some(d)) => {
+                    std::fs::read(d.join(abvs_runtime_core::session::SESSION_FILE)).ok()
+                }
+                _ => None,
+            };
+            let text =
+                crate::sinks::self_check::log_record::run_config_text(cfg.run_id, &toml, session_toml.as_deref());
             std::fs::write(&p, text).map_err(|e| RuntimeError::File {
                 path: p.clone(),
                 line: None,
@@ -581,7 +589,7 @@ fn zenoh_sinks(c: &RuntimeConfig, _: &Arc<Mailbox>, _: &mut Vec<Box<dyn Sink>>) 
 }
 
 /// A rolling-shutter readout is at most one frame period (the sensor reads the next frame's first row after
-/// this frame's last): checked against the frames it applies to, the session's rate in a replay, the cameras'
+/// this frame's last), and so is a live camera's exposure: checked against the frames it applies to, the session's rate in a replay, the cameras'
 /// live, before any sink writes a file. Names where the value came from.
 fn check_readout(c: &RuntimeConfig, session: Option<&Session>) -> Result<()> {
     let (fps, rate_from) = match session {
@@ -598,6 +606,17 @@ fn check_readout(c: &RuntimeConfig, session: Option<&Session>) -> Result<()> {
         return Err(RuntimeError::Invalid(format!(
             "{from}: {r} ms is out of range (0 ..= {period_ms:.3} ms, one frame period at {rate_from})"
         )));
+    }
+    // the cameras' exposure, live: a row exposes within its frame period (a replay's is its session.toml's)
+    if let (None, abvs_runtime_core::config::SourceKind::Live, Some(e)) =
+        (session, c.source.kind, c.source.live.exposure_ms)
+    {
+        if !(e > 0.0 && e <= period_ms) {
+            return Err(RuntimeError::Invalid(format!(
+                "[source.live] exposure_ms (--exposure-ms): {e} ms is out of range (0 < exposure <= {period_ms:.3} \
+                 ms, one frame period at {rate_from})"
+            )));
+        }
     }
     Ok(())
 }

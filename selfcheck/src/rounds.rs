@@ -3,9 +3,10 @@
 //! first order: far from the truth it only points the way).
 use std::path::{Path, PathBuf};
 
-use abvs_runtime::sinks::self_check::log_record::{match_log_path, run_config_path, run_id_of_config};
+use abvs_runtime::sinks::self_check::log_record::{match_log_path, run_config_path, run_header, sha256_hex};
 use abvs_runtime_core::config::{RuntimeConfig, SourceKind};
 use abvs_runtime_core::session::TimeOffsetMs;
+use abvs_runtime_core::session::SESSION_FILE;
 
 use crate::error::{Result, SelfCheckError};
 use crate::timing_fit::{fit, offset_setting, round2, TimingFit};
@@ -106,17 +107,17 @@ pub fn analyse(log: &Path, rounds: u32, out: &Path, progress: &mut dyn FnMut(&st
     Ok(TimingAnalysis { logs, outcome: TimingOutcome::Estimated { fits, no_rounds } })
 }
 
-/// The configuration a log's run used (`<log>.run.toml`), when it replayed a session that is still there and
-/// names the log's run; otherwise why the rounds cannot run.
+/// The configuration a log's run used (`<log>.run.toml`), when it names the log's run, is as the run wrote it
+/// (its SHA-256) and replayed a session that is still there as the run read it (its session.toml's SHA-256);
+/// otherwise why the rounds cannot run.
 pub fn replay_config(log: &Path, run: Option<u64>) -> Result<std::result::Result<RuntimeConfig, String>> {
     let p = run_config_path(log);
     if !p.exists() {
         return Ok(Err(format!("no {} beside the log (its run's configuration): nothing to replay", p.display())));
     }
     let text = std::fs::read_to_string(&p).map_err(|source| SelfCheckError::Io { path: p.clone(), source })?;
-    let config_run =
-        run_id_of_config(&text).map_err(|value| SelfCheckError::RunIdNotANumber { path: p.clone(), value })?;
-    if let (Some(a), Some(b)) = (run, config_run) {
+    let header = run_header(&text).map_err(|value| SelfCheckError::RunIdNotANumber { path: p.clone(), value })?;
+    if let (Some(a), Some(b)) = (run, header.run_id) {
         if a != b {
             return Ok(Err(format!(
                 "{} is of run {b}, the log of run {a}: not replayed (another run's configuration)",
@@ -124,12 +125,31 @@ pub fn replay_config(log: &Path, run: Option<u64>) -> Result<std::result::Result
             )));
         }
     }
+    if !header.config_intact {
+        return Ok(Err(format!(
+            "{} was edited after its run (its configuration's SHA-256 is not the one the run wrote): not replayed",
+            p.display()
+        )));
+    }
     let c = RuntimeConfig::load(&p)?;
     if c.source.kind != SourceKind::Session {
         return Ok(Err(format!("{}: a live run, not a replay: record another minute with the estimate", p.display())));
     }
     match c.source.session.as_deref() {
-        Some(d) if d.join("session.toml").exists() => Ok(Ok(c)),
+        Some(d) if d.join(SESSION_FILE).exists() => {
+            // the session the run replayed, as it read it: not another one, nor one rendered again there
+            let s = d.join(SESSION_FILE);
+            let bytes = std::fs::read(&s).map_err(|source| SelfCheckError::Io { path: s.clone(), source })?;
+            match header.session_sha256 {
+                Some(h) if h != sha256_hex(&bytes) => Ok(Err(format!(
+                    "{}: {} is not the session the run replayed (its SHA-256 differs from the one the run read: \
+                     another session, or changed since): not replayed",
+                    p.display(),
+                    s.display()
+                ))),
+                _ => Ok(Ok(c)),
+            }
+        }
         d => Ok(Err(format!(
             "{}: its session {} is not there any more",
             p.display(),

@@ -185,6 +185,58 @@ pub fn run_id_line(run_id: u64) -> String {
 }
 
 const RUN_ID_PREFIX: &str = "# self-check run_id = ";
+const CONFIG_DIGEST_PREFIX: &str = "# self-check config_sha256 = ";
+const SESSION_DIGEST_PREFIX: &str = "# self-check session_sha256 = ";
+/// Every header line of a `<log>.run.toml` starts so.
+const HEADER_PREFIX: &str = "# self-check ";
+
+/// The SHA-256 of `bytes`, in hex.
+pub fn sha256_hex(bytes: &[u8]) -> String {
+    use sha2::Digest;
+    sha2::Sha256::digest(bytes).iter().map(|b| format!("{b:02x}")).collect()
+}
+
+/// The text of `<log>.run.toml`: TOML comments naming the run ([`run_id_line`]), the SHA-256 of the
+/// configuration below them (an edit after the run shows) and, for a replay, of the session's session.toml
+/// as the run read it (another session, or one rendered again at the same place, shows); then the
+/// configuration.
+pub fn run_config_text(run_id: u64, config_toml: &str, session_toml: Option<&[u8]>) -> String {
+    let mut s = format!("{}\n{CONFIG_DIGEST_PREFIX}{}\n", run_id_line(run_id), sha256_hex(config_toml.as_bytes()));
+    if let Some(b) = session_toml {
+        s += &format!("{SESSION_DIGEST_PREFIX}{}\n", sha256_hex(b));
+    }
+    s + config_toml
+}
+
+/// What a `<log>.run.toml`'s header says of its run (each `None` in older files).
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub struct RunHeader {
+    /// The run ([`run_id_line`]).
+    pub run_id: Option<u64>,
+    /// The SHA-256 (hex) of the configuration as the run wrote it.
+    pub config_sha256: Option<String>,
+    /// The SHA-256 (hex) of the replayed session's session.toml as the run read it (`None` live).
+    pub session_sha256: Option<String>,
+    /// Whether the configuration below the header still has the digest the run wrote (true without one).
+    pub config_intact: bool,
+}
+
+/// Reads a `<log>.run.toml`'s header (`Err` with the value when its run_id is not a number).
+pub fn run_header(text: &str) -> Result<RunHeader, String> {
+    let mut h = RunHeader { run_id: run_id_of_config(text)?, ..Default::default() };
+    let mut body = text;
+    while body.starts_with(HEADER_PREFIX) {
+        let (line, rest) = body.split_once('\n').unwrap_or((body, ""));
+        if let Some(d) = line.strip_prefix(CONFIG_DIGEST_PREFIX) {
+            h.config_sha256 = Some(d.trim().to_string());
+        } else if let Some(d) = line.strip_prefix(SESSION_DIGEST_PREFIX) {
+            h.session_sha256 = Some(d.trim().to_string());
+        }
+        body = rest;
+    }
+    h.config_intact = h.config_sha256.as_deref().is_none_or(|d| d == sha256_hex(body.as_bytes()));
+    Ok(h)
+}
 
 /// The run a `<log>.run.toml`'s text names (its [`run_id_line`]; `Ok(None)` in older files, `Err` with the
 /// value when it is not a number).
