@@ -13,13 +13,13 @@
 //!
 //! Around them: the one left-right check and validity mask ([`confidence`]), model manifests and the one rule
 //! that picks a shipped model ([`manifest`]), resampling between resolutions ([`resample`]), one engine's
-//! answer on a pair of any size ([`estimate`]), PFM files ([`pfm`]) and scoring against ground truth
-//! ([`score`]). The crate has no pipeline stage: `abvs-runtime` wraps an engine in one, and `abvs
+//! answer on a pair of any size ([`estimate`]), PFM files ([`pfm`]), scoring against ground truth
+//! ([`score`]) and the engines scored side by side ([`eval`]). The crate has no pipeline stage: `abvs-runtime` wraps an engine in one, and `abvs
 //! disparity`, `abvs disparity-eval` and `abvs run` all call this crate.
 //!
 //! Layers, each module importing only from those above it in this list (no circle): [`error`];
 //! [`engine`]; [`resample`], [`confidence`], [`census_confidence`], [`manifest`], [`pfm`]; [`onnx`], [`sgbm`];
-//! [`census`], [`fused`]; [`factory`]; [`estimate`], [`score`].
+//! [`census`], [`fused`]; [`factory`]; [`estimate`], [`score`]; [`eval`].
 #![warn(missing_docs)]
 pub mod census;
 pub mod census_confidence;
@@ -27,6 +27,7 @@ pub mod confidence;
 pub mod engine;
 pub mod error;
 pub mod estimate;
+pub mod eval;
 pub mod factory;
 pub mod fused;
 pub mod manifest;
