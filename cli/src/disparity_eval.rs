@@ -1,12 +1,7 @@
-//! `abvs disparity-eval`: disparity engines scored against a ground-truth map (PFM, or PNG with a scale).
-//!
-//! EPE over the pixels an engine answers, bad-1/2/3 as % of valid ground-truth pixels (a pixel without an
-//! estimate counts as bad), and each engine's time (median of repeated runs). By default it scores what
-//! `abvs disparity` gives at the input's resolution (the default engine, the runtime's default engine
-//! census-refine, each network, SGBM_3WAY with the ground truth's range, all with the same threads), with
-//! the left-right check's density and the bad-2 against density curve; `--resolution WxH` first resamples
-//! the pair (and the ground truth, scaled by the horizontal factor) to the runtime's size;
-//! `--at-model-resolution` scores every model at its own resolution against SGBM at the same one.
+//! `abvs disparity-eval`: disparity engines scored against a ground-truth map (PFM, or PNG with a scale),
+//! printed as a table or JSON, with the bad-2 against density curves as PNG. The scoring (what each mode
+//! scores, EPE, bad-k, density, timing): `abvs_disparity::eval`. `--resolution WxH` first resamples the pair
+//! (and the ground truth, scaled by the horizontal factor) to the runtime's size.
 use std::path::PathBuf;
 use std::process::ExitCode;
 
