@@ -6,6 +6,7 @@
 // Leg/axis-indexed loops read closer to the equations than iterators.
 #![allow(clippy::needless_range_loop)]
 
+pub mod demo;
 pub mod error;
 pub mod explain;
 pub mod identify;

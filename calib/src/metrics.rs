@@ -39,6 +39,12 @@ fn stats(v: &[f64]) -> AxisStats {
     AxisStats { max: percentile(v, 0.999), mean, std: var.sqrt() }
 }
 
+/// A model's errors on a dataset's measured poses, against the paper's target (`abvs calib eval`).
+pub fn evaluate_model(model: &crate::model::FkModel, data: &abvs_eye::dataset::Dataset) -> crate::Result<EvalReport> {
+    let meas: Vec<[f64; 6]> = data.samples.iter().map(|s| s.pose).collect();
+    Ok(evaluate(&model.predict_dataset(data)?, &meas, &Target::paper()))
+}
+
 /// Compares predictions with measurements sample by sample.
 pub fn evaluate(pred: &[[f64; 6]], meas: &[[f64; 6]], target: &Target) -> EvalReport {
     assert_eq!(pred.len(), meas.len());

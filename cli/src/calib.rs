@@ -1,10 +1,11 @@
 //! `abvs calib`: fit, fine-tune, evaluate and apply calibrated forward kinematics.
-use crate::table::{map_rows, GravityCols, Table};
+use crate::table::map_rows;
+use abvs_calib::ik::outside_workspace;
 use abvs_calib::methods::{self, FitConfig, Method};
-use abvs_calib::metrics::evaluate;
+use abvs_calib::metrics::evaluate_model;
 use abvs_calib::model::{save_model, FkModel};
-use abvs_calib::mpe::Target;
 use abvs_eye::dataset::Dataset;
+use abvs_eye::table::{GravityCols, Table};
 use anyhow::bail;
 use clap::{Args, Subcommand};
 use indicatif::ProgressBar;
@@ -142,21 +143,6 @@ pub struct IkArgs {
     allow_outside: bool,
 }
 
-/// How far (deg) past the training range a target is still inside the calibrated workspace.
-const WORKSPACE_MARGIN_DEG: f64 = 0.5;
-
-/// Why a target lies outside the model's calibrated workspace, if it does.
-fn outside_workspace(range: &[[f64; 2]; 3], t: [f64; 3]) -> Option<String> {
-    let names = ["alpha", "beta", "gamma"];
-    (0..3).find(|&k| t[k] < range[k][0] - WORKSPACE_MARGIN_DEG || t[k] > range[k][1] + WORKSPACE_MARGIN_DEG).map(|k| {
-        format!(
-            "{} {} deg is outside the calibrated workspace [{:.2}, {:.2}] deg (the training data's range; \
-             --allow-outside solves it anyway)",
-            names[k], t[k], range[k][0], range[k][1]
-        )
-    })
-}
-
 /// One progress bar per stage of training.
 struct Bars {
     stage: String,
@@ -274,9 +260,7 @@ pub fn run(cmd: CalibCmd) -> anyhow::Result<ExitCode> {
                 bail!("--data {}: no samples to evaluate (a header without rows)", a.data.display());
             }
             let model = FkModel::load(&a.model)?;
-            let pred = model.predict_dataset(&data)?;
-            let meas: Vec<[f64; 6]> = data.samples.iter().map(|s| s.pose).collect();
-            let r = evaluate(&pred, &meas, &Target::paper());
+            let r = evaluate_model(&model, &data)?;
             if a.json {
                 println!("{}", serde_json::to_string(&r)?);
             } else {
@@ -346,8 +330,12 @@ fn ik(a: IkArgs) -> anyhow::Result<ExitCode> {
         |v, line, row| {
             let gr = g.of(&a.input, line, row)?;
             if let (Some(r), false) = (&range, a.allow_outside) {
-                if let Some(why) = outside_workspace(r, [v[0], v[1], v[2]]) {
-                    return Err(why);
+                if let Some(o) = outside_workspace(r, [v[0], v[1], v[2]]) {
+                    return Err(format!(
+                        "{} {} deg is outside the calibrated workspace [{:.2}, {:.2}] deg (the training data's range; \
+                         --allow-outside solves it anyway)",
+                        o.axis, o.value_deg, o.range_deg[0], o.range_deg[1]
+                    ));
                 }
             }
             let s = solver.solve_and_move(&mut st, [v[0], v[1], v[2]], gr).map_err(|e| e.to_string())?;

@@ -1,29 +1,15 @@
-//! `abvs disparity-eval`: disparity engines scored against a ground-truth map (PFM, or PNG with a scale).
-//!
-//! EPE over the pixels an engine answers, bad-1/2/3 as % of valid ground-truth pixels (a pixel without an
-//! estimate counts as bad), and each engine's time (median of repeated runs). By default it scores what
-//! `abvs disparity` gives at the input's resolution (the default engine, the runtime's default engine
-//! census-refine, each network, SGBM_3WAY with the ground truth's range, all with the same threads), with
-//! the left-right check's density and the bad-2 against density curve; `--resolution WxH` first resamples
-//! the pair (and the ground truth, scaled by the horizontal factor) to the runtime's size;
-//! `--at-model-resolution` scores every model at its own resolution against SGBM at the same one.
+//! `abvs disparity-eval`: disparity engines scored against a ground-truth map (PFM, or PNG with a scale),
+//! printed as a table or JSON, with the bad-2 against density curves as PNG. The scoring (what each mode
+//! scores, EPE, bad-k, density, timing): `abvs_disparity::eval`. `--resolution WxH` first resamples the pair
+//! (and the ground truth, scaled by the horizontal factor) to the runtime's size.
 use std::path::PathBuf;
 use std::process::ExitCode;
-use std::time::Instant;
 
-use abvs_disparity::census::CensusRefineEngine;
-use abvs_disparity::confidence::mask;
-use abvs_disparity::engine::{compute, set_opencv_threads, DisparityEngine};
-use abvs_disparity::estimate::{estimate, read_gray};
-use abvs_disparity::fused::FusedEngine;
-use abvs_disparity::manifest::{default_model_for, default_models, refine_base};
-use abvs_disparity::onnx::OnnxEngine;
-use abvs_disparity::resample::{resize_mat, upsample_disparity};
-use abvs_disparity::score::{bad2_at, density_at, density_curve, load_gt, mask_curve, published_score};
-use abvs_disparity::sgbm::SgbmEngine;
-use abvs_runtime_core::config::EngineKind;
-use abvs_runtime_core::params::DEFAULT_MIN_CONFIDENCE;
-use anyhow::{bail, Context};
+use abvs_disparity::engine::set_opencv_threads;
+use abvs_disparity::estimate::read_gray;
+use abvs_disparity::eval::{eval_at_model_resolution, eval_native, EvalRow, EvalSpec, NativeEval};
+use abvs_disparity::manifest::default_models;
+use abvs_disparity::resample::resize_mat;
 use clap::Args;
 use opencv::core::Mat;
 use opencv::prelude::*;
@@ -90,13 +76,6 @@ fn parse_size(s: &str) -> Result<(u32, u32), String> {
     Ok((w, h))
 }
 
-/// EPE over pixels with both values; bad-k over valid ground truth (no estimate = bad).
-fn score(d: &[f32], gt: &[f32], max_disp: f64) -> serde_json::Value {
-    let s = abvs_sim::disparity_score::score_disparity(d, gt, max_disp);
-    serde_json::json!({ "epe_px": s.epe_px, "bad1_pct": s.bad_pct[0], "bad2_pct": s.bad_pct[1],
-        "bad3_pct": s.bad_pct[2], "valid_fraction": s.valid_fraction, "gt_pixels": s.gt_pixels })
-}
-
 pub fn run_eval(a: EvalArgs) -> anyhow::Result<ExitCode> {
     let (mut l, mut r) = (read_gray(&a.left)?, read_gray(&a.right)?);
     if let Some((w, h)) = a.resolution {
@@ -108,75 +87,57 @@ pub fn run_eval(a: EvalArgs) -> anyhow::Result<ExitCode> {
     }
     set_opencv_threads(a.threads)?;
     if let Some(win) = a.fovea {
-        let (_, _, gt) = load_gt(&a.gt, a.gt_scale, l.cols() as u32, l.rows() as u32)?;
+        let (_, _, gt) = abvs_disparity::score::load_gt(&a.gt, a.gt_scale, l.cols() as u32, l.rows() as u32)?;
         let e = abvs_disparity::fovea_eval::eval_fovea(&l, &r, &gt, win, a.threads)?;
         return print_fovea(&e, a.json);
     }
-    if !a.at_model_resolution {
-        let rows = run_native(&a, &l, &r)?;
-        return print_rows(&rows, a.json);
+    let spec = EvalSpec {
+        gt: a.gt.clone(),
+        gt_scale: a.gt_scale,
+        models: if a.model.is_empty() { default_models() } else { a.model.clone() },
+        runs: a.runs,
+        threads: a.threads,
+    };
+    if a.at_model_resolution {
+        return print_rows(&eval_at_model_resolution(&l, &r, &spec)?, a.json);
     }
-    let models = if a.model.is_empty() { default_models() } else { a.model.clone() };
-    if models.is_empty() {
-        bail!("no disparity model given and none shipped under models/hitnet/");
+    let e = eval_native(&l, &r, &spec)?;
+    if let Some(p) = &a.curve {
+        plot_curves(p, &e)?;
     }
-    let mut rows = Vec::new();
-    for m in &models {
-        let onnx = OnnxEngine::load(m, a.threads)?;
-        let (w, h, max) = (onnx.manifest.width, onnx.manifest.height, onnx.manifest.max_disparity);
-        let (lv, rv) = (resize_mat(&l, w as i32, h as i32)?, resize_mat(&r, w as i32, h as i32)?);
-        let (_, _, gt) = load_gt(&a.gt, a.gt_scale, w, h)?;
-        let beyond = gt.iter().filter(|g| g.is_finite() && (**g as f64) >= max).count();
-        let engines: Vec<Box<dyn DisparityEngine>> = vec![Box::new(onnx), Box::new(SgbmEngine::new(w, h, max)?)];
-        for mut e in engines {
-            let d = compute(e.as_mut(), &lv, &rv)?;
-            let mut times = Vec::with_capacity(a.runs);
-            let mut buf = d.clone();
-            for _ in 0..a.runs.max(1) {
-                let t = Instant::now();
-                e.compute(&lv, &rv, &mut buf)?;
-                times.push(t.elapsed().as_secs_f64() * 1e3);
-            }
-            times.sort_by(f64::total_cmp);
-            let mut s = score(&d, &gt, max);
-            s["engine"] = serde_json::json!(e.name());
-            s["resolution"] = serde_json::json!(format!("{w}x{h}"));
-            s["max_disparity"] = serde_json::json!(max);
-            s["gt_pixels_beyond_max_disparity"] = serde_json::json!(beyond);
-            s["ms_median"] = serde_json::json!(times[times.len() / 2]);
-            rows.push(s);
-        }
-    }
-    print_rows(&rows, a.json)
+    print_rows(&e.rows, a.json)
 }
 
-fn print_rows(rows: &[serde_json::Value], json: bool) -> anyhow::Result<ExitCode> {
+fn print_rows(rows: &[EvalRow], json: bool) -> anyhow::Result<ExitCode> {
     if json {
-        println!("{}", serde_json::to_string_pretty(rows)?);
+        // through a JSON value: its keys in order, as the rows were always written
+        println!("{}", serde_json::to_string_pretty(&serde_json::to_value(rows)?)?);
     } else {
         println!(
             "{:<18} {:>9} {:>8} {:>8} {:>8} {:>8} {:>7} {:>9} {:>8} {:>11}",
             "engine", "res", "EPE px", "bad-1 %", "bad-2 %", "bad-3 %", "valid", "ms", "density", "bad-2 valid"
         );
         for s in rows {
+            let p = s.published.map_or((f64::NAN, f64::NAN), |p| (p.density, p.bad2_pct_of_valid));
             println!(
                 "{:<18} {:>9} {:>8.3} {:>8.2} {:>8.2} {:>8.2} {:>7.3} {:>9.2} {:>8.3} {:>11.2}",
-                s["engine"].as_str().unwrap_or(""),
-                s["resolution"].as_str().unwrap_or(""),
-                s["epe_px"].as_f64().unwrap_or(f64::NAN),
-                s["bad1_pct"].as_f64().unwrap_or(f64::NAN),
-                s["bad2_pct"].as_f64().unwrap_or(f64::NAN),
-                s["bad3_pct"].as_f64().unwrap_or(f64::NAN),
-                s["valid_fraction"].as_f64().unwrap_or(f64::NAN),
-                s["ms_median"].as_f64().unwrap_or(f64::NAN),
-                s["published"]["density"].as_f64().unwrap_or(f64::NAN),
-                s["published"]["bad2_pct_of_valid"].as_f64().unwrap_or(f64::NAN)
+                s.engine,
+                s.resolution,
+                s.epe_px,
+                s.bad1_pct,
+                s.bad2_pct,
+                s.bad3_pct,
+                s.valid_fraction,
+                s.ms_median,
+                p.0,
+                p.1
             );
         }
     }
     Ok(ExitCode::SUCCESS)
 }
 
+/// bad-2 against density: a line per engine with a confidence, SGBM's published pixels as one point.
 fn print_fovea(e: &abvs_disparity::fovea_eval::FoveaEval, json: bool) -> anyhow::Result<ExitCode> {
     if json {
         println!("{}", serde_json::to_string_pretty(e)?);
@@ -206,158 +167,32 @@ fn print_fovea(e: &abvs_disparity::fovea_eval::FoveaEval, json: bool) -> anyhow:
     Ok(ExitCode::SUCCESS)
 }
 
-/// Median of `runs` timed calls (ms).
-fn median_ms(runs: usize, mut f: impl FnMut() -> anyhow::Result<()>) -> anyhow::Result<f64> {
-    let mut t = Vec::with_capacity(runs.max(1));
-    for _ in 0..runs.max(1) {
-        let s = Instant::now();
-        f()?;
-        t.push(s.elapsed().as_secs_f64() * 1e3);
-    }
-    t.sort_by(f64::total_cmp);
-    Ok(t[t.len() / 2])
-}
-
-/// The engines at the input's resolution (the default mode).
-fn run_native(a: &EvalArgs, l: &Mat, r: &Mat) -> anyhow::Result<Vec<serde_json::Value>> {
-    let (iw, ih) = (l.cols() as u32, l.rows() as u32);
-    let (_, _, gt) = load_gt(&a.gt, a.gt_scale, iw, ih)?;
-    let gt_max = gt.iter().filter(|g| g.is_finite()).fold(0f32, |m, g| m.max(*g)) as f64;
-    if gt_max <= 0.0 {
-        bail!("{}: no known ground-truth disparity", a.gt.display());
-    }
-    // nothing is beyond the range here: SGBM searches the ground truth's whole range
-    let max = f64::INFINITY;
-    let (lb, rb) = (l.data_bytes()?.to_vec(), r.data_bytes()?.to_vec());
-    let mut rows = Vec::new();
-    let mut curves = Vec::new();
-    // SGBM as users run it: SGBM_3WAY at the input resolution, the ground truth's range (first: its density
-    // is where the others' curves are read)
-    let mut sgbm = SgbmEngine::new(iw, ih, gt_max + 1.0)?;
-    let sgbm_d = compute(&mut sgbm, &lb, &rb)?;
-    let (sgbm_density, sgbm_bad) = published_score(&sgbm_d, &gt, max);
-    let default_model = default_model_for(iw, ih);
-    let mut nets: Vec<PathBuf> = if a.model.is_empty() { default_models() } else { a.model.clone() };
-    nets.retain(|m| m != &default_model);
-    let mut cases = vec![
-        (EngineKind::Fused, default_model.clone(), true),
-        (EngineKind::CensusRefine, default_model.clone(), false),
-        (EngineKind::Onnx, default_model, true),
-    ];
-    // every other network alone and refined, so a cheaper base for census-refine is measured too
-    cases.extend(
-        nets.into_iter().flat_map(|m| [(EngineKind::CensusRefine, m.clone(), false), (EngineKind::Onnx, m, false)]),
-    );
-    for (kind, model, default) in cases {
-        let est = estimate(l, r, kind.as_str(), &model, a.threads, None)?;
-        let mut s = score(&est.disparity, &gt, max);
-        // what is published: the validity mask at its default where the engine scores its pixels
-        let mut published = est.disparity.clone();
-        if let Some((conf, why)) = &est.own {
-            let min = DEFAULT_MIN_CONFIDENCE;
-            mask(conf, min, &mut published, &mut why.clone());
-            let curve = density_curve(&est.disparity, conf, &gt, max);
-            let ts: Vec<f32> = (0..=20).map(|i| i as f32 * 0.05).collect();
-            s["own_confidence"] = serde_json::json!({
-                "min_confidence": min,
-                "bad2_pct_of_valid_at_sgbm_density": bad2_at(&curve, sgbm_density),
-                "density_at_sgbm_bad2": density_at(&curve, sgbm_bad),
-                "mask_curve": mask_curve(&est.disparity, conf, &gt, max, &ts),
-            });
-            curves.push((format!("{} (own confidence)", est.engine), curve));
-        }
-        let (dn, b) = published_score(&published, &gt, max);
-        s["published"] = serde_json::json!({ "density": dn, "bad2_pct_of_valid": b });
-        // time: the engine on the pair, resizing and resampling included, model loading not
-        let ms = {
-            let net = if kind == EngineKind::CensusRefine { refine_base(&model)? } else { model.clone() };
-            let onnx = OnnxEngine::load(&net, a.threads)?;
-            let (mw, mh) = onnx.size();
-            if kind == EngineKind::Fused {
-                let mut e = FusedEngine::new(onnx, iw, ih)?;
-                let mut out = vec![0f32; (iw * ih) as usize];
-                median_ms(a.runs, || Ok(e.compute(&lb, &rb, &mut out)?))?
-            } else if kind == EngineKind::CensusRefine {
-                let mut e = CensusRefineEngine::new(onnx, iw, ih)?;
-                let mut out = vec![0f32; (iw * ih) as usize];
-                median_ms(a.runs, || Ok(e.compute(&lb, &rb, &mut out)?))?
-            } else {
-                let mut e = onnx;
-                let mut up = vec![0f32; (iw * ih) as usize];
-                median_ms(a.runs, || {
-                    let (lm, rm) = (resize_mat(l, mw as i32, mh as i32)?, resize_mat(r, mw as i32, mh as i32)?);
-                    let d = compute(&mut e, &lm, &rm)?;
-                    upsample_disparity(&d, (mw as usize, mh as usize), &mut up, (iw as usize, ih as usize));
-                    Ok(())
-                })?
-            }
-        };
-        if default {
-            // the left-right check: what it keeps, and bad-2 against density by confidence
-            let chk = estimate(l, r, kind.as_str(), &model, a.threads, Some(1.0))?;
-            let (conf, _) = chk.checked.as_ref().context("left-right check")?;
-            let kept = score(&chk.disparity, &gt, max);
-            let curve = density_curve(&chk.disparity, conf, &gt, max);
-            let at = |density: f64| curve.iter().rev().find(|(dn, _)| *dn <= density).map(|(dn, b)| (*dn, *b));
-            let full_bad = s["bad2_pct"].as_f64().unwrap_or(f64::NAN);
-            // bad-2 counts unanswered pixels as bad: over the kept ones it is (bad - dropped) / kept
-            let v = kept["valid_fraction"].as_f64().unwrap_or(0.0);
-            let bad_kept = (kept["bad2_pct"].as_f64().unwrap_or(0.0) - 100.0 * (1.0 - v)) / v.max(1e-9);
-            s["lr_check"] = serde_json::json!({
-                "density": v,
-                "bad2_pct_of_kept": bad_kept,
-                "at_85pct_density": at(0.85).map(|(dn, b)| serde_json::json!({
-                    "density": dn, "bad2_pct_of_kept": b,
-                    // share of the full-density bad-2 pixels that the 15 % removed took away
-                    "bad2_removed_fraction": 1.0 - b * dn / full_bad,
-                })),
-            });
-            curves.push((est.engine.clone(), curve));
-        }
-        s["engine"] = serde_json::json!(est.engine);
-        s["default"] = serde_json::json!(default && kind == EngineKind::Fused);
-        s["runtime_default"] = serde_json::json!(kind == EngineKind::CensusRefine);
-        s["resolution"] = serde_json::json!(format!("{iw}x{ih}"));
-        s["network_resolution"] = serde_json::json!(format!("{}x{}", est.model_size.0, est.model_size.1));
-        s["ms_median"] = serde_json::json!(ms);
-        rows.push(s);
-    }
-    let mut s = score(&sgbm_d, &gt, max);
-    s["published"] = serde_json::json!({ "density": sgbm_density, "bad2_pct_of_valid": sgbm_bad });
-    let mut buf = sgbm_d.clone();
-    s["ms_median"] = serde_json::json!(median_ms(a.runs, || Ok(sgbm.compute(&lb, &rb, &mut buf)?))?);
-    s["engine"] = serde_json::json!(format!("sgbm (range {})", sgbm.max_disparity()));
-    s["default"] = serde_json::json!(false);
-    s["runtime_default"] = serde_json::json!(false);
-    s["resolution"] = serde_json::json!(format!("{iw}x{ih}"));
-    s["network_resolution"] = serde_json::json!("-");
-    rows.push(s);
-    if let Some(p) = &a.curve {
-        let sgbm_name = rows.last().and_then(|r| r["engine"].as_str()).unwrap_or("sgbm");
-        let sgbm_label = format!("{sgbm_name} (its own checks)");
-        let mut series: Vec<abvs_plot::Series> = curves
-            .iter()
-            .map(|(name, c)| abvs_plot::Series {
-                label: name,
-                points: c.iter().map(|(dn, b)| (100.0 * dn, *b)).collect(),
-                style: abvs_plot::SeriesStyle::Line,
-            })
-            .collect();
-        series.push(abvs_plot::Series {
-            label: &sgbm_label,
-            points: vec![(100.0 * sgbm_density, sgbm_bad)],
-            style: abvs_plot::SeriesStyle::Points,
-        });
-        abvs_plot::xy_plot(
-            p,
-            &abvs_plot::XyPlot {
-                title: "bad-2 of the pixels kept by confidence (left-right check; census-refine's own)",
-                x_label: "density (% of ground-truth pixels kept)",
-                y_label: "bad-2 (%)",
-                series,
-                log_y: false,
-            },
-        )?;
-    }
-    Ok(rows)
+fn plot_curves(p: &std::path::Path, e: &NativeEval) -> anyhow::Result<()> {
+    let sgbm_name = e.rows.last().map_or("sgbm", |r| r.engine.as_str());
+    let sgbm_label = format!("{sgbm_name} (its own checks)");
+    let mut series: Vec<abvs_plot::Series> = e
+        .curves
+        .iter()
+        .map(|(name, c)| abvs_plot::Series {
+            label: name,
+            points: c.iter().map(|(dn, b)| (100.0 * dn, *b)).collect(),
+            style: abvs_plot::SeriesStyle::Line,
+        })
+        .collect();
+    series.push(abvs_plot::Series {
+        label: &sgbm_label,
+        points: vec![(100.0 * e.sgbm_published.0, e.sgbm_published.1)],
+        style: abvs_plot::SeriesStyle::Points,
+    });
+    abvs_plot::xy_plot(
+        p,
+        &abvs_plot::XyPlot {
+            title: "bad-2 of the pixels kept by confidence (left-right check; census-refine's own)",
+            x_label: "density (% of ground-truth pixels kept)",
+            y_label: "bad-2 (%)",
+            series,
+            log_y: false,
+        },
+    )?;
+    Ok(())
 }

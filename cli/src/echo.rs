@@ -3,7 +3,8 @@
 use std::process::ExitCode;
 use std::time::{Duration, Instant};
 
-use abvs_runtime::bridges::iceoryx::{BridgeConfig, BridgeError, BridgePayload, CloudPoint, FrameHeader, Subscriber};
+use abvs_runtime::bridges::iceoryx::receive_stats::ReceiveStats;
+use abvs_runtime::bridges::iceoryx::{BridgeConfig, BridgeError, BridgePayload, CloudPoint, Subscriber};
 use abvs_runtime_core::messages::monotonic_ns;
 use clap::{Args, ValueEnum};
 
@@ -52,21 +53,6 @@ pub fn run(a: EchoArgs) -> anyhow::Result<ExitCode> {
     }
 }
 
-/// Percentile (0..=1) of sorted values, nearest rank.
-fn percentile(sorted: &[f64], q: f64) -> f64 {
-    if sorted.is_empty() {
-        return f64::NAN;
-    }
-    let i = ((q * sorted.len() as f64).ceil() as usize).clamp(1, sorted.len()) - 1;
-    sorted[i]
-}
-
-struct Window {
-    t0: Instant,
-    lat: Vec<f64>,
-    points: u64,
-}
-
 fn echo<T: BridgePayload>(
     a: &EchoArgs,
     open: fn(&BridgeConfig) -> Result<Subscriber<T>, BridgeError>,
@@ -78,17 +64,12 @@ fn echo<T: BridgePayload>(
     let mut sub = open(&cfg)?;
     let service = sub.service_name().to_string();
     let timeout = Duration::from_secs_f64(a.timeout_s);
-    let mut all_lat: Vec<f64> = Vec::new();
-    let mut points_sum = 0u64;
-    let mut received = 0u64;
-    // frames published invalid on purpose (the eyes moved too fast), as against lost ones (seq gaps)
-    let mut motion_gated = 0u64;
-    let (mut first_rx, mut last_rx) = (None::<Instant>, None::<Instant>);
-    let mut win = Window { t0: Instant::now(), lat: Vec::new(), points: 0 };
+    let mut stats = ReceiveStats::default();
     let mut failure = None;
     let mut held = Vec::new();
 
     loop {
+        let received = stats.received();
         if a.count.is_some_and(|n| received >= n) {
             break;
         }
@@ -99,18 +80,9 @@ fn echo<T: BridgePayload>(
             ));
             break;
         };
-        let now_ns = monotonic_ns();
         let now = Instant::now();
-        let h: &FrameHeader = r.header();
-        let lat_ms = (now_ns - h.t_frame_ns) as f64 * 1e-6;
-        received += 1;
-        all_lat.push(lat_ms);
-        win.lat.push(lat_ms);
-        points_sum += h.valid as u64;
-        win.points += h.valid as u64;
-        motion_gated += (h.flags & abvs_runtime::bridges::iceoryx::FLAG_MOTION_GATED != 0) as u64;
-        first_rx.get_or_insert(now);
-        last_rx = Some(now);
+        stats.record(r.header(), monotonic_ns(), now);
+        let received = stats.received();
         if a.abort_after == Some(received) {
             // simulate a crashing subscriber: die while the sample is still borrowed
             let _held = r;
@@ -130,33 +102,26 @@ fn echo<T: BridgePayload>(
             continue;
         }
         drop(r);
-        let dt = now.duration_since(win.t0).as_secs_f64();
-        if dt >= 1.0 {
-            win.lat.sort_by(f64::total_cmp);
+        if let Some(w) = stats.window_done(now) {
             let line = format!(
                 "{service}: {:.1} Hz, latency p50 {:.2} ms p99 {:.2} ms, {} {:.0} per sample ({received} received)",
-                win.lat.len() as f64 / dt,
-                percentile(&win.lat, 0.5),
-                percentile(&win.lat, 0.99),
+                w.hz,
+                w.p50_ms,
+                w.p99_ms,
                 if T::TRIM_TO_VALID { "points" } else { "valid pixels" },
-                win.points as f64 / win.lat.len() as f64,
+                w.valid_mean,
             );
             if a.json {
                 eprintln!("{line}");
             } else {
                 println!("{line}");
             }
-            win = Window { t0: now, lat: Vec::new(), points: 0 };
         }
     }
 
-    all_lat.sort_by(f64::total_cmp);
-    let fps = match (first_rx, last_rx) {
-        (Some(f), Some(l)) if received > 1 && l > f => (received - 1) as f64 / l.duration_since(f).as_secs_f64(),
-        _ => 0.0,
-    };
-    let points_mean = if received > 0 { points_sum as f64 / received as f64 } else { 0.0 };
-    let (p50, p99) = (percentile(&all_lat, 0.5), percentile(&all_lat, 0.99));
+    let s = stats.summary();
+    let (received, fps, p50, p99, points_mean, motion_gated) =
+        (s.received, s.hz, s.p50_ms, s.p99_ms, s.valid_mean, s.motion_gated);
     if a.json {
         let num = |v: f64| if v.is_finite() { serde_json::json!(v) } else { serde_json::Value::Null };
         let st = sub.stats();

@@ -1,14 +1,12 @@
 //! `abvs gaze`: pointing both eyes. `fixate` solves both eyes' calibrated IK so that a 3D point
 //! lies on each camera's principal point (abvs_calib::gaze); `saccade` drives the drive board
 //! there over its serial link (crate::saccade).
-use abvs_calib::gaze::{optical_axis, Binocular, EyeAim, Fixation, Torsion};
-use abvs_calib::ik::CalibratedIk;
-use abvs_calib::model::FkModel;
-use abvs_camera::{Camera, StereoCalibration};
-use abvs_eye::pose::{Fick, Pose};
+use abvs_calib::gaze::{optical_axis, EyeAim, Fixation, Torsion};
+use abvs_camera::Camera;
+use abvs_runtime::gaze::direct::{pixel, HeadCalibration};
 use anyhow::Context;
 use clap::{Args, Subcommand};
-use nalgebra::{Vector2, Vector3};
+use nalgebra::Vector2;
 use std::path::PathBuf;
 use std::process::ExitCode;
 
@@ -56,26 +54,11 @@ pub fn run(cmd: GazeCmd) -> anyhow::Result<ExitCode> {
     }
 }
 
-/// Pixel of a point (mm, home frame) in the camera at the aim's predicted pose.
-fn pixel(cam: &Camera, aim: &EyeAim) -> Option<Vector2<f64>> {
-    let p = &aim.ik.pose;
-    let r = Fick::from_deg([p[0], p[1], p[2]]).to_matrix();
-    let x = r.transpose() * (Vector3::from(aim.point_mm) - Vector3::new(p[3], p[4], p[5]));
-    cam.project(&x)
-}
-
 fn fixate(a: FixateArgs) -> anyhow::Result<ExitCode> {
     let torsion = a.torsion;
-    let sp = a.calib.join("stereo.yaml");
-    let stereo = StereoCalibration::read_yaml(&sp)?;
-    let load = |e: &str| FkModel::load(&a.calib.join(e)).with_context(|| format!("{}: FK model", a.calib.display()));
-    let (ml, mr) = (load("eye0")?, load("eye1")?);
-    let bino = Binocular {
-        left: CalibratedIk::new(&ml),
-        right: CalibratedIk::new(&mr),
-        left_to_right: Pose::new(stereo.rotation, stereo.translation_mm),
-        torsion,
-    };
+    let head = HeadCalibration::load(&a.calib)?;
+    let (stereo, [ml, mr]) = (&head.stereo, &head.models);
+    let bino = head.binocular(torsion);
     let point_mm = match (a.point, a.pixel, a.depth) {
         (Some(p), _, _) => p.map(|v| v * 1000.0),
         (None, Some(px), Some(depth)) => {
@@ -83,7 +66,7 @@ fn fixate(a: FixateArgs) -> anyhow::Result<ExitCode> {
                 .left
                 .unproject(&Vector2::new(px[0], px[1]))
                 .with_context(|| format!("pixel {px:?}: outside the left camera model's valid field"))?;
-            abvs_calib::gaze::point_from_view(&ml, a.left_theta, a.gravity, &ray, depth * 1000.0)?
+            abvs_calib::gaze::point_from_view(ml, a.left_theta, a.gravity, &ray, depth * 1000.0)?
         }
         _ => anyhow::bail!("give --point, or --pixel with --depth"),
     };

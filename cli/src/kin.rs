@@ -1,10 +1,10 @@
 //! `abvs kin`: kinematics on CSV tables. Columns are found by name, all other columns are
 //! kept; a row that cannot be solved is reported by its line and left with empty outputs, and
 //! the command exits non-zero if any row failed.
-use crate::table::{map_rows, GravityCols, Table};
-use abvs_eye::psc::{percentile, psc_map};
+use crate::table::map_rows;
+use abvs_eye::psc::{psc_map, spread, write_csv};
+use abvs_eye::table::{GravityCols, Table};
 use abvs_eye::{Fick, SpmGeometry, UnitModel};
-use anyhow::Context;
 use clap::{Args, Subcommand};
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -104,24 +104,16 @@ pub fn run(cmd: KinCmd) -> anyhow::Result<ExitCode> {
         KinCmd::Psc(a) => {
             let g = SpmGeometry::nominal();
             let map = psc_map(&g, a.step_deg);
-            let mut w =
-                csv::Writer::from_path(&a.out).with_context(|| format!("{}: cannot create", a.out.display()))?;
-            w.write_record(["alpha_deg", "beta_deg", "gamma_deg", "theta1_deg", "theta2_deg", "theta3_deg", "psc"])?;
-            for p in &map {
-                let mut rec: Vec<String> = p.fick_deg.iter().chain(&p.theta_deg).map(|x| format!("{x}")).collect();
-                rec.push(format!("{}", p.s));
-                w.write_record(&rec)?;
-            }
-            w.flush()?;
-            let s: Vec<f64> = map.iter().map(|p| p.s).collect();
+            write_csv(&map, &a.out)?;
+            let s = spread(&map);
             eprintln!(
                 "PSC over {} poses: min {:.4}, p10 {:.4}, p50 {:.4}, p90 {:.4}, max {:.4} (rad/deg)",
-                s.len(),
-                percentile(&s, 0.0),
-                percentile(&s, 0.1),
-                percentile(&s, 0.5),
-                percentile(&s, 0.9),
-                percentile(&s, 1.0)
+                map.len(),
+                s.min,
+                s.p10,
+                s.median,
+                s.p90,
+                s.max
             );
             if let Some(png) = a.png {
                 let pts: Vec<(f64, f64, f64)> = map.iter().map(|p| (p.fick_deg[0], p.fick_deg[2], p.s)).collect();

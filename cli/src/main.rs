@@ -313,9 +313,9 @@ pub fn progress_bar(total: u64, what: &str) -> indicatif::ProgressBar {
     pb
 }
 
-/// Parses "a,b,c" into three finite numbers.
-pub fn parse3(s: &str) -> Result<[f64; 3], String> {
-    args::vec3(s)
+/// Parses "a,b,c;a,b,c;..." into triples of finite numbers.
+pub fn parse_list(s: &str) -> anyhow::Result<Vec<[f64; 3]>> {
+    s.split(';').map(|t| args::vec3(t.trim()).map_err(anyhow::Error::msg)).collect()
 }
 
 #[cfg(test)]

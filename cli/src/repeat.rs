@@ -61,7 +61,7 @@ pub struct RepeatArgs {
 pub fn sim(a: SimRepeatArgs) -> anyhow::Result<ExitCode> {
     let unit = UnitModel::load(&a.unit)?;
     let targets = match &a.targets {
-        Some(t) => t.split(';').map(crate::parse3).collect::<Result<Vec<_>, _>>().map_err(anyhow::Error::msg)?,
+        Some(t) => crate::parse_list(t)?,
         None => iso9283_targets(WORKSPACE_DEG),
     };
     let spec = RepeatSpec {

@@ -1,7 +1,7 @@
 //! What `abvs run` prints at the end of a run (unless `--quiet`): the source, the engine, the latency table,
 //! and a line for each sink that reported (the truth's side lane, the self-check, depth error by confidence
 //! and by eye speed, the ROS 2 outputs).
-use abvs_runtime::Report;
+use abvs_runtime::{Overload, Report};
 use abvs_runtime_core::config::RuntimeConfig;
 
 /// Prints the run's report on stdout.
@@ -21,9 +21,8 @@ pub fn print(c: &RuntimeConfig, r: &Report) {
     };
     println!("engine {} at {}x{}{check}, fk {}", r.engine, d.width, d.height, c.calibration.fk.as_str());
     print!("{}", r.table());
-    if let Some(hint) = stats.cpu_json(r.elapsed_s).and_then(|cpu| overload_hint(&cpu, stats.frames_dropped, &r.engine))
-    {
-        println!("{hint}");
+    if let Some(o) = r.overload() {
+        println!("{}", overload_hint(&o, &r.engine));
     }
     if let Some(v) = stats.extra.get("truth_side_lane") {
         let n = |f: &str| v[f].as_u64().unwrap_or(0);
@@ -112,34 +111,20 @@ fn band_line(b: &serde_json::Value) -> String {
     )
 }
 
-/// Share of the cores a run kept busy (idle priority aside) above which dropped frames mean the computer is
-/// short of CPU, not that a frame met a passing hiccup. Lanes that hand frames to each other cannot use
-/// every cycle: the default at 640x480 dropped 11-22 of 125 frames at 1.73-1.8 of 2 cores on this project's
-/// 2-core VM (2026-11-26), census-refine on hitnet-s none at 1.2.
-const SATURATED: f64 = 0.8;
-
 /// What to tell a user whose run dropped frames because the computer could not do a frame's work in a frame
-/// period (`cpu`: the stats JSON's `cpu`), with the lighter settings it has; `None` otherwise.
-fn overload_hint(cpu: &serde_json::Value, dropped: u64, engine: &str) -> Option<String> {
-    // the idle-priority side lanes only fill what the pipeline leaves: not a shortage
-    let busy = cpu["cores_busy_without_idle_priority"].as_f64()?;
-    let cores = cpu["cores"].as_u64()? as f64;
-    if dropped == 0 || busy < SATURATED * cores {
-        return None;
-    }
-    let lighter = if engine.starts_with("census-refine") && !engine.starts_with("census-refine:hitnet-s") {
-        "no `--model` (the default: hitnet-s and SGBM at 320x240, about half the disparity stage's CPU) or \
-         `--resolution 320x240`"
-    } else {
-        "`--resolution 320x240`"
-    };
-    Some(format!(
-        "CPU-bound: {dropped} frames dropped with {busy:.2} of {cores} cores busy, idle-priority side lanes aside \
+/// period, with the lighter settings it has.
+fn overload_hint(o: &Overload, engine: &str) -> String {
+    format!(
+        "CPU-bound: {} frames dropped with {:.2} of {} cores busy, idle-priority side lanes aside \
          ({:.1} ms of CPU per frame in all): \
-         this computer cannot do this setting's work at this frame rate; lighter: {lighter} \
+         this computer cannot do this setting's work at this frame rate; lighter: {} \
          (runtime/BENCHMARKS.md, \"Real time on 2 cores\")",
-        cpu["ms_per_frame"].as_f64().unwrap_or(f64::NAN)
-    ))
+        o.dropped,
+        o.cores_busy,
+        o.cores,
+        o.ms_per_frame,
+        Overload::lighter(engine)
+    )
 }
 
 #[cfg(test)]
@@ -160,18 +145,10 @@ mod tests {
     }
 
     #[test]
-    fn the_hint_speaks_only_of_runs_that_dropped_frames_with_the_cores_busy() {
-        let cpu =
-            |busy: f64| serde_json::json!({"cores_busy_without_idle_priority": busy, "cores": 2, "ms_per_frame": 78.0});
-        let hint = overload_hint(&cpu(1.95), 12, "census-refine:hitnet-m4").expect("saturated and dropping");
+    fn the_hint_names_the_drops_the_cores_and_a_lighter_setting() {
+        let o = Overload { dropped: 12, cores_busy: 1.95, cores: 2.0, ms_per_frame: 78.0 };
+        let hint = overload_hint(&o, "census-refine:hitnet-m4");
         assert!(hint.contains("12 frames dropped") && hint.contains("1.95 of 2 cores") && hint.contains("78.0 ms"));
         assert!(hint.contains("no `--model`") && hint.contains("320x240"), "{hint}");
-        // already the light network: only the resolution is left
-        let light = overload_hint(&cpu(1.95), 3, "census-refine:hitnet-s+sgbm").unwrap();
-        assert!(!light.contains("--model") && light.contains("320x240"), "{light}");
-        // nothing dropped, or frames dropped with CPU to spare (a hiccup, not a shortage): no hint
-        assert_eq!(overload_hint(&cpu(1.95), 0, "census-refine:hitnet-m4"), None);
-        assert_eq!(overload_hint(&cpu(1.2), 5, "census-refine:hitnet-m4"), None);
-        assert_eq!(overload_hint(&serde_json::json!({}), 5, "sgbm"), None);
     }
 }

@@ -239,21 +239,9 @@ impl DatasetArgs {
     }
 }
 
-pub fn parse_effects(s: &str) -> anyhow::Result<Vec<Effect>> {
-    if s.trim() == "all" {
-        return Ok(Effect::ALL.to_vec());
-    }
-    if s.trim().is_empty() || s.trim() == "none" {
-        return Ok(vec![]);
-    }
-    s.split(',').map(|n| Effect::from_name(n.trim()).map_err(Into::into)).collect()
-}
-
 /// `abvs sim board --session`: the session's encoder stream sent in real time, each frame when
 /// CLOCK_MONOTONIC reaches its time (board time is the process's own clock, from its start).
 fn session_board(a: BoardArgs) -> anyhow::Result<ExitCode> {
-    use abvs_runtime_core::messages::monotonic_ns;
-    use std::io::Write;
     let dir = a.session.as_ref().expect("checked by the caller");
     let session =
         abvs_runtime_core::session::Session::open(dir).with_context(|| format!("opening {}", dir.display()))?;
@@ -264,25 +252,10 @@ fn session_board(a: BoardArgs) -> anyhow::Result<ExitCode> {
         ..abvs_sim::board::SessionBoard::from_seed(a.seed)
     };
     let script = board.script(&session.encoders)?;
-    let t_first = session.encoders.iter().map(|r| r.t_ns).min().expect("a session has encoder samples");
-    let now = monotonic_ns();
-    let t_roll = script.first().map(|x| x.0).unwrap_or(t_first);
-    // session time + shift = CLOCK_MONOTONIC send time
-    let shift = match a.start_ns {
-        Some(s) => s - t_first,
-        None => now + 1_000_000 - t_roll,
-    };
+    let shift = abvs_sim::board::clock_shift(&script, &session.encoders, a.start_ns);
     let mut port = abvs_board::port::open_port(&a.port, 1_000_000)?;
-    let mut sent = 0usize;
-    for (t, bytes) in &script {
-        let wait = t + shift - monotonic_ns();
-        if wait > 0 {
-            std::thread::sleep(std::time::Duration::from_nanos(wait as u64));
-        }
-        port.write_all(bytes).with_context(|| format!("writing to {}", a.port))?;
-        sent += 1;
-    }
-    port.flush()?;
+    let sent =
+        abvs_sim::board::send_timed(&mut port, &script, shift).with_context(|| format!("writing to {}", a.port))?;
     eprintln!("sent {sent} frames to {} (session {})", a.port, dir.display());
     Ok(ExitCode::SUCCESS)
 }
@@ -298,7 +271,6 @@ pub fn run(cmd: SimCmd) -> anyhow::Result<ExitCode> {
         }
         SimCmd::Board(a) if a.session.is_some() => session_board(a),
         SimCmd::Board(a) => {
-            use std::io::Write;
             let sim = abvs_sim::board::BoardSim {
                 frames: a.frames,
                 rate_hz: a.rate_hz,
@@ -308,13 +280,8 @@ pub fn run(cmd: SimCmd) -> anyhow::Result<ExitCode> {
             };
             let mut port = abvs_board::port::open_port(&a.port, 1_000_000)?;
             let period = std::time::Duration::from_secs_f64(1.0 / a.rate_hz.max(1.0));
-            let mut sent = 0usize;
-            for f in sim.frames() {
-                port.write_all(&f).with_context(|| format!("writing to {}", a.port))?;
-                sent += 1;
-                std::thread::sleep(period);
-            }
-            port.flush()?;
+            let sent = abvs_sim::board::send_paced(&mut port, &sim.frames(), period)
+                .with_context(|| format!("writing to {}", a.port))?;
             eprintln!("sent {sent} frames to {}", a.port);
             Ok(ExitCode::SUCCESS)
         }
@@ -350,7 +317,7 @@ pub fn run(cmd: SimCmd) -> anyhow::Result<ExitCode> {
             Ok(ExitCode::SUCCESS)
         }
         SimCmd::Unit(a) => {
-            let mut u = draw_unit(a.seed, &parse_effects(&a.effects)?);
+            let mut u = draw_unit(a.seed, &Effect::parse_list(&a.effects)?);
             if let Some(n) = a.name {
                 u.name = n;
             }

@@ -52,7 +52,7 @@ fn score(dir: &Path, engine: &str, model: Option<&Path>, (gw, gh): (usize, usize
     let (w, h, disp) = read_pfm(&out);
     assert_eq!((w, h), (gw, gh));
     assert!(disp.iter().all(|v| !v.is_nan()), "invalid is written as inf, never NaN");
-    let s = abvs_sim::disparity_score::score_disparity(&disp, gt, max_d as f64);
+    let s = abvs_disparity::score::score_disparity(&disp, gt, max_d as f64);
     let r = [s.epe_px, s.bad_pct[1], s.valid_fraction];
     eprintln!("{engine} {model:?} {gw}x{gh}: EPE {:.3} px, bad-2 {:.1}%, valid {:.3}", r[0], r[1], r[2]);
     r

@@ -14,13 +14,14 @@
 //! Around them: the one left-right check and validity mask ([`confidence`]), model manifests and the one rule
 //! that picks a shipped model ([`manifest`]), resampling between resolutions ([`resample`]), one engine's
 //! answer on a pair of any size ([`estimate`]), PFM files ([`pfm`]), scoring against ground truth
-//! ([`score`]) and the fovea's matching core, native scale around a coarser map's answer ([`fovea`], scored
-//! on a pair with ground truth by [`fovea_eval`]). The crate has no pipeline stage: `abvs-runtime` wraps an
-//! engine in one, and `abvs disparity`, `abvs disparity-eval` and `abvs run` all call this crate.
+//! ([`score`]), the engines scored side by side ([`eval`]) and the fovea's matching core, native scale around a
+//! coarser map's answer ([`fovea`], scored on a pair with ground truth by [`fovea_eval`]). The crate has no
+//! pipeline stage: `abvs-runtime` wraps an engine in one, and `abvs disparity`, `abvs disparity-eval` and
+//! `abvs run` all call this crate.
 //!
 //! Layers, each module importing only from those above it in this list (no circle): [`error`];
 //! [`engine`]; [`resample`], [`confidence`], [`census_confidence`], [`manifest`], [`pfm`]; [`onnx`], [`sgbm`];
-//! [`census`], [`fused`], [`fovea`]; [`factory`]; [`estimate`], [`score`]; [`fovea_eval`].
+//! [`census`], [`fused`], [`fovea`]; [`factory`]; [`estimate`], [`score`]; [`eval`], [`fovea_eval`].
 #![warn(missing_docs)]
 pub mod census;
 pub mod census_confidence;
@@ -28,6 +29,7 @@ pub mod confidence;
 pub mod engine;
 pub mod error;
 pub mod estimate;
+pub mod eval;
 pub mod factory;
 pub mod fovea;
 pub mod fovea_eval;

@@ -10,7 +10,7 @@
 //! - [`encoder`]: counts <-> angles and start-up homing on the shared code wheel.
 //! - [`saccade`]: minimum-jerk link-space moves at a peak speed (saccades).
 //! - `unit`: a real unit = nominal geometry + named physical effects (effects.md); its true FK.
-//! - [`dataset`]: calibration dataset files (dataset.md).
+//! - [`dataset`]: calibration dataset files (dataset.md); [`table`]: CSV tables mapped row by row.
 //! - [`sim`]: draws plausible units and reproduces the paper's data collection.
 //! - [`lm`]: the Levenberg-Marquardt loop both calibrations (FK, camera poses) run.
 //!
@@ -28,6 +28,7 @@ pub mod psc;
 pub mod saccade;
 pub mod sim;
 pub mod spm;
+pub mod table;
 pub mod unit;
 
 pub use error::{EyeError, Result};

@@ -98,9 +98,60 @@ pub fn percentile(values: &[f64], q: f64) -> f64 {
     v[idx]
 }
 
+/// The spread of S over a map (rad/deg): NaN for an empty map.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PscSpread {
+    /// Smallest S.
+    pub min: f64,
+    /// 10th percentile.
+    pub p10: f64,
+    /// Median.
+    pub median: f64,
+    /// 90th percentile.
+    pub p90: f64,
+    /// Largest S.
+    pub max: f64,
+}
+
+/// Min, p10, median, p90 and max of S over `map`.
+pub fn spread(map: &[PscPoint]) -> PscSpread {
+    let s: Vec<f64> = map.iter().map(|p| p.s).collect();
+    let q = |q: f64| percentile(&s, q);
+    PscSpread { min: q(0.0), p10: q(0.1), median: q(0.5), p90: q(0.9), max: q(1.0) }
+}
+
+/// Writes `map` as CSV: alpha_deg, beta_deg, gamma_deg, theta1_deg..theta3_deg, psc.
+pub fn write_csv(map: &[PscPoint], path: &std::path::Path) -> Result<()> {
+    let err = |e: csv::Error| crate::error::EyeError::file(path, None, format!("cannot create: {e}"));
+    let mut w = csv::Writer::from_path(path).map_err(err)?;
+    w.write_record(["alpha_deg", "beta_deg", "gamma_deg", "theta1_deg", "theta2_deg", "theta3_deg", "psc"])
+        .map_err(err)?;
+    for p in map {
+        let mut rec: Vec<String> = p.fick_deg.iter().chain(&p.theta_deg).map(|x| format!("{x}")).collect();
+        rec.push(format!("{}", p.s));
+        w.write_record(&rec).map_err(err)?;
+    }
+    w.flush().map_err(|e| crate::error::EyeError::io(path, e))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_map_is_written_as_csv_and_spread_by_percentiles() {
+        let map = psc_map(&SpmGeometry::nominal(), 15.0);
+        let sp = spread(&map);
+        assert!(sp.min <= sp.p10 && sp.p10 <= sp.median && sp.median <= sp.p90 && sp.p90 <= sp.max, "{sp:?}");
+        assert!(spread(&[]).median.is_nan());
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("psc.csv");
+        write_csv(&map, &p).unwrap();
+        let text = std::fs::read_to_string(&p).unwrap();
+        assert_eq!(text.lines().count(), map.len() + 1);
+        assert!(text.starts_with("alpha_deg,beta_deg,gamma_deg,theta1_deg,theta2_deg,theta3_deg,psc\n"));
+        assert!(write_csv(&map, &dir.path().join("no/such/dir.csv")).is_err());
+    }
 
     #[test]
     fn psc_lowest_near_centre() {

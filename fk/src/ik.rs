@@ -40,6 +40,29 @@ use abvs_eye::pose::rotation_vector;
 use abvs_eye::{Fick, SpmGeometry};
 use nalgebra::{Matrix3, Vector3};
 
+/// How far (deg) past the training range a target is still inside the calibrated workspace.
+pub const WORKSPACE_MARGIN_DEG: f64 = 0.5;
+
+/// A target outside a model's calibrated workspace (the training data's range of each Fick angle, recorded in
+/// the manifest: `training.range_deg`), where the model extrapolates.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct OutsideWorkspace {
+    /// The first Fick angle outside: "alpha", "beta" or "gamma".
+    pub axis: &'static str,
+    /// Its target value (deg).
+    pub value_deg: f64,
+    /// Its training range (deg).
+    pub range_deg: [f64; 2],
+}
+
+/// Whether target `t` (Fick deg) lies outside the training `range` by more than [`WORKSPACE_MARGIN_DEG`].
+pub fn outside_workspace(range: &[[f64; 2]; 3], t: [f64; 3]) -> Option<OutsideWorkspace> {
+    let names = ["alpha", "beta", "gamma"];
+    (0..3)
+        .find(|&k| t[k] < range[k][0] - WORKSPACE_MARGIN_DEG || t[k] > range[k][1] + WORKSPACE_MARGIN_DEG)
+        .map(|k| OutsideWorkspace { axis: names[k], value_deg: t[k], range_deg: range[k] })
+}
+
 /// Solver settings.
 #[derive(Debug, Clone)]
 pub struct IkConfig {
@@ -510,6 +533,14 @@ impl<'m> CalibratedIk<'m> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_target_past_the_training_range_and_its_margin_is_outside() {
+        let r = [[-30.0, 30.0], [-15.0, 15.0], [-30.0, 30.0]];
+        assert_eq!(outside_workspace(&r, [30.4, -15.4, 0.0]), None);
+        let o = outside_workspace(&r, [0.0, 15.6, 40.0]).unwrap();
+        assert_eq!(o, OutsideWorkspace { axis: "beta", value_deg: 15.6, range_deg: [-15.0, 15.0] });
+    }
 
     #[test]
     fn nominal_conditioning_over_the_workspace() {

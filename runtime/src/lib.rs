@@ -49,4 +49,4 @@ pub mod sinks;
 pub mod sources;
 pub mod tasks;
 
-pub use runtime::{CustomSource, Report, Runtime, RuntimeHandle};
+pub use runtime::{CustomSource, Overload, Report, Runtime, RuntimeHandle};

@@ -101,6 +101,55 @@ impl Report {
     pub fn table(&self) -> String {
         self.stats.table(self.elapsed_s)
     }
+
+    /// Whether the run dropped frames because the computer could not do a frame's work in a frame period.
+    pub fn overload(&self) -> Option<Overload> {
+        overload(&self.stats.cpu_json(self.elapsed_s)?, self.stats.frames_dropped)
+    }
+}
+
+/// Share of the cores a run kept busy (idle priority aside) above which dropped frames mean the computer is
+/// short of CPU, not that a frame met a passing hiccup. Lanes that hand frames to each other cannot use
+/// every cycle: the default at 640x480 dropped 11-22 of 125 frames at 1.73-1.8 of 2 cores on this project's
+/// 2-core VM (2026-11-26), census-refine on hitnet-s none at 1.2.
+pub const SATURATED: f64 = 0.8;
+
+/// A run that dropped frames with the cores busy: the computer is short of CPU for its setting.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Overload {
+    /// Frames dropped.
+    pub dropped: u64,
+    /// Cores kept busy, the idle-priority side lanes aside.
+    pub cores_busy: f64,
+    /// Cores of the computer.
+    pub cores: f64,
+    /// CPU per frame, all threads (ms).
+    pub ms_per_frame: f64,
+}
+
+impl Overload {
+    /// The lighter settings for `engine` (the report's engine name), as command-line advice.
+    pub fn lighter(engine: &str) -> &'static str {
+        if engine.starts_with("census-refine") && !engine.starts_with("census-refine:hitnet-s") {
+            "no `--model` (the default: hitnet-s and SGBM at 320x240, about half the disparity stage's CPU) or \
+             `--resolution 320x240`"
+        } else {
+            "`--resolution 320x240`"
+        }
+    }
+}
+
+/// [`Report::overload`] from the stats JSON's `cpu` and the frames dropped: `None` unless frames were dropped
+/// with at least [`SATURATED`] of the cores busy.
+pub fn overload(cpu: &serde_json::Value, dropped: u64) -> Option<Overload> {
+    // the idle-priority side lanes only fill what the pipeline leaves: not a shortage
+    let busy = cpu["cores_busy_without_idle_priority"].as_f64()?;
+    let cores = cpu["cores"].as_u64()? as f64;
+    if dropped == 0 || busy < SATURATED * cores {
+        return None;
+    }
+    let ms_per_frame = cpu["ms_per_frame"].as_f64().unwrap_or(f64::NAN);
+    Some(Overload { dropped, cores_busy: busy, cores, ms_per_frame })
 }
 
 impl Runtime {
@@ -652,5 +701,25 @@ fn check_outputs(c: &RuntimeConfig) -> Result<()> {
     match &s.dump {
         Some(d) => check_dir_creatable("sinks.dump", d),
         None => Ok(()),
+    }
+}
+
+#[cfg(test)]
+mod overload_tests {
+    use super::*;
+
+    #[test]
+    fn only_runs_that_dropped_frames_with_the_cores_busy_are_overloaded() {
+        let cpu =
+            |busy: f64| serde_json::json!({"cores_busy_without_idle_priority": busy, "cores": 2, "ms_per_frame": 78.0});
+        let o = overload(&cpu(1.95), 12).expect("saturated and dropping");
+        assert_eq!(o, Overload { dropped: 12, cores_busy: 1.95, cores: 2.0, ms_per_frame: 78.0 });
+        // nothing dropped, or frames dropped with CPU to spare (a hiccup, not a shortage), or no CPU measured
+        assert_eq!(overload(&cpu(1.95), 0), None);
+        assert_eq!(overload(&cpu(1.2), 5), None);
+        assert_eq!(overload(&serde_json::json!({}), 5), None);
+        assert!(Overload::lighter("census-refine:hitnet-m4").contains("no `--model`"));
+        // already the light network: only the resolution is left
+        assert_eq!(Overload::lighter("census-refine:hitnet-s+sgbm"), "`--resolution 320x240`");
     }
 }

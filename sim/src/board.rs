@@ -155,3 +155,67 @@ impl SessionBoard {
         Ok(out)
     }
 }
+
+/// Sends `frames` to `port`, one every `period` (`abvs sim board`'s plain roll); the frames sent.
+pub fn send_paced<W: std::io::Write + ?Sized>(
+    port: &mut W,
+    frames: &[Vec<u8>],
+    period: std::time::Duration,
+) -> std::io::Result<usize> {
+    for f in frames {
+        port.write_all(f)?;
+        std::thread::sleep(period);
+    }
+    port.flush()?;
+    Ok(frames.len())
+}
+
+/// What to add to a [`SessionBoard::script`]'s times to get CLOCK_MONOTONIC send times: the session's first
+/// encoder sample at `start_ns`, or (without it) the roll's first frame 1 ms from now.
+pub fn clock_shift(script: &[(i64, Vec<u8>)], encoders: &[EncoderRecord], start_ns: Option<i64>) -> i64 {
+    let t_first = encoders.iter().map(|r| r.t_ns).min().unwrap_or(0);
+    match start_ns {
+        Some(s) => s - t_first,
+        None => abvs_runtime_core::messages::monotonic_ns() + 1_000_000 - script.first().map_or(t_first, |x| x.0),
+    }
+}
+
+/// Sends each frame of `script` when CLOCK_MONOTONIC reaches its time plus `shift` (ns), in real time
+/// (`abvs sim board --session`); the frames sent.
+pub fn send_timed<W: std::io::Write + ?Sized>(
+    port: &mut W,
+    script: &[(i64, Vec<u8>)],
+    shift: i64,
+) -> std::io::Result<usize> {
+    use abvs_runtime_core::messages::monotonic_ns;
+    for (t, bytes) in script {
+        let wait = t + shift - monotonic_ns();
+        if wait > 0 {
+            std::thread::sleep(std::time::Duration::from_nanos(wait as u64));
+        }
+        port.write_all(bytes)?;
+    }
+    port.flush()?;
+    Ok(script.len())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn timed_frames_go_out_in_order_at_their_times() {
+        let script = vec![(0i64, vec![1u8, 2]), (2_000_000, vec![3]), (4_000_000, vec![4, 5])];
+        let mut out = Vec::new();
+        let t0 = abvs_runtime_core::messages::monotonic_ns();
+        // the first frame is due now, the last 4 ms later
+        let sent = send_timed(&mut out, &script, t0).unwrap();
+        assert_eq!((sent, out), (3, vec![1, 2, 3, 4, 5]));
+        assert!(abvs_runtime_core::messages::monotonic_ns() - t0 >= 4_000_000);
+        let enc = [EncoderRecord { t_ns: 500, eye: 0, count1: 0, count2: 0, count3: 0 }];
+        assert_eq!(clock_shift(&script, &enc, Some(10_500)), 10_000);
+        let mut out = Vec::new();
+        assert_eq!(send_paced(&mut out, &[vec![7], vec![8]], std::time::Duration::ZERO).unwrap(), 2);
+        assert_eq!(out, vec![7, 8]);
+    }
+}

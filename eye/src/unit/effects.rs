@@ -287,6 +287,15 @@ impl Effect {
         })
     }
 
+    /// Comma-separated effect names, "all", or "none" (or nothing).
+    pub fn parse_list(s: &str) -> Result<Vec<Effect>> {
+        match s.trim() {
+            "all" => Ok(Effect::ALL.to_vec()),
+            "" | "none" => Ok(vec![]),
+            _ => s.split(',').map(|n| Effect::from_name(n.trim())).collect(),
+        }
+    }
+
     /// Names and units of the parameters exposed to fitting, in vector order.
     /// code_wheel_eccentricity is fitted per head in Cartesian form (linear near zero, no phase
     /// wrap, any head placement).
@@ -345,5 +354,19 @@ impl Effect {
 impl std::fmt::Display for Effect {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.write_str(self.name())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn effect_lists_by_name_all_or_none() {
+        assert_eq!(Effect::parse_list(" all ").unwrap(), Effect::ALL.to_vec());
+        assert!(Effect::parse_list("none").unwrap().is_empty() && Effect::parse_list(" ").unwrap().is_empty());
+        let two = format!("{}, {}", Effect::ALL[0].name(), Effect::ALL[2].name());
+        assert_eq!(Effect::parse_list(&two).unwrap(), vec![Effect::ALL[0], Effect::ALL[2]]);
+        assert!(Effect::parse_list("gear_wobble").unwrap_err().to_string().contains("unknown effect 'gear_wobble'"));
     }
 }

@@ -12,6 +12,7 @@
 //!   closest approach of both optical axes from the encoders and calibrated FK), gates the frames whose
 //!   exposure overlaps a commanded saccade (reason "saccade", before the encoders show the speed), and
 //!   writes the frame's [`GazeState`] (in [`abvs_runtime_core::messages::FrameMotion::gaze`]).
+//! - [`direct`]: saccades straight on the drive board's link, without the pipeline (`abvs gaze saccade`).
 //!
 //! # Phases of [`GazeState`]
 //! - `idle`: no goal taken yet;
@@ -21,6 +22,7 @@
 //! - `pursuit`: the eyes follow a moving point (re-solved each frame);
 //! - `refused`: the latest goal was refused ([`GazeState::reason`]); the eyes hold (nothing was sent).
 pub mod controller;
+pub mod direct;
 pub mod limit;
 pub mod stage;
 

@@ -404,6 +404,7 @@ pub enum BridgeError {
 
 pub mod gaze;
 mod publisher;
+pub mod receive_stats;
 mod services;
 mod subscriber;
 
