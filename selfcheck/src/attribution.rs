@@ -81,7 +81,8 @@ pub enum Verdict {
     NoError,
     /// Mostly constant: the home stereo extrinsic, or an error both eyes share at every pose.
     Constant,
-    /// Varies with the pose, but the log has too few fixations to tell which eye it follows.
+    /// Varies with the pose, but the log has too few fixations to tell which eye it follows (fewer than
+    /// [`MIN_FIXATIONS_TO_NAME`]).
     TooFewFixations,
     /// One eye's model: its gaze explains most of the varying error.
     Eye {
@@ -125,7 +126,11 @@ impl std::fmt::Display for Verdict {
                 "mostly constant: the home stereo extrinsic (stereo.yaml), or an error both eyes share at every pose"
             ),
             Verdict::TooFewFixations => {
-                write!(f, "varies with the pose, but the log has too few fixations to tell which eye it follows")
+                write!(
+                    f,
+                    "varies with the pose, but the log has too few fixations to tell which eye it follows (at least \
+                     {MIN_FIXATIONS_TO_NAME}: record longer)"
+                )
             }
             Verdict::Eye { eye, explained } => {
                 let (this, other) = match eye {
@@ -232,6 +237,10 @@ pub struct Attribution {
     pub verdict: Verdict,
 }
 
+/// Fewest fixations from which an eye is named: three per coefficient of one eye's smooth function of its
+/// gaze (1 and [`features`]' six).
+pub const MIN_FIXATIONS_TO_NAME: usize = 21;
+
 /// Attributes the rotation error of the self-check log `path`.
 pub fn attribute(path: &Path) -> Result<Attribution> {
     let rows = read_gaze_rows(path)?;
@@ -296,7 +305,10 @@ pub fn attribute_rows(rows: Vec<GazeRow>) -> Attribution {
     let dof = rows.len().saturating_sub(nfix);
     let noise: [f64; 3] = std::array::from_fn(|c| if dof >= 3 { (within[c] / dof as f64).sqrt() } else { 0.0 });
     let varying = (norm(&spread).powi(2) - norm(&noise).powi(2)).max(0.0).sqrt();
-    let verdict = verdict(varying, norm(&mean), [explained[0], explained[1]], gaze_corr);
+    // an eye is named from a held-out fit of 7 coefficients per eye: with fewer than three fixations per
+    // coefficient it fits the noise (seed 52, 8 fixations, named the right eye for an error in the left)
+    let r2 = if nfix >= MIN_FIXATIONS_TO_NAME { [explained[0], explained[1]] } else { [f64::NAN; 2] };
+    let verdict = verdict(varying, norm(&mean), r2, gaze_corr);
     Attribution {
         fixations: nfix,
         mean_deg: mean,
@@ -450,5 +462,8 @@ mod noise_model {
         // the same noise on an error that grows with the gaze's yaw (0.06 deg at 15 deg) is not noise
         let b = attribute_rows(rows(&|yaw| [0.004 * yaw, 0.0, 0.0], 0.015));
         assert_ne!(b.verdict, Verdict::NoError, "{:?}", b.verdict);
+        // from fewer fixations than it takes to fit each eye's function, no eye is named
+        let few: Vec<GazeRow> = rows(&|yaw| [0.004 * yaw, 0.0, 0.0], 0.015).into_iter().take(3 * 20).collect();
+        assert_eq!(attribute_rows(few).verdict, Verdict::TooFewFixations);
     }
 }
