@@ -248,6 +248,10 @@ pub fn analyse(a: &crate::self_check_report::SelfCheckArgs, label: &str) -> anyh
     if t.refine() {
         console.push("timing: large correction: re-run with these values and fit again".into());
     }
+    if let Some(why) = t.limit() {
+        console.push(format!("timing: limit: {why}"));
+        md += &format!("\n**Limit:** {why}.\n");
+    }
     let mut json = t.json();
     json["heldout_improvement"] = json!(first.improvement());
     json["alternative_improvement"] = json!(first.alternative_improvement());
