@@ -238,7 +238,7 @@ pub struct Attribution {
 }
 
 /// Fewest fixations from which an eye is named: three per coefficient of one eye's smooth function of its
-/// gaze (1 and [`features`]' six).
+/// gaze (1 and the six features of the fit).
 pub const MIN_FIXATIONS_TO_NAME: usize = 21;
 
 /// Attributes the rotation error of the self-check log `path`.
