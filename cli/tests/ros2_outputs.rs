@@ -92,7 +92,9 @@ fn python_iceoryx2_subscriber_receives_the_frames() {
     let d = tempfile::tempdir().unwrap();
     let p = prefix("iox");
     let (child, out) = start_check(&["iox", &p, "confidence", "fovea"]);
-    let s = run(d.path(), &p, &["--confidence"]);
+    // the default engine computes a confidence and publishes it (`--confidence` would run a second,
+    // right-view pass: twice the disparity stage)
+    let s = run(d.path(), &p, &[]);
     let r = finish_check(child, out);
     let n = published(&s) as f64;
     let (depth, cloud) = (r["depth_frames"].as_f64().unwrap(), r["cloud_frames"].as_f64().unwrap());
@@ -140,6 +142,7 @@ fn zenoh_messages_reach_a_python_listener() {
         "abvs/fovea/depth",
         "abvs/fovea/camera_info",
         "abvs/fovea/points",
+        "abvs/confidence",
     ] {
         let got = r["received"][key].as_u64().unwrap();
         assert!(got as f64 >= 0.9 * n as f64, "{key}: {got} of {n} frames received");
@@ -183,6 +186,15 @@ fn zenoh_messages_reach_a_python_listener() {
     assert!(f["tf_checked"].as_u64().unwrap() as f64 >= 0.9 * n as f64, "{f}");
     let err = f["tf_max_err_m"].as_f64().unwrap_or(f64::INFINITY);
     assert!(err < 1e-4, "fovea depth + camera_info + tf vs its cloud: {err} m");
+    // the confidence (the default engine computes one): the iceoryx2 confidence's bytes, frame by frame, in
+    // the depth image's size and frame; no published depth pixel without a confidence
+    let c = &r["confidence"];
+    let compared = c["compared"].as_u64().unwrap();
+    assert!(compared as f64 >= 0.9 * n as f64, "{c}");
+    assert_eq!(c["equal"].as_u64(), Some(compared), "{c}");
+    assert_eq!(c["encodings"], serde_json::json!(["32FC1"]), "{c}");
+    assert_eq!(c["frame_ids"], serde_json::json!(["left_rect_camera"]), "{c}");
+    assert_eq!(c["finite_depth_unconfident"].as_u64(), Some(0), "{c}");
 }
 
 #[test]
@@ -218,6 +230,7 @@ fn rmw_zenoh_node_is_seen_by_a_python_client() {
         "/abvs/fovea/depth",
         "/abvs/fovea/camera_info",
         "/abvs/fovea/points",
+        "/abvs/confidence",
     ];
     for topic in topics {
         // every message under the Jazzy key decodes as its type; the subscriber may miss the first few
@@ -240,13 +253,13 @@ fn rmw_zenoh_node_is_seen_by_a_python_client() {
     }
     ids.sort();
     ids.dedup();
-    assert_eq!(ids.len(), 8, "one entity id a publisher: {ids:?}");
+    assert_eq!(ids.len(), topics.len(), "one entity id a publisher: {ids:?}");
     let gids: std::collections::BTreeSet<String> =
         r["gids"].as_object().unwrap().values().map(|g| g[0].as_str().unwrap_or("").to_string()).collect();
-    assert_eq!(gids.len(), 8, "one GID a publisher: {r}");
-    // the run's end takes the node out of the ROS 2 graph: every token is withdrawn (the node's, the eight
+    assert_eq!(gids.len(), topics.len(), "one GID a publisher: {r}");
+    // the run's end takes the node out of the ROS 2 graph: every token is withdrawn (the node's, the nine
     // outputs' and the gaze state's publisher: goals over Zenoh are off, no subscription)
-    assert_eq!(r["tokens"].as_array().map(|a| a.len()), Some(10), "{r}");
+    assert_eq!(r["tokens"].as_array().map(|a| a.len()), Some(11), "{r}");
     let gaze = r["tokens"].as_array().unwrap().iter().filter(|t| t.as_str().unwrap_or("").contains("%gaze%")).count();
     assert_eq!(gaze, 1, "{r}");
     assert_eq!(r["tokens_gone"], r["tokens"], "{r}");
@@ -274,13 +287,14 @@ fn mcap_recording_decodes_in_python() {
         ("/abvs/fovea/depth", "sensor_msgs/msg/Image"),
         ("/abvs/fovea/camera_info", "sensor_msgs/msg/CameraInfo"),
         ("/abvs/fovea/points", "sensor_msgs/msg/PointCloud2"),
+        ("/abvs/confidence", "sensor_msgs/msg/Image"),
     ];
     for (topic, ty) in types {
         assert_eq!(r["schemas"][topic], serde_json::json!([ty, "ros2msg", "cdr"]), "{topic}");
         // one message per published frame on every topic: the clouds equal frames_published
         assert_eq!(r["messages"][topic].as_u64(), Some(n), "{topic}: {r}");
     }
-    assert_eq!(r["summary_messages"].as_u64(), Some(8 * n));
+    assert_eq!(r["summary_messages"].as_u64(), Some(types.len() as u64 * n));
     assert_eq!(r["profile"], "ros2");
     assert_eq!(r["stamps_back"].as_u64(), Some(0), "stamps never go back");
     // CameraInfo K against the FrameHeader intrinsics of the same frame (received over iceoryx2), the main

@@ -6,11 +6,12 @@ mcap-ros2-support, iceoryx2, numpy.
   layout                       the ctypes layout of FrameHeader and CloudPoint
   iox PREFIX [confidence]      receive depth and clouds (and the confidence) until stdin closes (prints
                                "ready" first)
-  zenoh ENDPOINT PREFIX        listen on ENDPOINT for the eight keys (the fovea's three included), and the
-                               iceoryx2 clouds and fovea, until stdin closes; decode every message,
-                               compare clouds and the fovea's CameraInfo with iceoryx2 by stamp
+  zenoh ENDPOINT PREFIX        listen on ENDPOINT for the nine keys (the fovea's three and the confidence
+                               included), and the iceoryx2 clouds, confidence and fovea, until stdin
+                               closes; decode every message, compare clouds, the confidence and the fovea's
+                               CameraInfo with iceoryx2 by stamp
   mcap FILE PREFIX             receive the iceoryx2 headers until stdin closes, then decode FILE
-  rmw ENDPOINT                 listen on ENDPOINT as an rmw_zenoh (Jazzy) subscriber would: the eight typed
+  rmw ENDPOINT                 listen on ENDPOINT as an rmw_zenoh (Jazzy) subscriber would: the nine typed
                                keys with the hashes rosbags computes, the liveliness tokens, the attachments
   gaze PREFIX X Y Z            wait for the runtime's gaze states, send look_at(X, Y Z), print the first
                                state that reports the goal (and the one before)
@@ -36,6 +37,7 @@ KEYS = {
     "abvs/fovea/depth": "sensor_msgs/msg/Image",
     "abvs/fovea/camera_info": "sensor_msgs/msg/CameraInfo",
     "abvs/fovea/points": "sensor_msgs/msg/PointCloud2",
+    "abvs/confidence": "sensor_msgs/msg/Image",
 }
 
 
@@ -78,6 +80,7 @@ class IoxCollector:
         self.headers = {}  # t_frame_ns -> (seq, intrinsics)
         self.clouds = {}  # t_frame_ns -> structured array copy
         self.confidence_headers = {}  # seq -> t_frame_ns, width, height, valid
+        self.confidences = {}  # t_frame_ns -> confidence bytes (when keep_clouds)
         self.depth_by_seq = {}  # seq -> t_frame_ns, width, height, valid
         self.stop = threading.Event()
         self.threads = [threading.Thread(target=self.run_depth), threading.Thread(target=self.run_cloud)]
@@ -116,6 +119,8 @@ class IoxCollector:
                     # (a motion-gated frame has no valid pixel on purpose)
                     self.bad_confidence.append(["all zero", h.seq])
                 self.confidence_headers[h.seq] = (h.t_frame_ns, h.width, h.height, h.valid)
+                if self.keep_clouds:
+                    self.confidences[h.t_frame_ns] = c.tobytes()
                 self.confidence_frames += 1
 
     def run_fovea(self, k):
@@ -250,7 +255,7 @@ def cmd_zenoh(endpoint, prefix):
             raw[str(sample.key_expr)].append(sample.payload.to_bytes())
 
     subs = [session.declare_subscriber(k, on_sample) for k in KEYS]
-    iox = IoxCollector(prefix, keep_clouds=True, fovea=True)
+    iox = IoxCollector(prefix, keep_clouds=True, confidence=True, fovea=True)
     print("ready", flush=True)
     done.wait()
     time.sleep(1.0)
@@ -299,7 +304,33 @@ def cmd_zenoh(endpoint, prefix):
     out["tf_checked"], out["tf_max_err_m"] = tf_consistency(decoded)
     out["joint_names"] = list(decoded["abvs/joint_states"][0].name) if decoded["abvs/joint_states"] else []
     out["fovea"] = fovea_checks(decoded, iox)
+    out["confidence"] = confidence_checks(decoded, iox)
     print(json.dumps(out))
+
+
+def confidence_checks(decoded, iox):
+    """/abvs/confidence against the iceoryx2 confidence of the same frame (same stamp): the same float32
+    bytes, the depth image's size and frame; a published depth pixel has a confidence above 0."""
+    depth = {stamp_ns(m.header): m for m in decoded["abvs/depth"]}
+    r = {"compared": 0, "equal": 0, "finite_depth_unconfident": 0, "bad": [],
+         "encodings": sorted({m.encoding for m in decoded["abvs/confidence"]}),
+         "frame_ids": sorted({m.header.frame_id for m in decoded["abvs/confidence"]})}
+    for m in decoded["abvs/confidence"]:
+        t = stamp_ns(m.header)
+        if t not in iox.confidences or t not in depth:
+            continue
+        r["compared"] += 1
+        dm = depth[t]
+        c = np.frombuffer(m.data.tobytes(), dtype="<f4")
+        d = np.frombuffer(dm.data.tobytes(), dtype="<f4")
+        ok = (bytes(m.data.tobytes()) == iox.confidences[t] and (m.width, m.height, m.step) == (dm.width, dm.height, dm.step)
+              and len(c) == len(d))
+        r["equal"] += ok
+        if ok:
+            r["finite_depth_unconfident"] += int((np.isfinite(d) & ~(c > 0.0)).sum())
+        elif len(r["bad"]) < 3:
+            r["bad"].append({"size": [m.width, m.height, m.step], "depth": [dm.width, dm.height, dm.step]})
+    return r
 
 
 def fovea_checks(decoded, iox):
@@ -408,6 +439,7 @@ TOPICS = {
     "/abvs/fovea/depth": "sensor_msgs/msg/Image",
     "/abvs/fovea/camera_info": "sensor_msgs/msg/CameraInfo",
     "/abvs/fovea/points": "sensor_msgs/msg/PointCloud2",
+    "/abvs/confidence": "sensor_msgs/msg/Image",
 }
 
 

@@ -11,10 +11,13 @@
 //! | `/abvs/fovea/depth` | sensor_msgs/msg/Image, `32FC1`: the fovea's window (native scale, `tasks::fovea`) | `left_rect_camera` |
 //! | `/abvs/fovea/camera_info` | sensor_msgs/msg/CameraInfo of the fovea's window (its own K and P) | `left_rect_camera` |
 //! | `/abvs/fovea/points` | sensor_msgs/msg/PointCloud2 of the fovea's window | `left_home_camera` |
+//! | `/abvs/confidence` | sensor_msgs/msg/Image, `32FC1`: the depth image's confidence in [0, 1] per pixel (0 = no match) | `left_rect_camera` |
 //!
 //! The fovea's topics exist when the run computes a fovea (on by default); the window is a crop of the main
 //! map's rectified plane at the raw frames' focal length, so its frame is `left_rect_camera` too and only
 //! its CameraInfo differs. A motion-gated frame's fovea is published like its main map: all NaN, no points.
+//! The confidence exists when the run computes one (the default engine does): the depth image is NaN where
+//! it is below `[disparity] min_confidence`, and a consumer may apply a stricter threshold of its own.
 //!
 //! Every header stamp is the frame's left mid-exposure time on CLOCK_MONOTONIC (`FrameHeader::t_frame_ns`
 //! of the iceoryx2 services), so one frame's five messages carry one stamp. Camera frames have OpenCV axes
@@ -74,9 +77,9 @@ impl Topic {
     }
 }
 
-/// The topics, in the order [`Encoded::messages`] returns them: the main five, then the fovea's three
-/// ([`topics`]).
-pub const TOPICS: [Topic; 8] = [
+/// The topics, in the order [`Encoded::messages`] returns them: the main five, then the fovea's three, then
+/// the confidence ([`TopicSet`]).
+pub const TOPICS: [Topic; 9] = [
     Topic {
         topic: "/abvs/depth",
         key: "abvs/depth",
@@ -133,17 +136,42 @@ pub const TOPICS: [Topic; 8] = [
         schema: SCHEMAS[2],
         rihs01: "RIHS01_9198cabf7da3796ae6fe19c4cb3bdd3525492988c70522628af5daa124bae2b5",
     },
+    Topic {
+        topic: "/abvs/confidence",
+        key: "abvs/confidence",
+        type_name: "sensor_msgs/msg/Image",
+        schema: SCHEMAS[0],
+        rihs01: "RIHS01_d31d41a9a4c4bc8eae9be757b0beed306564f7526c88ea6a4588fb9582527d47",
+    },
 ];
 
 /// Topics of the main map, the cameras and the joints (the first of [`TOPICS`]).
 pub const MAIN_TOPICS: usize = 5;
+/// Where the confidence is in [`TOPICS`].
+const CONFIDENCE_TOPIC: usize = 8;
 
-/// The topics a run publishes: the main five, and the fovea's when it computes one.
-pub fn topics(fovea: bool) -> &'static [Topic] {
-    if fovea {
-        &TOPICS
-    } else {
-        &TOPICS[..MAIN_TOPICS]
+/// Which of the optional topics a run publishes: the fovea's when it computes a fovea, the confidence when it
+/// computes one. The main five are always there.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct TopicSet {
+    /// The fovea's three topics.
+    pub fovea: bool,
+    /// `/abvs/confidence`.
+    pub confidence: bool,
+}
+
+impl TopicSet {
+    /// The topics, in [`TOPICS`] order.
+    pub fn topics(self) -> Vec<&'static Topic> {
+        let fovea = MAIN_TOPICS..CONFIDENCE_TOPIC;
+        TOPICS
+            .iter()
+            .enumerate()
+            .filter(|(i, _)| {
+                *i < MAIN_TOPICS || (self.fovea && fovea.contains(i)) || (self.confidence && *i == CONFIDENCE_TOPIC)
+            })
+            .map(|(_, t)| t)
+            .collect()
     }
 }
 
@@ -432,6 +460,10 @@ pub struct FrameSnapshot {
     pub fovea: ImageSnapshot,
     /// Whether the frame has a fovea (the run computes one).
     pub has_fovea: bool,
+    /// The main map's confidence (float32 bits, row-major, the depth image's size), when `has_confidence`.
+    pub confidence: Arc<Vec<u32>>,
+    /// Whether the frame has a confidence (the run computes one).
+    pub has_confidence: bool,
 }
 
 /// The packed rgb of a gray level (PCL / rviz: 0x00RRGGBB; the top byte is the iceoryx2 cloud's alpha,
@@ -458,6 +490,13 @@ impl FrameSnapshot {
         self.has_fovea = out.fovea.is_some();
         if let Some(f) = out.fovea {
             self.fovea.fill(&f.cam, &f.depth, &mut replaced);
+        }
+        self.has_confidence = out.confidence.is_some();
+        if let Some(c) = out.confidence {
+            let words = unshared(&mut self.confidence, &mut replaced);
+            words.clear();
+            // SAFETY: as the depth's: f32 and u32 have one size and alignment.
+            words.extend_from_slice(unsafe { std::slice::from_raw_parts(c.as_ptr().cast::<u32>(), c.len()) });
         }
         replaced
     }
@@ -528,9 +567,9 @@ struct Message {
 /// The encoded messages of one frame, buffers reused from frame to frame.
 #[derive(Debug, Default)]
 pub struct Encoded {
-    msgs: [Message; 8],
-    /// Messages encoded for the last frame (5, or 8 with the fovea's).
-    n: usize,
+    msgs: [Message; 9],
+    /// The topics encoded for the last frame (indices into [`TOPICS`] and `msgs` alike).
+    encoded: Vec<usize>,
 }
 
 fn quaternion(r: &Matrix3<f64>) -> Quaternion {
@@ -557,6 +596,18 @@ pub enum EncodeError {
         type_name: &'static str,
         /// The array's length.
         bytes: usize,
+    },
+    /// An image whose array does not hold width x height values.
+    #[error("{topic}: {len} values for a {width}x{height} image")]
+    Shape {
+        /// The topic.
+        topic: &'static str,
+        /// Values in the array.
+        len: usize,
+        /// The image's width.
+        width: u32,
+        /// Its height.
+        height: u32,
     },
     /// A big-endian machine (the messages are written little-endian, as ROS 2 sends them on x86 and ARM).
     #[error("ROS 2 messages are built for little-endian machines only")]
@@ -656,7 +707,7 @@ fn encode_image(
 
 impl Encoded {
     /// Encodes the messages of `s` (CDR, little-endian encapsulation): the main five, then the fovea's three
-    /// when it has one.
+    /// when it has one, then the confidence when it has one.
     pub fn encode(&mut self, s: &FrameSnapshot) -> Result<(), EncodeError> {
         if cfg!(target_endian = "big") {
             return Err(EncodeError::BigEndian);
@@ -664,7 +715,7 @@ impl Encoded {
         let stamp = Time::from_ns(s.t_frame_ns);
         let header = |frame_id| Header { stamp, frame_id };
         let types = |i: usize| [TOPICS[i].type_name, TOPICS[i + 1].type_name, TOPICS[i + 2].type_name];
-        self.n = 0;
+        self.encoded.clear();
         let (main, rest) = self.msgs.split_at_mut(3);
         encode_image(main, types(0), &s.main, header)?;
         let tfs = s.transforms().map(|(child, p)| TransformStamped {
@@ -685,17 +736,35 @@ impl Encoded {
                 effort: &[],
             },
         )?;
-        self.n = MAIN_TOPICS;
+        self.encoded.extend(0..MAIN_TOPICS);
         if s.has_fovea {
             encode_image(&mut rest[2..5], types(MAIN_TOPICS), &s.fovea, header)?;
-            self.n = TOPICS.len();
+            self.encoded.extend(MAIN_TOPICS..CONFIDENCE_TOPIC);
+        }
+        if s.has_confidence {
+            let (width, height) = (s.main.width, s.main.height);
+            if s.confidence.len() != width as usize * height as usize {
+                let topic = TOPICS[CONFIDENCE_TOPIC].topic;
+                return Err(EncodeError::Shape { topic, len: s.confidence.len(), width, height });
+            }
+            let image = Image {
+                header: header(RECT_FRAME),
+                height: s.main.height,
+                width: s.main.width,
+                encoding: "32FC1",
+                is_bigendian: 0,
+                step: s.main.width * 4,
+                data: &[],
+            };
+            rest[5].split(TOPICS[CONFIDENCE_TOPIC].type_name, &image, &s.confidence, 0)?;
+            self.encoded.push(CONFIDENCE_TOPIC);
         }
         Ok(())
     }
 
     /// (topic, CDR bytes) of the last encoded frame, in [`TOPICS`] order.
     pub fn messages(&self) -> impl Iterator<Item = (&'static Topic, Cdr<'_>)> {
-        TOPICS.iter().zip(self.msgs[..self.n].iter().map(Message::cdr))
+        self.encoded.iter().map(|&i| (&TOPICS[i], self.msgs[i].cdr()))
     }
 
     /// Lets go of the snapshot's buffers (once the writer is done with them), so that it can be filled again
@@ -726,6 +795,10 @@ mod tests {
         let depth = (0..w * h).map(|i| if i % 3 == 0 { f32::NAN } else { i as f32 * 0.25 }.to_bits()).collect();
         let cloud = points.iter().flat_map(|p| [p[0].to_bits(), p[1].to_bits(), p[2].to_bits(), gray_rgb(9)]).collect();
         ImageSnapshot { width: w, height: h, f, cx: 0.5, cy: 0.0, depth: Arc::new(depth), cloud: Arc::new(cloud) }
+    }
+
+    fn stamp_of(s: &FrameSnapshot) -> Time {
+        Time::from_ns(s.t_frame_ns)
     }
 
     /// The Image and PointCloud2 of `img` encoded whole, as serde writes them with their arrays.
@@ -774,11 +847,21 @@ mod tests {
                 main: image(w, h, 100.0, &pts),
                 fovea: image(h + 1, w, 250.0, &pts[..np / 2]),
                 has_fovea: k % 2 == 0,
+                confidence: Arc::new((0..w * h).map(|i| (i as f32 / 7.0).to_bits()).collect()),
+                has_confidence: k < 2,
                 ..Default::default()
             };
             e.encode(&s).unwrap();
             let m: Vec<_> = e.messages().collect();
-            assert_eq!(m.len(), if s.has_fovea { 8 } else { 5 });
+            assert_eq!(m.len(), MAIN_TOPICS + 3 * s.has_fovea as usize + s.has_confidence as usize);
+            if s.has_confidence {
+                // the confidence is the main depth image's Image with the confidence's array
+                let c = ImageSnapshot { depth: s.confidence.clone(), ..s.main.clone() };
+                let (topic, msg) = m.last().unwrap();
+                assert_eq!(topic.topic, "/abvs/confidence");
+                assert_eq!(msg.contiguous(&mut buf), &whole(&c, stamp_of(&s))[0][..], "{k}");
+            }
+            let m = &m[..MAIN_TOPICS + 3 * s.has_fovea as usize];
             let stamp = Time::from_ns(s.t_frame_ns);
             for (first, img) in [(0, &s.main), (MAIN_TOPICS, &s.fovea)].into_iter().take(m.len() / 4) {
                 let [depth, cloud] = whole(img, stamp);
@@ -814,6 +897,10 @@ mod tests {
         // the fovea's CameraInfo carries its own K
         s.fovea = image(4, 3, 480.0, &[]);
         s.has_fovea = true;
+        // a confidence of another size than the depth image's is refused
+        s.has_confidence = true;
+        assert!(matches!(e.encode(&s), Err(EncodeError::Shape { len: 0, width: 2, height: 1, .. })));
+        s.confidence = Arc::new(vec![0.5f32.to_bits(); 2]);
         e.encode(&s).unwrap();
         let m: Vec<_> = e.messages().collect();
         assert_eq!(m.iter().map(|(t, _)| t.topic).collect::<Vec<_>>(), TOPICS.map(|t| t.topic));
@@ -825,6 +912,10 @@ mod tests {
             assert_eq!(t.key, &t.topic[1..]);
             assert!(t.dds_type().contains("::msg::dds_::") && t.dds_type().ends_with('_'), "{}", t.dds_type());
         }
-        assert_eq!(topics(false).len(), MAIN_TOPICS);
+        let set = |fovea, confidence| TopicSet { fovea, confidence }.topics();
+        assert_eq!(set(false, false).len(), MAIN_TOPICS);
+        assert_eq!(set(true, true), TOPICS.iter().collect::<Vec<_>>());
+        assert_eq!(set(false, true).last().map(|t| t.topic), Some("/abvs/confidence"));
+        assert_eq!(set(true, false).len(), CONFIDENCE_TOPIC);
     }
 }

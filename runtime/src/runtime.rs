@@ -506,7 +506,7 @@ fn sinks(
     if c.bridges.iceoryx.enabled {
         let cfg = crate::bridges::iceoryx::BridgeConfig::for_deployment(c);
         // the publishers first: their nodes remove (and count) what a killed runtime left behind
-        let publish = if c.disparity.confidence || c.disparity.engine.scores_pixels() {
+        let publish = if computes_confidence(c) {
             PublishSink::with_confidence(cfg.clone())?
         } else {
             PublishSink::new(cfg.clone())?
@@ -571,14 +571,24 @@ fn sinks(
     Ok((sinks, access))
 }
 
+/// Whether the run computes a confidence: then it is published (iceoryx2 and ROS 2) by default.
+fn computes_confidence(c: &RuntimeConfig) -> bool {
+    c.disparity.confidence || c.disparity.engine.scores_pixels()
+}
+
+/// The ROS 2 outputs' optional topics: the fovea's and the confidence when the run computes them.
+#[cfg(any(feature = "zenoh", feature = "mcap"))]
+fn topic_set(c: &RuntimeConfig) -> crate::ros2::TopicSet {
+    crate::ros2::TopicSet { fovea: c.fovea.fovea_config().is_some(), confidence: computes_confidence(c) }
+}
+
 /// The start-up line's gaze access with `[gaze] enabled = false`.
 const GAZE_OFF: &str = "gaze: off ([gaze] enabled = false): no goals are taken, no gaze state is published";
 
 /// The MCAP recorder of `[sinks.mcap]` (cargo feature `mcap`).
 #[cfg(feature = "mcap")]
 fn mcap_sink(p: &Path, c: &RuntimeConfig) -> Result<Box<dyn Sink>> {
-    let fovea = c.fovea.fovea_config().is_some();
-    Ok(Box::new(crate::sinks::mcap_log::sink(p, c.sinks.mcap.queue, c.source.lossless, fovea)?))
+    Ok(Box::new(crate::sinks::mcap_log::sink(p, c.sinks.mcap.queue, c.source.lossless, topic_set(c))?))
 }
 
 /// Built without MCAP: a configuration that asks for a recording is refused.
@@ -611,7 +621,7 @@ fn zenoh_sinks(c: &RuntimeConfig, gaze: &Arc<Mailbox>, sinks: &mut Vec<Box<dyn S
             sinks.push(Box::new(g));
         }
         if z.enabled {
-            let w = crate::bridges::zenoh::ZenohWriter::on_session(session, z, c.fovea.fovea_config().is_some())?;
+            let w = crate::bridges::zenoh::ZenohWriter::on_session(session, z, topic_set(c))?;
             sinks.push(Box::new(crate::sinks::ros2_out::Ros2OutSink::new("zenoh", w, z.queue, c.source.lossless)?));
         }
     }

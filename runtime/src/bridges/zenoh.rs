@@ -27,7 +27,7 @@ use ::zenoh::qos::CongestionControl;
 use ::zenoh::{Config, Session, Wait};
 
 use super::rmw_zenoh::{self, EntityKind, Qos};
-use crate::ros2::{topics, Cdr, Topic};
+use crate::ros2::{Cdr, Topic, TopicSet};
 use crate::sinks::ros2_out::{OutputError, Ros2Writer};
 use abvs_runtime_core::config::Ros2Keys;
 use abvs_runtime_core::config::ZenohSettings;
@@ -67,23 +67,23 @@ pub fn config(config_file: Option<&Path>, connect: &[String]) -> abvs_runtime_co
 }
 
 impl ZenohWriter {
-    /// Opens the session and declares a publisher per topic (the main five, and the fovea's three when
-    /// `fovea`) with the key layout of `settings` (in the rmw_zenoh format also the node's and the
+    /// Opens the session and declares a publisher per topic of `set` (the main five, the fovea's three, the
+    /// confidence) with the key layout of `settings` (in the rmw_zenoh format also the node's and the
     /// publishers' liveliness tokens).
     pub fn open(
         config: Config,
         settings: &ZenohSettings,
-        fovea: bool,
+        set: TopicSet,
     ) -> abvs_runtime_core::error::Result<ZenohWriter> {
         let session = ::zenoh::open(config).wait().map_err(|e| err("opening the session", e))?;
-        Self::on_session(session, settings, fovea)
+        Self::on_session(session, settings, set)
     }
 
     /// The same on an open session (shared with the gaze topics, `bridges::zenoh_gaze`).
     pub fn on_session(
         session: Session,
         settings: &ZenohSettings,
-        fovea: bool,
+        set: TopicSet,
     ) -> abvs_runtime_core::error::Result<ZenohWriter> {
         let mut node =
             rmw_zenoh::Node::new(settings.domain, session.zid().to_string(), &settings.namespace, &settings.node);
@@ -92,7 +92,7 @@ impl ZenohWriter {
             let t = session.liveliness().declare_token(node.token()).wait();
             tokens.push(t.map_err(|e| err(&format!("declaring the node's token {}", node.token()), e))?);
         }
-        let topics = topics(fovea);
+        let topics = set.topics();
         let mut outputs = Vec::with_capacity(topics.len());
         for t in topics {
             let (key, rmw) = match settings.keys {

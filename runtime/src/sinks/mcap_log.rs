@@ -6,14 +6,14 @@ use std::fs::File;
 use std::io::BufWriter;
 use std::path::Path;
 
-use crate::ros2::{topics, Cdr, Topic};
+use crate::ros2::{Cdr, Topic, TopicSet};
 use crate::sinks::ros2_out::{OutputError, Ros2OutSink, Ros2Writer};
 use abvs_runtime_core::error::RuntimeError;
 
 /// The ROS 2 messages written to an MCAP file (profile ros2), one channel per topic.
 pub struct McapWriter {
     writer: Option<mcap::Writer<BufWriter<File>>>,
-    topics: &'static [Topic],
+    topics: Vec<&'static Topic>,
     channels: Vec<u16>,
     counts: Vec<u64>,
     path: String,
@@ -22,9 +22,9 @@ pub struct McapWriter {
 }
 
 impl McapWriter {
-    /// Creates `path` (replacing a file there) with a channel and its schema per topic: the main five, and
-    /// the fovea's three when `fovea`.
-    pub fn create(path: &Path, fovea: bool) -> abvs_runtime_core::error::Result<McapWriter> {
+    /// Creates `path` (replacing a file there) with a channel and its schema per topic of `set`: the main
+    /// five, the fovea's three, the confidence.
+    pub fn create(path: &Path, set: TopicSet) -> abvs_runtime_core::error::Result<McapWriter> {
         let name = path.display().to_string();
         let err = |what: &str, e: mcap::McapError| RuntimeError::Transport {
             what: format!("--mcap {name}: {what}"),
@@ -39,10 +39,10 @@ impl McapWriter {
             .compression(None)
             .create(BufWriter::with_capacity(1 << 20, file))
             .map_err(|e| err("starting the file", e))?;
-        let topics = topics(fovea);
+        let topics = set.topics();
         let mut channels = Vec::with_capacity(topics.len());
         let mut schemas = BTreeMap::new();
-        for t in topics {
+        for &t in &topics {
             // one schema a type (the fovea's topics have the main map's)
             let schema = match schemas.get(t.type_name) {
                 Some(&s) => s,
@@ -61,7 +61,7 @@ impl McapWriter {
 
 impl Ros2Writer for McapWriter {
     fn write(&mut self, topic: &'static Topic, seq: u64, stamp_ns: i64, msg: Cdr<'_>) -> Result<(), OutputError> {
-        let i = self.topics.iter().position(|t| t == topic).ok_or(OutputError::UnknownTopic(topic.topic))?;
+        let i = self.topics.iter().position(|&t| t == topic).ok_or(OutputError::UnknownTopic(topic.topic))?;
         let w = self.writer.as_mut().ok_or(OutputError::Closed)?;
         let t = stamp_ns.max(0) as u64;
         let header = mcap::records::MessageHeader {
@@ -89,7 +89,7 @@ impl Ros2Writer for McapWriter {
     }
 }
 
-/// The MCAP recorder as a pipeline sink (stats key `mcap`), with the fovea's topics when `fovea`.
-pub fn sink(path: &Path, queue: usize, blocking: bool, fovea: bool) -> abvs_runtime_core::error::Result<Ros2OutSink> {
-    Ros2OutSink::new("mcap", McapWriter::create(path, fovea)?, queue, blocking)
+/// The MCAP recorder as a pipeline sink (stats key `mcap`), with the topics of `set`.
+pub fn sink(path: &Path, queue: usize, blocking: bool, set: TopicSet) -> abvs_runtime_core::error::Result<Ros2OutSink> {
+    Ros2OutSink::new("mcap", McapWriter::create(path, set)?, queue, blocking)
 }
