@@ -3,21 +3,14 @@
 //! and the iceoryx2 services (python/abvs_iceoryx2.py). The Python environment comes from
 //! scripts/setup.sh (.deps/python, or the interpreter in ABVS_PYTHON); without it these tests fail.
 use std::io::{BufRead, BufReader};
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::{Child, ChildStdout, Command, Stdio};
 
 use serde_json::Value;
 
-fn repo() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("..")
-}
-
-fn python() -> PathBuf {
-    let p =
-        std::env::var_os("ABVS_PYTHON").map(PathBuf::from).unwrap_or_else(|| repo().join(".deps/python/bin/python3"));
-    assert!(p.exists(), "{}: no Python environment; run scripts/setup.sh (or set ABVS_PYTHON)", p.display());
-    p
-}
+#[path = "../../tests/support/python_env.rs"]
+mod python_env;
+use python_env::{python, repo};
 
 /// A unique iceoryx2 service prefix per test (tests of one binary run at once).
 fn prefix(test: &str) -> String {

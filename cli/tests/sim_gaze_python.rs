@@ -7,22 +7,14 @@
 //!
 //! The simulation runs in virtual time as fast as it renders: a goal from another process is taken at the
 //! next frame the gaze stage starts, so which frame takes it depends on the machine, not the outcome.
-use std::path::PathBuf;
 use std::process::{Command, Stdio};
 use std::time::Instant;
 
 use serde_json::Value;
 
-fn repo() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("..")
-}
-
-fn python() -> PathBuf {
-    let p =
-        std::env::var_os("ABVS_PYTHON").map(PathBuf::from).unwrap_or_else(|| repo().join(".deps/python/bin/python3"));
-    assert!(p.exists(), "{}: no Python environment; run scripts/setup.sh (or set ABVS_PYTHON)", p.display());
-    p
-}
+#[path = "../../tests/support/python_env.rs"]
+mod python_env;
+use python_env::{python, repo};
 
 /// Points in the left home camera frame (m): near, far and off to the side, all inside the workspace.
 const POINTS: [[f64; 3]; 3] = [[0.06, -0.04, 0.7], [-0.12, 0.05, 0.45], [0.1, 0.08, 1.2]];

@@ -3,7 +3,6 @@
 //! waits for the runtime's states, sends look_at and prints the state that reports its goal. A replay has no
 //! drive board, so the goal comes back refused by name (`no_board`), with the measured fixation of the
 //! replayed encoders; the Rust handle's goals take the same path (counted in the stats JSON's `gaze`).
-use std::path::PathBuf;
 use std::process::Command;
 use std::time::{Duration, Instant};
 
@@ -12,16 +11,9 @@ use abvs_runtime::Runtime;
 use abvs_runtime_core::config::{EngineKind, RuntimeConfig};
 use abvs_runtime_core::gaze::{Phase, Refusal};
 
-fn repo() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("..")
-}
-
-fn python() -> PathBuf {
-    let p =
-        std::env::var_os("ABVS_PYTHON").map(PathBuf::from).unwrap_or_else(|| repo().join(".deps/python/bin/python3"));
-    assert!(p.exists(), "{}: no Python environment; run scripts/setup.sh (or set ABVS_PYTHON)", p.display());
-    p
-}
+#[path = "../../tests/support/python_env.rs"]
+mod python_env;
+use python_env::{python, repo};
 
 #[test]
 fn a_python_process_sends_a_goal_and_reads_the_state() {

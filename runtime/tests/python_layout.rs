@@ -4,23 +4,15 @@
 //! the interpreter in ABVS_PYTHON): missing, the test fails (CI installs it).
 use std::collections::BTreeMap;
 use std::mem::{align_of, offset_of, size_of};
-use std::path::PathBuf;
 use std::process::Command;
 
 use abvs_runtime::bridges::iceoryx::gaze::{GazeGoalWire, GazeStateWire};
 use abvs_runtime::bridges::iceoryx::{CloudPoint, FrameHeader};
 use iceoryx2::prelude::ZeroCopySend;
 
-fn repo() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("..")
-}
-
-fn python() -> PathBuf {
-    let p =
-        std::env::var_os("ABVS_PYTHON").map(PathBuf::from).unwrap_or_else(|| repo().join(".deps/python/bin/python3"));
-    assert!(p.exists(), "{}: no Python environment; run scripts/setup.sh (or set ABVS_PYTHON)", p.display());
-    p
-}
+#[path = "../../tests/support/python_env.rs"]
+mod python_env;
+use python_env::{python, repo};
 
 #[test]
 fn python_ctypes_match_the_rust_layout() {
