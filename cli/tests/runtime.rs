@@ -107,6 +107,17 @@ fn the_default_engine_end_to_end_bounds_its_depth_error_and_answers_more_than_sg
     eprintln!("validity mask: default {m:?}, --min-confidence 0 {n:?}");
     assert_ne!(masked["output_digest"], DENSE_DIGEST);
     assert!(m.2 < n.2 && m.0 < n.0, "mask {m:?} vs dense {n:?}");
+    // the truth sink scores the map before the mask too (every pixel the depth range keeps): the points the
+    // dense run publishes, so a masked run reports both without a second run (sums equal to rounding: the
+    // two are made by two builds of one function)
+    for (run, all) in [(&masked, &masked["depth_error_all_pixels"]), (&net, &net["depth_error_all_pixels"])] {
+        let dense = &net["depth_error"];
+        assert_eq!((&all["points"], &all["valid_fraction"]), (&dense["points"], &dense["valid_fraction"]), "{run:#}");
+        for k in ["abs_rel", "rmse_m"] {
+            let (a, d) = (all[k].as_f64().unwrap(), dense[k].as_f64().unwrap());
+            assert!((a - d).abs() <= 1e-9 * d, "{k}: {a} vs {d}: {run:#}");
+        }
+    }
 }
 
 /// `output_digest` of `abvs run --lossless` (the default engine, dense) before the validity mask existed.

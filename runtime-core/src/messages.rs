@@ -421,6 +421,10 @@ pub struct Work {
     /// Why each pixel is not published (`abvs_disparity::confidence::reason`; 0 = published), when the engine scores
     /// its pixels (the validity mask). Empty otherwise, sized like `confidence`.
     pub reason: Vec<u8>,
+    /// The disparity before the validity mask (NaN only where the rectified pixel does not see the raw
+    /// image), when a sink asks for it ([`crate::sink::Sink::wants_dense_disparity`]) and the engine scores
+    /// its pixels. Empty otherwise.
+    pub dense_disparity: Vec<f32>,
     /// Depth and cloud. Filled and published on the output lane, which lends its one buffer to the frame
     /// it is working on: a buffer per pooled frame would double the pool's memory (1.6 MB a frame at
     /// 320x240) for a message that never crosses a queue. Empty everywhere else.
@@ -448,6 +452,7 @@ impl Work {
             disparity: vec![f32::NAN; no],
             confidence: Vec::new(),
             reason: Vec::new(),
+            dense_disparity: Vec::new(),
             depth: DepthFrame::empty(),
             fovea: None,
         })
@@ -499,6 +504,7 @@ impl Work {
             right_rect: &self.rectified.right,
             disparity: &self.disparity,
             confidence: (!self.confidence.is_empty()).then_some(&self.confidence[..]),
+            dense_disparity: (!self.dense_disparity.is_empty()).then_some(&self.dense_disparity[..]),
             motion: &self.motion,
             fovea: self.fovea.as_deref().filter(|f| f.ready),
         })
@@ -531,6 +537,8 @@ pub struct Published<'a> {
     pub disparity: &'a [f32],
     /// The disparity's confidence in [0, 1] per pixel (0 = invalid), when the run computes it.
     pub confidence: Option<&'a [f32]>,
+    /// The disparity before the validity mask ([`Work::dense_disparity`]), when a sink asked for it.
+    pub dense_disparity: Option<&'a [f32]>,
     /// The frame's motion: eye speeds, blur, and whether it was gated (depth all NaN, empty cloud).
     pub motion: &'a FrameMotion,
     /// The foveal depth, when the run computes one (gated with the frame: NaN, empty cloud).

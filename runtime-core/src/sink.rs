@@ -13,4 +13,10 @@ pub trait Sink: Send {
     fn consume(&mut self, out: &Published) -> Result<()>;
     /// Adds what the sink measured to the run's statistics.
     fn finish(&mut self, _stats: &mut RunStats) {}
+    /// Whether the sink reads the disparity as the engine made it, before the validity mask
+    /// ([`Published::dense_disparity`]): the disparity stage then keeps a copy of it, one more map a frame,
+    /// so only a sink that scores what the mask removed (the truth of synthetic sessions) asks.
+    fn wants_dense_disparity(&self) -> bool {
+        false
+    }
 }

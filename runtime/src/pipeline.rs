@@ -158,7 +158,9 @@ pub fn graph_with_gaze<S: PairSource>(
         None => STANDARD_GRAPH,
     };
     stages.push(Box::new(RectifyStage::new(cams, cfg.grid_step)));
-    stages.push(Box::new(DisparityStage::with_check(engine, cfg.check)?.with_min_confidence(cfg.min_confidence)?));
+    let dense = sinks.iter().any(|s| s.wants_dense_disparity());
+    let disparity = DisparityStage::with_check(engine, cfg.check)?.with_min_confidence(cfg.min_confidence)?;
+    stages.push(Box::new(disparity.with_dense_kept(dense)));
     stages.push(Box::new(DepthStage::new(cfg.depth)));
     let mut g = Graph::from_description(source, cfg.out, description, stages, sinks)?;
     if let Some(f) = fovea {

@@ -12,18 +12,21 @@
 //! the truth's poses file), never by position: a frame the replay could not read shifts nothing. When the run
 //! computes a confidence, the points are also scored apart by it (above and at most [`HIGH_CONFIDENCE`]):
 //! stats `depth_error_by_confidence`. Per eye speed (the faster eye at the frame's instant): stats
-//! `depth_error_by_speed`, with the frames the motion gate published invalid counted, not scored.
+//! `depth_error_by_speed`, with the frames the motion gate published invalid counted, not scored. When the
+//! engine masks its own pixels (census-refine), the map before the mask is scored too, every pixel the depth
+//! range keeps: stats `depth_error_all_pixels`, beside `depth_error` over the published pixels.
 use abvs_camera::{Camera, StereoCalibration};
 use abvs_eye::{Pose, UnitModel};
 use abvs_render::Scene;
 use nalgebra::{Point3, UnitQuaternion, Vector2, Vector3};
 
 use abvs_runtime::sources::replay::ReplaySource;
+use abvs_runtime::tasks::depth::DepthConfig;
 use abvs_runtime::tasks::motion::RowRotations;
 use abvs_runtime::tasks::rectify::source_pixel;
 use abvs_runtime_core::error::{Result, RuntimeError};
-use abvs_runtime_core::messages::FoveaFrame;
 use abvs_runtime_core::messages::Published;
+use abvs_runtime_core::messages::{DepthFrame, FoveaFrame};
 use abvs_runtime_core::session::{Session, SessionMeta};
 use abvs_runtime_core::sink::Sink;
 use abvs_runtime_core::stats::{DepthError, RunStats};
@@ -112,6 +115,12 @@ pub struct TruthSink {
     err: DepthError,
     /// The same over the points of confidence above [`HIGH_CONFIDENCE`], and the others (runs with one).
     by_confidence: Option<[DepthError; 2]>,
+    /// The same over every pixel of the map before the validity mask (runs whose engine masks its own
+    /// pixels: [`Published::dense_disparity`]), and the depth range that map is cut to (the depth stage's).
+    all_pixels: Option<DepthError>,
+    range: DepthConfig,
+    /// That map's depth and points (reused).
+    dense: DepthFrame,
     /// Frames published without a truth row for their seq (not scored).
     unscored: u64,
     /// The same errors by the eyes' speed ([`SPEED_BANDS_DEG_S`]).
@@ -222,6 +231,9 @@ impl TruthSink {
             stride: stride.max(1),
             err: DepthError::default(),
             by_confidence: None,
+            all_pixels: None,
+            range: DepthConfig::default(),
+            dense: DepthFrame::empty(),
             unscored: 0,
             by_speed: std::array::from_fn(|_| SpeedBand::new()),
             row_nodes: Vec::new(),
@@ -243,6 +255,9 @@ impl TruthSink {
             stride: stride.max(1),
             err: DepthError::default(),
             by_confidence: None,
+            all_pixels: None,
+            range: DepthConfig::default(),
+            dense: DepthFrame::empty(),
             unscored: 0,
             by_speed: std::array::from_fn(|_| SpeedBand::new()),
             row_nodes: Vec::new(),
@@ -263,6 +278,34 @@ impl TruthSink {
 }
 
 impl TruthSink {
+    /// Scores point `j` of `depth` (the published map's, or the map before the mask): the raw pixel the
+    /// pipeline took it from, where that pixel really looked (true pose at its row, ray into the true
+    /// scene), and the point against that surface point. Returns (its rectified pixel, |r_est - r_true| /
+    /// r_true, squared 3-D error in m^2), or `None` where the ray leaves the image or misses the scene.
+    fn score_point(
+        &self,
+        out: &Published,
+        depth: &DepthFrame,
+        j: usize,
+        frame_pose: &Pose,
+        rows: Option<&RowRotations>,
+    ) -> Option<(usize, f64, f64)> {
+        let w = out.cam.width as usize;
+        let cam_from_rect = out.rect.rect_from_left.transpose();
+        let i = depth.pixel[j] as usize;
+        let (u, v) = ((i % w) as f64, (i / w) as f64);
+        let raw = source_pixel(&self.camera, out.cam, &cam_from_rect, rows, u, v)?;
+        let dir = self.camera.unproject(&Vector2::new(raw.x, raw.y))?;
+        let true_pose = pose_at_row(frame_pose, &self.row_nodes, raw.y, self.camera.height);
+        let origin = Point3::from(true_pose.t);
+        let hit = self.scene.cast(&origin, &(true_pose.r * dir))?;
+        let p = depth.points[j];
+        let est = Vector3::new(p.x as f64, p.y as f64, p.z as f64);
+        let r_true = (hit.point - origin).norm();
+        let r_est = (est - origin.coords).norm();
+        Some((i, (r_est - r_true).abs() / r_true, (est - hit.point.coords).norm_squared()))
+    }
+
     /// Scores the fovea and the main map along the same rays: every `stride`-th window pixel's ray, where the
     /// truth's surface is hit; the fovea's point at its depth, the main map's at the depth of its nearest
     /// pixel along the same ray (the main map upsampled to the fovea, nearest neighbour). Valid fractions are
@@ -360,6 +403,10 @@ impl Sink for TruthSink {
         "truth"
     }
 
+    fn wants_dense_disparity(&self) -> bool {
+        true
+    }
+
     fn consume(&mut self, out: &Published) -> Result<()> {
         if let Some(feed) = &self.feed {
             self.poses.clear();
@@ -375,7 +422,6 @@ impl Sink for TruthSink {
         // the nodes' rotations as quaternions once per frame, not per scored point (from_matrix iterates)
         self.row_nodes.clear();
         self.row_nodes.extend(self.poses[k].2.iter().map(|p| (UnitQuaternion::from_matrix(&p.r), p.t)));
-        let row_nodes = &self.row_nodes;
         let band = &mut self.by_speed[speed_band(out.motion.max_speed_deg_s())];
         if out.motion.gated {
             // invalid on purpose: counted by speed, not scored
@@ -383,28 +429,17 @@ impl Sink for TruthSink {
             return Ok(());
         }
         band.frames += 1;
-        let w = out.cam.width as usize;
-        let cam_from_rect = out.rect.rect_from_left.transpose();
         let band_rot = &out.motion.band_rot[0];
         let rows = (!band_rot.is_empty()).then_some(RowRotations { nodes: band_rot, rows: self.camera.height });
         self.err.pixels += (out.depth.depth.len() / self.stride) as u64;
         for j in (0..out.depth.n_points).step_by(self.stride) {
-            let i = out.depth.pixel[j] as usize;
-            let (u, v) = ((i % w) as f64, (i / w) as f64);
-            // the raw pixel the pipeline took this point from, and where that pixel really looked
-            let Some(raw) = source_pixel(&self.camera, out.cam, &cam_from_rect, rows.as_ref(), u, v) else { continue };
-            let Some(dir) = self.camera.unproject(&Vector2::new(raw.x, raw.y)) else { continue };
-            let true_pose = pose_at_row(&frame_pose, row_nodes, raw.y, self.camera.height);
-            let origin = Point3::from(true_pose.t);
-            let Some(hit) = self.scene.cast(&origin, &(true_pose.r * dir)) else { continue };
-            let p = out.depth.points[j];
-            let est = Vector3::new(p.x as f64, p.y as f64, p.z as f64);
-            let r_true = (hit.point - origin).norm();
-            let r_est = (est - origin.coords).norm();
-            let (abs_rel, sq) = ((r_est - r_true).abs() / r_true, (est - hit.point.coords).norm_squared());
+            let Some((i, abs_rel, sq)) = self.score_point(out, out.depth, j, &frame_pose, rows.as_ref()) else {
+                continue;
+            };
             self.err.abs_rel_sum += abs_rel;
             self.err.sq_sum += sq;
             self.err.points += 1;
+            let band = &mut self.by_speed[speed_band(out.motion.max_speed_deg_s())];
             band.abs_rel_sum += abs_rel;
             band.points += 1;
             band.add_distance(sq.sqrt() * 1e3);
@@ -415,6 +450,35 @@ impl Sink for TruthSink {
                 e.sq_sum += sq;
                 e.points += 1;
             }
+        }
+        if let Some(dense) = out.dense_disparity {
+            // the map before the validity mask, made into depth as the depth stage does, scored the same way
+            let mut d = std::mem::replace(&mut self.dense, DepthFrame::empty());
+            if d.depth.len() != dense.len() {
+                d = DepthFrame::new(out.cam.width, out.cam.height);
+            }
+            let (rect, rel) = (out.rect, &out.pose.rel_left);
+            abvs_runtime::tasks::depth::compute(
+                &mut d,
+                dense,
+                |_| true,
+                out.left_rect,
+                out.cam,
+                rect,
+                rel,
+                &self.range,
+            );
+            let all = self.all_pixels.get_or_insert_with(DepthError::default);
+            all.pixels += (d.depth.len() / self.stride) as u64;
+            for j in (0..d.n_points).step_by(self.stride) {
+                if let Some((_, abs_rel, sq)) = self.score_point(out, &d, j, &frame_pose, rows.as_ref()) {
+                    let all = self.all_pixels.get_or_insert_with(DepthError::default);
+                    all.abs_rel_sum += abs_rel;
+                    all.sq_sum += sq;
+                    all.points += 1;
+                }
+            }
+            self.dense = d;
         }
         if let Some(f) = out.fovea {
             self.score_fovea(out, f, &frame_pose, rows.as_ref());
@@ -438,6 +502,10 @@ impl Sink for TruthSink {
                 "depth_error_by_confidence".into(),
                 serde_json::json!({ "threshold": HIGH_CONFIDENCE, "above": part(hi), "at_most": part(lo) }),
             );
+        }
+        if let Some(all) = &self.all_pixels {
+            // the map before the validity mask: what the mask removed, scored (valid_fraction over every pixel)
+            stats.extra.insert("depth_error_all_pixels".into(), all.json());
         }
         stats.extra.insert("truth_frames_unscored".into(), serde_json::json!(self.unscored));
         if let Some(f) = &self.fovea {

@@ -44,6 +44,8 @@ pub struct PublishedCopy {
     disparity: Vec<f32>,
     confidence: Vec<f32>,
     has_confidence: bool,
+    dense_disparity: Vec<f32>,
+    has_dense: bool,
     motion: FrameMotion,
     /// The fovea's buffers (when the run has one) and whether this frame carries it.
     fovea: Option<Box<FoveaFrame>>,
@@ -103,6 +105,8 @@ impl PublishedCopy {
             disparity: resident(out.disparity.len()),
             confidence: resident(out.confidence.map_or(0, <[f32]>::len)),
             has_confidence: false,
+            dense_disparity: resident(out.dense_disparity.map_or(0, <[f32]>::len)),
+            has_dense: false,
             motion: FrameMotion::new(),
             fovea: out.fovea.map(|f| Box::new(resident_fovea(f.cam.width, f.cam.height))),
             has_fovea: false,
@@ -127,6 +131,8 @@ impl PublishedCopy {
         copy_into(&mut self.disparity, out.disparity);
         self.has_confidence = out.confidence.is_some();
         copy_into(&mut self.confidence, out.confidence.unwrap_or_default());
+        self.has_dense = out.dense_disparity.is_some();
+        copy_into(&mut self.dense_disparity, out.dense_disparity.unwrap_or_default());
         self.motion.copy_from(out.motion);
         self.has_fovea = false;
         if let (Some(dst), Some(src)) = (self.fovea.as_deref_mut(), out.fovea) {
@@ -152,6 +158,7 @@ impl PublishedCopy {
             right_rect: &self.right_rect,
             disparity: &self.disparity,
             confidence: self.has_confidence.then_some(&self.confidence[..]),
+            dense_disparity: self.has_dense.then_some(&self.dense_disparity[..]),
             motion: &self.motion,
             fovea: self.fovea.as_deref().filter(|_| self.has_fovea),
         }
@@ -209,6 +216,8 @@ pub struct SideLane<S: Sink + 'static> {
     /// Whether the pool has been made.
     made: bool,
     slots: usize,
+    /// The inner sink's [`Sink::wants_dense_disparity`] (the sink itself lives on the worker).
+    wants_dense: bool,
     st: SideLaneStats,
     worker: Option<JoinHandle<Done<S>>>,
 }
@@ -231,7 +240,7 @@ impl<S: Sink + 'static> SideLane<S> {
     /// `sink` on its own thread with `slots` copies in flight at most; `blocking`: wait for a free copy
     /// instead of skipping a frame (lossless runs).
     pub fn new(sink: S, slots: usize, blocking: bool) -> Result<Self> {
-        let name = sink.name();
+        let (name, wants_dense) = (sink.name(), sink.wants_dense_disparity());
         if slots == 0 || slots > 256 {
             return Err(RuntimeError::Invalid(format!("{name} side lane: {slots} copies, expected 1..=256")));
         }
@@ -268,6 +277,7 @@ impl<S: Sink + 'static> SideLane<S> {
             unused: Vec::new(),
             made: false,
             slots,
+            wants_dense,
             st: SideLaneStats::default(),
             worker: Some(worker),
         })
@@ -281,6 +291,10 @@ impl<S: Sink + 'static> SideLane<S> {
 impl<S: Sink + 'static> Sink for SideLane<S> {
     fn name(&self) -> &'static str {
         self.name
+    }
+
+    fn wants_dense_disparity(&self) -> bool {
+        self.wants_dense
     }
 
     fn consume(&mut self, out: &Published) -> Result<()> {
@@ -395,6 +409,7 @@ mod tests {
             right_rect: &img,
             disparity: &disp,
             confidence: None,
+            dense_disparity: None,
             motion: &motion,
             fovea: None,
         };

@@ -41,18 +41,19 @@ pub struct DisparityStage {
     pub engine: Box<dyn DisparityEngine>,
     check: Option<LrCheck>,
     min_confidence: f32,
+    keep_dense: bool,
 }
 
 impl DisparityStage {
     /// The stage with an engine, no left-right check and no mask.
     pub fn new(engine: Box<dyn DisparityEngine>) -> Self {
-        DisparityStage { engine, check: None, min_confidence: 0.0 }
+        DisparityStage { engine, check: None, min_confidence: 0.0, keep_dense: false }
     }
 
     /// The stage with the left-right check `cfg` (none when `cfg` enables nothing) and no mask.
     pub fn with_check(engine: Box<dyn DisparityEngine>, cfg: CheckConfig) -> Result<Self> {
         let check = if cfg.enabled() { Some(LrCheck::new(cfg).map_err(runtime_error)?) } else { None };
-        Ok(DisparityStage { engine, check, min_confidence: 0.0 })
+        Ok(DisparityStage { engine, check, min_confidence: 0.0, keep_dense: false })
     }
 
     /// The validity mask's threshold in [0, 1] (refused outside it).
@@ -62,6 +63,13 @@ impl DisparityStage {
         }
         self.min_confidence = c;
         Ok(self)
+    }
+
+    /// Keeps the disparity before the mask in [`Work::dense_disparity`] (when the engine scores its pixels):
+    /// for a sink that scores what the mask removed.
+    pub fn with_dense_kept(mut self, keep: bool) -> Self {
+        self.keep_dense = keep;
+        self
     }
 }
 
@@ -100,6 +108,9 @@ impl Stage for DisparityStage {
         }
         if self.engine.confidence().is_some() {
             w.reason = vec![0; w.disparity.len()];
+            if self.keep_dense {
+                w.dense_disparity = vec![f32::NAN; w.disparity.len()];
+            }
         }
     }
 
@@ -107,13 +118,19 @@ impl Stage for DisparityStage {
         if w.motion.gated {
             // the motion gate: too blurred to match, so not matched (saves the engine's time during saccades)
             w.disparity.fill(f32::NAN);
+            w.dense_disparity.fill(f32::NAN);
             w.confidence.fill(0.0);
             w.reason.fill(reason::NO_ESTIMATE);
             return Ok(());
         }
-        let Work { rectified, disparity, confidence, reason, .. } = w;
+        let Work { rectified, disparity, confidence, reason, dense_disparity, .. } = w;
         self.engine.compute(&rectified.left, &rectified.right, disparity).map_err(runtime_error)?;
         if let Some((conf, why)) = self.engine.confidence() {
+            if dense_disparity.len() == disparity.len() {
+                for ((d, &e), &v) in dense_disparity.iter_mut().zip(disparity.iter()).zip(&rectified.valid) {
+                    *d = if v == 0 { f32::NAN } else { e };
+                }
+            }
             own_mask(conf, why, &rectified.valid, self.min_confidence, disparity, confidence, reason)?;
         }
         if let Some(c) = &mut self.check {
