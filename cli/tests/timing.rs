@@ -146,3 +146,41 @@ fn a_session_with_neither_effect_names_neither() {
     let (o, so) = value(&t, "encoder_time_offset_ms");
     assert!(o.abs() <= 3.0 * so.max(0.1), "{t:#}");
 }
+
+/// The shipped fixture (50 frames, true offsets 3.58 / 3.40 ms, readout 30 ms) with its true home stereo
+/// calibration in place of the measured one (session.toml's `stereo`, truth/stereo.yaml for calib/stereo.yaml;
+/// the same images, the calibrated FK): from zero timing the rounds reach the true offsets within 0.3 ms and
+/// the readout within 3 ms at both resolutions. With the measured calibration they stop near 2.7 ms
+/// (docs/self-check.md): the calibration, not the timing model, holds them back
+/// (`cargo test -p abvs-selfcheck --test timing_reprojection`).
+#[test]
+fn the_fixture_with_its_true_stereo_calibration_converges_from_zero_timing() {
+    let tmp = tempfile::tempdir().unwrap();
+    let s = tmp.path().join("fixture");
+    let fixture = Path::new(env!("CARGO_MANIFEST_DIR")).join("../fixtures/session");
+    assert!(Command::new("cp").arg("-r").arg(fixture).arg(&s).status().unwrap().success());
+    let meta = std::fs::read_to_string(s.join("session.toml")).unwrap();
+    let (from, to) = ("stereo = \"calib/stereo.yaml\"", "stereo = \"truth/stereo.yaml\"");
+    assert_eq!(meta.matches(from).count(), 1, "{meta}");
+    std::fs::write(s.join("session.toml"), meta.replace(from, to)).unwrap();
+    let (offsets, readout) = ([3.5827, 3.4047], 30.0);
+    for res in ["320x240", "640x480"] {
+        let log = tmp.path().join(format!("zero_{res}.csv"));
+        ok(abvs()
+            .args(["run", "--quiet", "--no-publish", "--lossless", "--engine", "sgbm", "--truth-stride", "0"])
+            .args(["--self-check-every", "1", "--resolution", res, "--time-offset-ms", "0", "--readout-ms", "0"])
+            .arg("--session")
+            .arg(&s)
+            .arg("--self-check-log")
+            .arg(&log)
+            .output()
+            .unwrap());
+        let (t, stdout) = estimate(&log, &tmp.path().join(format!("e_{res}")), &["--rounds", "3"]);
+        for (k, eye) in ["left", "right"].into_iter().enumerate() {
+            let o = t["encoder_time_offset_ms"][eye]["value"].as_f64().unwrap();
+            assert!((o - offsets[k]).abs() <= 0.3, "{res}: {eye} offset {o} vs {}: {t:#}\n{stdout}", offsets[k]);
+        }
+        let (r, _) = value(&t, "readout_ms");
+        assert!((r - readout).abs() <= 3.0, "{res}: readout {r} vs {readout}: {t:#}\n{stdout}");
+    }
+}
