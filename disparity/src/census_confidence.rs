@@ -86,6 +86,12 @@ impl Scorer {
         self.ln1p[((v * LN_STEPS + 0.5) as usize).min(self.ln1p.len() - 1)]
     }
 
+    /// The 5x5 box sum of the gradient at column `x` over rows `ys` (only for a doubtful pixel's reason).
+    #[inline(always)]
+    fn texture(&self, ys: &[usize; 5], x: usize) -> usize {
+        ys.iter().map(|&yy| self.rows[yy * self.w + x] as usize).sum()
+    }
+
     /// Confidence and reason of each pixel of `refined` (this scorer's size): `img` the left image searched,
     /// `stat` the search's outcome bytes, `net` the network's own answer, `prior` SGBM's accepted matches
     /// (NaN where rejected) when the engine has them.
@@ -125,7 +131,6 @@ impl Scorer {
                     (conf[i], why[i]) = (0.0, reason::OUTSIDE_RIGHT);
                     continue;
                 }
-                let tex: usize = ys.iter().map(|&yy| self.rows[yy * w + x] as usize).sum();
                 let s = stat[i];
                 let agree = (d - net[i]).abs();
                 let agree = if agree.is_finite() { agree.min(20.0) } else { 20.0 };
@@ -152,7 +157,7 @@ impl Scorer {
                 let m = (s & !AT_EDGE) as f32 / MARGIN_ONE as f32;
                 why[i] = if beyond {
                     reason::OUT_OF_RANGE
-                } else if m < MARGIN_LOW && (tex as f32) < 25.0 * TEXTURE_LOW {
+                } else if m < MARGIN_LOW && (self.texture(&ys, x) as f32) < 25.0 * TEXTURE_LOW {
                     reason::LOW_TEXTURE
                 } else if m < MARGIN_LOW {
                     reason::AMBIGUOUS

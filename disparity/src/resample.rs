@@ -51,11 +51,27 @@ pub fn upsample_disparity(src: &[f32], (sw, sh): (usize, usize), dst: &mut [f32]
 
 /// Nearest-neighbour resample of a `(sw, sh)` map into `(dw, dh)`.
 pub fn nearest<T: Copy>(src: &[T], (sw, sh): (usize, usize), dst: &mut [T], (dw, dh): (usize, usize)) {
-    for (y, row) in dst.chunks_exact_mut(dw).enumerate().take(dh) {
+    // no division per pixel (it cost more than the confidence's scoring, issue 41): x sw / dw stepped by
+    // its quotient and remainder, and a row that repeats the source row above is a copy of the one above
+    let mut prev_sy = usize::MAX;
+    for y in 0..dh.min(dst.len() / dw.max(1)) {
         let sy = (y * sh / dh).min(sh - 1);
+        let (done, rest) = dst.split_at_mut(y * dw);
+        let row = &mut rest[..dw];
+        if sy == prev_sy {
+            row.copy_from_slice(&done[(y - 1) * dw..]);
+            continue;
+        }
+        prev_sy = sy;
         let s = &src[sy * sw..(sy + 1) * sw];
-        for (x, o) in row.iter_mut().enumerate() {
-            *o = s[(x * sw / dw).min(sw - 1)];
+        let (mut q, mut r) = (0usize, 0usize);
+        for o in row.iter_mut() {
+            *o = s[q.min(sw - 1)];
+            r += sw;
+            while r >= dw {
+                r -= dw;
+                q += 1;
+            }
         }
     }
 }
@@ -87,6 +103,22 @@ pub fn resize_mat(m: &Mat, w: i32, h: i32) -> Result<Vec<u8>> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The stepped `nearest` picks what x sw / dw, y sh / dh pick, up and down, integer factor or not.
+    #[test]
+    fn nearest_picks_the_divided_index() {
+        for (sw, sh, dw, dh) in [(320, 240, 640, 480), (7, 5, 16, 11), (16, 11, 7, 5), (3, 3, 3, 3), (5, 2, 13, 9)] {
+            let src: Vec<u32> = (0..sw * sh).map(|i| i as u32).collect();
+            let mut dst = vec![0u32; dw * dh];
+            nearest(&src, (sw, sh), &mut dst, (dw, dh));
+            for y in 0..dh {
+                for x in 0..dw {
+                    let want = (y * sh / dh).min(sh - 1) * sw + (x * sw / dw).min(sw - 1);
+                    assert_eq!(dst[y * dw + x], want as u32, "{sw}x{sh} -> {dw}x{dh} at ({x}, {y})");
+                }
+            }
+        }
+    }
 
     #[test]
     fn upsampling_scales_values_and_never_blends_invalid() {
