@@ -3,8 +3,7 @@
 //! (`abvs_selfcheck::attribution`), and the eyes' timing (`abvs_selfcheck::rounds`, the section of
 //! `self_check_timing`): `error_by_frame.png` (the three components per frame), `error_over_gaze.png` (mean
 //! |error| over each eye's yaw x pitch, side by side), `report.md` and `summary.json`.
-use std::path::PathBuf;
-use std::process::ExitCode;
+use std::{path::PathBuf, process::ExitCode};
 
 use abvs_plot::{side_by_side, xy_plot, Reduce, Series, SeriesStyle, XyPlot};
 use abvs_selfcheck::attribution::{attribute, Attribution};
@@ -100,7 +99,7 @@ pub fn run(a: SelfCheckArgs) -> anyhow::Result<ExitCode> {
         "error_noise_deg": noise,
         "error_norm_deg": { "p50": p50, "p95": p95, "max": max },
         "explained_by_fk": { "left": r2_left, "right": r2_right, "both": r2_both },
-        "eye_test": eye_test.map(|t| serde_json::json!({ "fixations": t.fixations, "f": t.f_stat, "p_left_alone": t.p_value[0], "p_right_alone": t.p_value[1] })),
+        "eye_test": eye_test.map(|t| t.json()),
         "gaze_correlation": { "yaw": gaze_corr[0], "pitch": gaze_corr[1] },
         "worst_fixation": {
             "from_seq": worst.from_seq,

@@ -15,7 +15,7 @@ use std::collections::BTreeMap;
 use std::path::Path;
 
 use crate::error::{Result, SelfCheckError};
-use crate::eye_fit::{eye_test, EyeTest, P_REJECT};
+use crate::eye_fit::{eye_test, EyeTest, LR_NAME, P_REJECT};
 use abvs_eye::{Fick, UnitModel};
 use abvs_runtime::sinks::self_check::log_record::{read_log, FrameRecord};
 
@@ -89,8 +89,8 @@ pub enum Verdict {
         eye: Eye,
         /// Held-out fractions explained, [left, right].
         explained: [f64; 2],
-        /// p-values of each eye's model alone against both eyes' ([`EyeTest::p_value`]).
-        p_value: [f64; 2],
+        /// Twice the log-likelihood ratio of its model to the other eye's ([`EyeTest::lr_chi2`], made positive).
+        lr_chi2: f64,
     },
     /// Either eye's model explains it: the poses do not tell the eyes apart (their link angles moved
     /// together).
@@ -142,19 +142,19 @@ impl std::fmt::Display for Verdict {
                 "varies with the pose, but the log has too few fixations to tell which eye it follows (at least \
                  {MIN_FIXATIONS_TO_NAME}): {RECORD_ADVICE}"
             ),
-            Verdict::Eye { eye, explained, p_value } => {
+            Verdict::Eye { eye, explained, lr_chi2 } => {
                 let (i, j, other) = match eye {
                     Eye::Left => (0, 1, "right"),
                     Eye::Right => (1, 0, "left"),
                 };
                 write!(
                     f,
-                    "the {} eye's model (its FK explains {:.0} % of the varying error, the {other}'s {:.0} %; the \
-                     {other} eye's alone is rejected, p = {:.0e})",
+                    "the {} eye's model (its FK explains {:.0} % of the varying error, the {other}'s {:.0} %; it fits \
+                     the fixations 10^{:.0} times likelier)",
                     eye.name(),
                     pc(explained[i]),
                     pc(explained[j]),
-                    p_value[j]
+                    0.5 * lr_chi2 / std::f64::consts::LN_10
                 )
             }
             Verdict::EitherEye { explained, gaze_correlation } => write!(
@@ -187,11 +187,11 @@ impl std::fmt::Display for Verdict {
 
 /// The verdict from the error's varying part (its spread beyond the measurement's own scatter, deg), its
 /// constant part (deg), the eyes' models compared (None: too few fixations) and the correlation of the eyes'
-/// gazes. An eye is named when the other eye's model alone is rejected (p < [`P_REJECT`]), its own is not,
-/// and it explains most of the varying error (over half, held out); "either eye" when neither is rejected
-/// and both explain most of it; "both eyes" when both are rejected and together they explain most of it. A
-/// fraction at or below one half, a negative one included, supports nothing: the verdict then says it
-/// cannot tell.
+/// gazes. An eye is named when its model fits closer than the other's, [`LR_NAME`] times likelier,
+/// explains most of the varying error (over half, held out) and nearly all that both eyes' models do; "both
+/// eyes" when each eye's model alone is rejected and both together explain clearly more; "either eye" when
+/// each explains most of it and neither fits closer. A fraction at or below one half, a negative one
+/// included, supports nothing: the verdict then says it cannot tell.
 pub fn verdict(varying: f64, constant: f64, test: Option<&EyeTest>, gaze_corr: [f64; 2]) -> Verdict {
     if varying < 0.02 && constant < 0.02 {
         return Verdict::NoError;
@@ -202,21 +202,26 @@ pub fn verdict(varying: f64, constant: f64, test: Option<&EyeTest>, gaze_corr: [
         return Verdict::TooFewFixations;
     };
     let [el, er, eb] = t.explained;
-    let [rej_l, rej_r] = t.p_value.map(|p| p < P_REJECT);
     let explained = [el, er];
     let most = |x: f64| x > 0.5;
-    if rej_l && !rej_r && most(er) {
-        Verdict::Eye { eye: Eye::Right, explained, p_value: t.p_value }
-    } else if rej_r && !rej_l && most(el) {
-        Verdict::Eye { eye: Eye::Left, explained, p_value: t.p_value }
-    } else if !rej_l && !rej_r && most(el) && most(er) {
-        Verdict::EitherEye { explained, gaze_correlation: gaze_corr }
-    } else if rej_l && rej_r && most(eb) {
-        Verdict::BothEyes { explained: t.explained }
-    } else {
-        Verdict::CannotTell { explained }
+    // the eye whose model fits closer, significantly, explains most of the error and nearly all that both
+    // eyes' models together do
+    let closer = (t.lr_chi2.abs() > 2.0 * LR_NAME.ln()).then_some(if t.lr_chi2 > 0.0 { Eye::Right } else { Eye::Left });
+    let alone = |x: f64| most(x) && x >= eb - BOTH_MARGIN;
+    match closer {
+        Some(Eye::Right) if alone(er) => Verdict::Eye { eye: Eye::Right, explained, lr_chi2: t.lr_chi2.abs() },
+        Some(Eye::Left) if alone(el) => Verdict::Eye { eye: Eye::Left, explained, lr_chi2: t.lr_chi2.abs() },
+        _ if t.p_value.iter().all(|p| *p < P_REJECT) && most(eb) && eb > el.max(er) + BOTH_MARGIN => {
+            Verdict::BothEyes { explained: t.explained }
+        }
+        _ if most(el) && most(er) => Verdict::EitherEye { explained, gaze_correlation: gaze_corr },
+        _ => Verdict::CannotTell { explained },
     }
 }
+
+/// How much more of the varying error (held out) both eyes' models must explain than the better one alone
+/// for "both eyes"; an eye is named only when its model alone comes this close to both.
+const BOTH_MARGIN: f64 = 0.1;
 
 /// The fixation where the error is largest.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -374,8 +379,9 @@ fn correlation(a: &[f64], b: &[f64]) -> f64 {
 mod tests {
     use super::*;
 
-    fn t(explained: [f64; 3], p_value: [f64; 2]) -> EyeTest {
-        EyeTest { fixations: 30, explained, f_stat: [0.0; 2], p_value }
+    /// A test result: p-values of each eye alone, and `lr_chi2` (over 0 favours the right eye).
+    fn t(explained: [f64; 3], p_value: [f64; 2], lr_chi2: f64) -> EyeTest {
+        EyeTest { fixations: 30, explained, f_stat: [0.0; 2], p_value, lr_chi2 }
     }
 
     #[test]
@@ -384,8 +390,8 @@ mod tests {
         // the fractions the issue saw on the fixture and on rendered sessions: no eye is named, no "explains it",
         // whatever the tests say
         for r2 in [[-0.62, -0.72], [-0.11, -0.09], [-0.18, -0.21], [0.3, -0.5], [0.45, 0.4]] {
-            for p in [[1e-6, 0.5], [0.5, 1e-6], [0.5, 0.5]] {
-                let v = verdict(0.1, 0.01, Some(&t([r2[0], r2[1], 0.4], p)), corr);
+            for (p, lr) in [([1e-6, 0.5], 30.0), ([0.5, 1e-6], -30.0), ([0.5, 0.5], 0.0)] {
+                let v = verdict(0.1, 0.01, Some(&t([r2[0], r2[1], 0.4], p, lr)), corr);
                 assert_eq!(v, Verdict::CannotTell { explained: r2 });
                 let s = v.to_string();
                 assert!(s.contains("cannot tell"), "{r2:?}: {s}");
@@ -393,22 +399,24 @@ mod tests {
             }
         }
         // fractions and tests that support a verdict still give it
-        let left = verdict(0.1, 0.01, Some(&t([0.9, 0.2, 0.9], [0.3, 1e-5])), corr);
+        let left = verdict(0.1, 0.01, Some(&t([0.9, 0.2, 0.9], [0.3, 1e-5], -30.0)), corr);
         assert_eq!(left.eye(), Some(Eye::Left));
         assert!(left.to_string().starts_with("the left eye's model (its FK explains 90 %"), "{left}");
-        let right = verdict(0.1, 0.01, Some(&t([-0.3, 0.8, 0.8], [1e-5, 0.3])), corr);
+        assert!(left.to_string().contains("10^7 times likelier"), "{left}");
+        let right = verdict(0.1, 0.01, Some(&t([-0.3, 0.8, 0.8], [1e-5, 0.3], 30.0)), corr);
         assert_eq!(right.eye(), Some(Eye::Right));
         assert!(right.to_string().contains("the left's -30 %"), "{right}");
-        // a good fit of the one eye names nothing unless the other's alone is rejected
-        let either = verdict(0.1, 0.01, Some(&t([0.8, 0.75, 0.8], [0.3, 0.2])), corr).to_string();
+        // a good fit of the one eye names nothing unless it fits closer than the other's, 1000 times likelier
+        let either = verdict(0.1, 0.01, Some(&t([0.8, 0.75, 0.8], [0.3, 0.2], 10.0)), corr).to_string();
         assert!(either.contains("either eye's model explains it") && either.contains("near and far"), "{either}");
-        assert!(verdict(0.1, 0.01, Some(&t([0.8, 0.75, 0.9], [1e-5, 1e-4])), corr)
-            .to_string()
-            .starts_with("both eyes"));
-        let few = verdict(0.1, 0.01, Some(&EyeTest { fixations: 14, ..t([0.9, 0.2, 0.9], [0.3, 1e-5]) }), corr);
+        let both = verdict(0.1, 0.01, Some(&t([0.6, 0.65, 0.9], [1e-5, 1e-4], 10.0)), corr);
+        assert!(both.to_string().starts_with("both eyes"), "{both}");
+        // nor when it fits closer but both eyes' models together explain clearly more
+        assert_eq!(verdict(0.1, 0.01, Some(&t([0.6, 0.75, 0.9], [1e-5, 1e-4], 30.0)), corr).eye(), None);
+        let few = verdict(0.1, 0.01, Some(&EyeTest { fixations: 14, ..t([0.9, 0.2, 0.9], [0.3, 1e-5], -30.0) }), corr);
         assert_eq!(few, Verdict::TooFewFixations);
         assert_eq!(verdict(0.1, 0.01, None, corr), Verdict::TooFewFixations);
-        assert_eq!(verdict(0.01, 0.01, Some(&t([-0.6, -0.7, -0.5], [1e-6, 1e-6])), corr), Verdict::NoError);
+        assert_eq!(verdict(0.01, 0.01, Some(&t([-0.6, -0.7, -0.5], [1e-6, 1e-6], 30.0)), corr), Verdict::NoError);
         assert!(verdict(0.01, 0.01, None, corr).to_string().starts_with("no significant error"));
     }
 }
