@@ -64,7 +64,6 @@ pub fn run(a: SelfCheckArgs) -> anyhow::Result<ExitCode> {
     } = attribute(&a.log)?;
     std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
     let norm = |v: &[f64]| v.iter().map(|x| x * x).sum::<f64>().sqrt();
-    // figures
     let series = |c: usize, label: &'static str| Series {
         label,
         points: rows.iter().map(|r| (r.seq as f64, r.err[c])).collect(),
