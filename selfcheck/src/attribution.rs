@@ -15,7 +15,7 @@ use std::collections::BTreeMap;
 use std::path::Path;
 
 use crate::error::{Result, SelfCheckError};
-use crate::eye_fit::{eye_test, EyeTest, LR_NAME, P_REJECT};
+use crate::eye_fit::{eye_test, EyeTest, FixationMean, LR_NAME, P_REJECT};
 use abvs_eye::{Fick, UnitModel};
 use abvs_runtime::sinks::self_check::log_record::{read_log, FrameRecord};
 
@@ -325,7 +325,15 @@ pub fn attribute_rows(rows: Vec<GazeRow>) -> Attribution {
     let dof = rows.len().saturating_sub(nfix);
     let noise: [f64; 3] = std::array::from_fn(|c| if dof >= 3 { (within[c] / dof as f64).sqrt() } else { 0.0 });
     let varying = (norm(&spread).powi(2) - norm(&noise).powi(2)).max(0.0).sqrt();
-    let test = eye_test(&rows, &groups, noise);
+    let means: Vec<FixationMean> = fix_mean
+        .iter()
+        .map(|(g, (sum, k))| FixationMean {
+            err: sum.map(|x| x / *k as f64),
+            frames: *k,
+            theta: rows[groups.iter().position(|x| x == g).expect("a row per fixation")].theta,
+        })
+        .collect();
+    let test = eye_test(&means, noise);
     let explained = test.map_or([f64::NAN; 3], |t| t.explained);
     let verdict = verdict(varying, norm(&mean), test.as_ref(), gaze_corr);
     Attribution {

@@ -22,7 +22,6 @@ use abvs_eye::unit::{Conditions, UnitFk};
 use abvs_eye::UnitModel;
 use nalgebra::{DMatrix, DVector};
 
-use crate::attribution::GazeRow;
 use crate::f_test::f_upper_tail;
 
 /// p-value below which an eye's model alone is rejected against both eyes'.
@@ -115,24 +114,27 @@ fn fit(x: &DMatrix<f64>, y: &DVector<f64>, cols: &[usize]) -> (DVector<f64>, usi
     (resid, rank, press)
 }
 
-/// Compares the eyes' models on the fixations (`groups`: each row's fixation, 0-based and consecutive) of
-/// `rows`; `noise` is the measurement's scatter within a fixation per component (deg). None with fewer than
-/// 6 fixations the nominal FK gives a pose for.
-pub fn eye_test(rows: &[GazeRow], groups: &[usize], noise: [f64; 3]) -> Option<EyeTest> {
+/// One fixation: its frames' mean error (deg, left home frame), how many frames, and both eyes' link angles
+/// (deg).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FixationMean {
+    /// Mean rotation error of its frames (deg).
+    pub err: [f64; 3],
+    /// Its frames.
+    pub frames: usize,
+    /// Both eyes' link angles (deg), [left, right].
+    pub theta: [[f64; 3]; 2],
+}
+
+/// Compares the eyes' models on the fixations; `noise` is the measurement's scatter within a fixation per
+/// component (deg). None with fewer than 6 fixations the nominal FK gives a pose for.
+pub fn eye_test(fixations: &[FixationMean], noise: [f64; 3]) -> Option<EyeTest> {
     let fk = UnitModel::nominal().compile().ok()?;
-    let nfix_all = groups.iter().max().map_or(0, |g| g + 1);
     // each fixation: its mean error, frames, and both eyes' sensitivity at its link angles
-    let mut fix: Vec<([f64; 3], usize, [[[f64; 3]; 6]; 2])> = Vec::new();
-    for g in 0..nfix_all {
-        let members: Vec<&GazeRow> = rows.iter().zip(groups).filter(|(_, gg)| **gg == g).map(|(r, _)| r).collect();
-        let Some(first) = members.first() else { continue };
-        let (Some(sl), Some(sr)) = (sensitivity(&fk, &first.theta[0]), sensitivity(&fk, &first.theta[1])) else {
-            continue;
-        };
-        let n = members.len();
-        let mean = std::array::from_fn(|c| members.iter().map(|r| r.err[c]).sum::<f64>() / n as f64);
-        fix.push((mean, n, [sl, sr]));
-    }
+    let fix: Vec<([f64; 3], usize, [[[f64; 3]; 6]; 2])> = fixations
+        .iter()
+        .filter_map(|m| Some((m.err, m.frames, [sensitivity(&fk, &m.theta[0])?, sensitivity(&fk, &m.theta[1])?])))
+        .collect();
     let nfix = fix.len();
     if nfix < 6 {
         return None;
