@@ -1,16 +1,17 @@
 #!/bin/bash
-# Renders a session (seed $1, 320x240, ${FRAMES:-40} frames) and runs the self-check three times: with both eyes'
-# FK set to their true units (none), and with the left or the right eye's unit given +1 % encoder scale (an
-# error injected into one eye's calibration); prints each verdict (docs/self-check.md, issue 37).
+# Renders a session (seed $1, 320x240, ${FRAMES:-40} frames at ${FPS:-25} fps, fixations at ${FIXATION_M:-0.55..1.3} m)
+# and runs the self-check on it: with both eyes' FK set to their true units (none), and with the left or the right
+# eye's unit given +1 % encoder scale (an error injected into one eye's calibration); prints each verdict
+# (docs/self-check.md, issue 37). EYES="none left right" by default: which runs.
 # Usage: scripts/self_check_wrong_eye.sh SEED [OUTDIR]; ABVS=target/debug/abvs by default.
 set -euo pipefail
 B=${ABVS:-target/debug/abvs}
 PY=${PY:-.deps/python/bin/python}
-S=$1; O=${2:-/tmp/wrong_eye}; F=${FRAMES:-40}; D=$O/s$S-$F
+S=$1; O=${2:-/tmp/wrong_eye}; F=${FRAMES:-40}; FPS=${FPS:-25}; FM=${FIXATION_M:-0.55..1.3}; D=$O/s$S-$F-$FPS-$FM
 mkdir -p "$O"
 [ -d "$D" ] || nice -n 19 "$B" sim session --out "$D" --seed "$S" --frames "$F" --width 320 --height 240 \
-  --fk-method mh --pursuit-deg-s 30 > /dev/null
-for v in none left right; do
+  --fk-method mh --pursuit-deg-s 30 --fps "$FPS" --fixation-m "$FM" > /dev/null
+for v in ${EYES:-none left right}; do
   C=$D-$v; rm -rf "$C"; cp -r "$D" "$C"
   for e in 0 1; do
     W=0; { [ $v = left ] && [ $e = 0 ]; } && W=1; { [ $v = right ] && [ $e = 1 ]; } && W=1
@@ -30,5 +31,6 @@ PY
   done
   nice -n 19 "$B" run --session "$C" --resolution 320x240 --no-publish --engine sgbm --lossless --truth-stride 0 \
     --self-check-every 1 --self-check-log "$C.csv" > "$C.run.out" 2>&1
-  nice -n 19 "$B" calib self-check --log "$C.csv" --out "$C.report" --rounds 0 2>&1 | head -1 | sed "s/^/seed $S $v: /"
+  nice -n 19 "$B" calib self-check --log "$C.csv" --out "$C.report" --rounds 0 > "$C.check.out" 2>&1
+  head -1 "$C.check.out" | sed "s/^/seed $S $v: /"
 done

@@ -3,8 +3,7 @@
 //! (`abvs_selfcheck::attribution`), and the eyes' timing (`abvs_selfcheck::rounds`, the section of
 //! `self_check_timing`): `error_by_frame.png` (the three components per frame), `error_over_gaze.png` (mean
 //! |error| over each eye's yaw x pitch, side by side), `report.md` and `summary.json`.
-use std::path::PathBuf;
-use std::process::ExitCode;
+use std::{path::PathBuf, process::ExitCode};
 
 use abvs_plot::{side_by_side, xy_plot, Reduce, Series, SeriesStyle, XyPlot};
 use abvs_selfcheck::attribution::{attribute, Attribution};
@@ -58,13 +57,13 @@ pub fn run(a: SelfCheckArgs) -> anyhow::Result<ExitCode> {
         noise_deg: noise,
         norm_deg: [p50, p95, max],
         explained: [r2_left, r2_right, r2_both],
+        eye_test,
         gaze_correlation: gaze_corr,
         worst,
         verdict,
     } = attribute(&a.log)?;
     std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
     let norm = |v: &[f64]| v.iter().map(|x| x * x).sum::<f64>().sqrt();
-    // figures
     let series = |c: usize, label: &'static str| Series {
         label,
         points: rows.iter().map(|r| (r.seq as f64, r.err[c])).collect(),
@@ -98,7 +97,8 @@ pub fn run(a: SelfCheckArgs) -> anyhow::Result<ExitCode> {
         "error_spread_deg": spread,
         "error_noise_deg": noise,
         "error_norm_deg": { "p50": p50, "p95": p95, "max": max },
-        "explained_by_gaze": { "left": r2_left, "right": r2_right, "both": r2_both },
+        "explained_by_fk": { "left": r2_left, "right": r2_right, "both": r2_both },
+        "eye_test": eye_test.map(|t| t.json()),
         "gaze_correlation": { "yaw": gaze_corr[0], "pitch": gaze_corr[1] },
         "worst_fixation": {
             "from_seq": worst.from_seq,
@@ -122,7 +122,7 @@ pub fn run(a: SelfCheckArgs) -> anyhow::Result<ExitCode> {
          | mean error (deg) | {:.4} | {:.4} | {:.4} |\n| spread about the mean (deg) | {:.4} | {:.4} | {:.4} |\n\n\
          |error| per frame: p50 {:.4}, p95 {:.4}, max {:.4} deg. Largest at the fixation from frame {} ({} frames, \
          mean {:.4} deg): left eye {}, right eye {} (deg).\n\n\
-         Varying error explained by each eye's gaze (held out by fixation): left {}, right {}, both {}; \
+         Varying error explained by each eye's FK model (held out by fixation): left {}, right {}, both {}; \
          correlation of the eyes' gazes: yaw {:.2}, pitch {:.2}.\n\n\
          ![error per frame](error_by_frame.png)\n\n![error over gaze](error_over_gaze.png)\n",
         a.log.display(),

@@ -3,7 +3,7 @@
 //! the same questions without parsing a report.
 //!
 //! - [`attribution`]: where in the workspace the stereo rotation error is and which eye's model it follows
-//!   ([`attribution::Verdict`] names the eye);
+//!   ([`attribution::Verdict`] names the eye; [`eye_fit`] compares the eyes' FK models, [`f_test`] its tail);
 //! - [`timing_log`] and [`timing_fit`]: the eyes' encoder-to-camera offsets and the rolling-shutter readout
 //!   fitted to the logged matches;
 //! - [`rounds`]: the fit repeated on replays of the logged session with each estimate applied.
@@ -14,6 +14,8 @@
 
 pub mod attribution;
 pub mod error;
+pub mod eye_fit;
+pub mod f_test;
 pub mod rounds;
 pub mod timing_fit;
 pub mod timing_log;
