@@ -115,17 +115,29 @@ fn zenoh_messages_reach_a_python_listener() {
     let _one = one_run();
     let d = tempfile::tempdir().unwrap();
     let p = prefix("zenoh");
-    // a free loopback port for the listener (taken back by the OS a moment before Python binds it)
-    let port = std::net::TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port();
-    let endpoint = format!("tcp/127.0.0.1:{port}");
-    let (child, out) = start_check(&["zenoh", &endpoint, &p]);
-    let s = run(d.path(), &p, &["--zenoh-connect", &endpoint]);
+    // free loopback ports for the listeners (taken back by the OS a moment before Python binds them): one
+    // session with Zenoh shared memory, one without
+    let endpoint = free_endpoint();
+    let plain = free_endpoint();
+    let (child, out) = start_check(&["zenoh", &endpoint, &p, &plain]);
+    let s = run(d.path(), &p, &["--zenoh-connect", &endpoint, "--zenoh-connect", &plain]);
     let r = finish_check(child, out);
     let n = published(&s);
     println!("published {n}; zenoh stats {}; python {r}", s["zenoh"]);
     let z = &s["zenoh"];
     assert_eq!(z["frames_in"].as_u64(), Some(n), "{z}");
     assert_eq!(z["frames_failed"].as_u64(), Some(0), "{z}");
+    // shared memory (the default): the large messages were written into the pool, none fell back, and the
+    // session with shared memory received every large payload as a shared buffer (the one without, none)
+    let w = &z["writer"];
+    assert_eq!((w["shared_memory"].as_bool(), w["shm_fallbacks"].as_u64()), (Some(true), Some(0)), "{z}");
+    assert!(w["shm_messages"].as_u64().unwrap() as f64 >= 2.0 * 0.9 * n as f64, "{z}");
+    for key in ["abvs/depth", "abvs/points", "abvs/fovea/depth", "abvs/confidence"] {
+        let large = r["large"][key].as_u64().unwrap();
+        assert!(large as f64 >= 0.9 * n as f64, "{key}: {r}");
+        assert_eq!(r["large_shm"][key].as_u64(), Some(large), "{key}: {r}");
+    }
+    assert_eq!(r["plain"]["shm"].as_u64(), Some(0), "{r}");
     for key in [
         "abvs/depth",
         "abvs/camera_info",
@@ -140,6 +152,10 @@ fn zenoh_messages_reach_a_python_listener() {
         let got = r["received"][key].as_u64().unwrap();
         assert!(got as f64 >= 0.9 * n as f64, "{key}: {got} of {n} frames received");
         assert_eq!(r["decoded"][key], r["received"][key], "{key}: every message decodes");
+        // the session without shared memory got the same messages, byte for byte
+        let plain = r["plain"]["received"][key].as_u64().unwrap();
+        assert!(plain as f64 >= 0.9 * n as f64, "{key}: {plain} of {n} frames received without shared memory");
+        assert_eq!(r["plain"]["equal"][key].as_u64(), Some(plain), "{key}: {r}");
     }
     assert_eq!(r["decode_errors"], serde_json::json!([]));
     // every cloud that also came over iceoryx2 (same frame = same stamp) is the same bytes
@@ -188,6 +204,33 @@ fn zenoh_messages_reach_a_python_listener() {
     assert_eq!(c["encodings"], serde_json::json!(["32FC1"]), "{c}");
     assert_eq!(c["frame_ids"], serde_json::json!(["left_rect_camera"]), "{c}");
     assert_eq!(c["finite_depth_unconfident"].as_u64(), Some(0), "{c}");
+}
+
+/// A loopback endpoint on a free port (taken back by the OS a moment before Python binds it).
+fn free_endpoint() -> String {
+    let port = std::net::TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port();
+    format!("tcp/127.0.0.1:{port}")
+}
+
+#[test]
+fn topics_nobody_receives_are_neither_copied_nor_encoded() {
+    let _one = one_run();
+    let d = tempfile::tempdir().unwrap();
+    let p = prefix("matching");
+    let endpoint = free_endpoint();
+    let (child, out) = start_check(&["count", &endpoint, "abvs/depth"]);
+    let s =
+        run(d.path(), &p, &["--zenoh-connect", &endpoint, "--frames", "12", "--truth-stride", "0", "--no-self-check"]);
+    let r = finish_check(child, out);
+    let z = &s["zenoh"];
+    println!("zenoh stats {z}; python {r}");
+    let (written, messages) = (z["frames_written"].as_u64().unwrap(), z["messages"].as_u64().unwrap());
+    assert!(written >= 6 && z["frames_failed"].as_u64() == Some(0), "{z}");
+    // only the depth was written (from the frame whose subscriber had matched), and it arrived; the other
+    // eight topics (the cloud and the confidence among them) were skipped every frame
+    assert!(messages >= written / 2 && messages <= written, "{z}");
+    assert_eq!(r["received"]["abvs/depth"].as_u64(), Some(messages), "{r}");
+    assert_eq!(z["messages_skipped"].as_u64(), Some(9 * written - messages), "{z}");
 }
 
 #[test]

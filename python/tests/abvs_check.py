@@ -6,10 +6,15 @@ mcap-ros2-support, iceoryx2, numpy.
   layout                       the ctypes layout of FrameHeader and CloudPoint
   iox PREFIX [confidence]      receive depth and clouds (and the confidence) until stdin closes (prints
                                "ready" first)
-  zenoh ENDPOINT PREFIX        listen on ENDPOINT for the nine keys (the fovea's three and the confidence
-                               included), and the iceoryx2 clouds, confidence and fovea, until stdin
-                               closes; decode every message, compare clouds, the confidence and the fovea's
-                               CameraInfo with iceoryx2 by stamp
+  zenoh ENDPOINT PREFIX [PLAIN_ENDPOINT]
+                               listen on ENDPOINT (Zenoh shared memory on) for the nine keys (the fovea's
+                               three and the confidence included), and the iceoryx2 clouds, confidence and
+                               fovea, until stdin closes; decode every message, compare clouds, the
+                               confidence and the fovea's CameraInfo with iceoryx2 by stamp; count the large
+                               payloads that came as shared memory; with PLAIN_ENDPOINT a second session
+                               without shared memory listens there, and its payloads are compared with the
+                               first's
+  count ENDPOINT KEY...        listen on ENDPOINT for KEYs only, count the samples per key
   mcap FILE PREFIX             receive the iceoryx2 headers until stdin closes, then decode FILE
   rmw ENDPOINT                 listen on ENDPOINT as an rmw_zenoh (Jazzy) subscriber would: the nine typed
                                keys with the hashes rosbags computes, the liveliness tokens, the attachments
@@ -236,25 +241,50 @@ def cmd_iox(prefix, *topics):
     }))
 
 
-def cmd_zenoh(endpoint, prefix):
+def zenoh_session(endpoint, shm=True):
+    """A peer listening on ENDPOINT, without scouting, with Zenoh shared memory on or off."""
     import zenoh
-    from rosbags.typesys import Stores, get_typestore
 
-    done = stdin_closed()
     conf = zenoh.Config()
     conf.insert_json5("mode", '"peer"')
     conf.insert_json5("listen/endpoints", json.dumps([endpoint]))
     conf.insert_json5("scouting/multicast/enabled", "false")
-    session = zenoh.open(conf)
+    conf.insert_json5("transport/shared_memory/enabled", json.dumps(shm))
+    return zenoh.open(conf)
+
+
+# payloads this large go through the runtime's shared memory (bridges::zenoh::SHM_MIN_BYTES)
+SHM_MIN_BYTES = 64 * 1024
+
+
+def cmd_zenoh(endpoint, prefix, plain_endpoint=None):
+    from rosbags.typesys import Stores, get_typestore
+
+    done = stdin_closed()
+    session = zenoh_session(endpoint)
+    plain = zenoh_session(plain_endpoint, shm=False) if plain_endpoint else None
     raw = {k: [] for k in KEYS}
+    plain_raw = {k: [] for k in KEYS}
+    large, large_shm, plain_shm = {k: 0 for k in KEYS}, {k: 0 for k in KEYS}, [0]
     lock = threading.Lock()
 
     def on_sample(sample):
-        # decoding waits for the end: the callback only keeps the bytes
+        # decoding waits for the end: the callback only keeps the bytes (a copy: the shared buffer goes back)
+        k, b = str(sample.key_expr), sample.payload.to_bytes()
         with lock:
-            raw[str(sample.key_expr)].append(sample.payload.to_bytes())
+            raw[k].append(b)
+            if len(b) >= SHM_MIN_BYTES:
+                large[k] += 1
+                large_shm[k] += sample.payload.as_shm() is not None
+
+    def on_plain(sample):
+        with lock:
+            plain_raw[str(sample.key_expr)].append(sample.payload.to_bytes())
+            plain_shm[0] += sample.payload.as_shm() is not None
 
     subs = [session.declare_subscriber(k, on_sample) for k in KEYS]
+    if plain:
+        subs += [plain.declare_subscriber(k, on_plain) for k in KEYS]
     iox = IoxCollector(prefix, keep_clouds=True, confidence=True, fovea=True)
     print("ready", flush=True)
     done.wait()
@@ -263,9 +293,18 @@ def cmd_zenoh(endpoint, prefix):
     for s in subs:
         s.undeclare()
     session.close()
+    if plain:
+        plain.close()
 
     ts = get_typestore(Stores.ROS2_HUMBLE)
-    out = {"received": {k: len(v) for k, v in raw.items()}, "decode_errors": [], "iox_clouds": len(iox.clouds)}
+    out = {"received": {k: len(v) for k, v in raw.items()}, "decode_errors": [], "iox_clouds": len(iox.clouds),
+           "large": large, "large_shm": large_shm}
+    if plain:
+        # the session without shared memory: the same bytes (each of its payloads is one the first got)
+        seen = {k: set(v) for k, v in raw.items()}
+        out["plain"] = {"received": {k: len(v) for k, v in plain_raw.items()},
+                        "equal": {k: sum(b in seen[k] for b in v) for k, v in plain_raw.items()},
+                        "shm": plain_shm[0]}
     decoded = {k: [] for k in KEYS}
     for k, msgs in raw.items():
         for b in msgs:
@@ -331,6 +370,26 @@ def confidence_checks(decoded, iox):
         elif len(r["bad"]) < 3:
             r["bad"].append({"size": [m.width, m.height, m.step], "depth": [dm.width, dm.height, dm.step]})
     return r
+
+
+def cmd_count(endpoint, *keys):
+    done = stdin_closed()
+    session = zenoh_session(endpoint)
+    n = {k: 0 for k in keys}
+    lock = threading.Lock()
+
+    def on_sample(sample):
+        with lock:
+            n[str(sample.key_expr)] += 1
+
+    subs = [session.declare_subscriber(k, on_sample) for k in keys]
+    print("ready", flush=True)
+    done.wait()
+    time.sleep(1.0)
+    for s in subs:
+        s.undeclare()
+    session.close()
+    print(json.dumps({"received": n}))
 
 
 def fovea_checks(decoded, iox):
@@ -568,7 +627,7 @@ def main(argv):
     if not argv:
         sys.exit(__doc__)
     cmd, args = argv[0], argv[1:]
-    {"layout": cmd_layout, "iox": cmd_iox, "zenoh": cmd_zenoh, "mcap": cmd_mcap, "rmw": cmd_rmw,
+    {"layout": cmd_layout, "iox": cmd_iox, "zenoh": cmd_zenoh, "count": cmd_count, "mcap": cmd_mcap, "rmw": cmd_rmw,
      "gaze": cmd_gaze}[cmd](*args)
 
 

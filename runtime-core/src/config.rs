@@ -625,6 +625,10 @@ pub struct ZenohSettings {
     pub node: String,
     /// `rmw-zenoh`: the node's namespace (the topics are absolute: it names the node only).
     pub namespace: String,
+    /// The large messages (depth images, clouds) written into Zenoh shared memory: a subscriber on this
+    /// computer whose session enables it gets a descriptor instead of the bytes; others get the bytes as
+    /// without it. `false` also turns Zenoh's own shared memory off in the session.
+    pub shared_memory: bool,
 }
 
 impl Default for ZenohSettings {
@@ -642,6 +646,7 @@ impl Default for ZenohSettings {
             domain: 0,
             node: "abvs".into(),
             namespace: "/".into(),
+            shared_memory: true,
         }
     }
 }

@@ -389,18 +389,28 @@ fn unshared<'a>(b: &'a mut Arc<Vec<u32>>, replaced: &mut u32) -> &'a mut Vec<u32
 }
 
 impl ImageSnapshot {
+    /// Copies the camera, and the depth and the cloud unless `skip` has their topics' bits (`first`: the
+    /// image's first topic in [`TOPICS`]; a skipped array keeps its last contents, which nobody encodes).
     fn fill(
         &mut self,
         cam: &abvs_runtime_core::messages::RectifiedCamera,
         d: &abvs_runtime_core::messages::DepthFrame,
         replaced: &mut u32,
+        (skip, first): (u32, usize),
     ) {
         (self.width, self.height) = (cam.width, cam.height);
         (self.f, self.cx, self.cy) = (cam.f, cam.cx, cam.cy);
-        let depth = unshared(&mut self.depth, replaced);
-        depth.clear();
-        // SAFETY: f32 and u32 have one size and alignment, and every bit pattern is a u32.
-        depth.extend_from_slice(unsafe { std::slice::from_raw_parts(d.depth.as_ptr().cast::<u32>(), d.depth.len()) });
+        if skip & 1 << first == 0 {
+            let depth = unshared(&mut self.depth, replaced);
+            depth.clear();
+            // SAFETY: f32 and u32 have one size and alignment, and every bit pattern is a u32.
+            depth.extend_from_slice(unsafe {
+                std::slice::from_raw_parts(d.depth.as_ptr().cast::<u32>(), d.depth.len())
+            });
+        }
+        if skip & 1 << (first + 2) != 0 {
+            return;
+        }
         let n = d.n_points;
         // written in place, one pass of plain stores: this runs on the pipeline's output thread, and a loop of
         // iterator adapters was most of the sink's cost there where the runtime is built at opt-level 1
@@ -464,6 +474,8 @@ pub struct FrameSnapshot {
     pub confidence: Arc<Vec<u32>>,
     /// Whether the frame has a confidence (the run computes one).
     pub has_confidence: bool,
+    /// Topics not to encode (bit i: [`TOPICS`]`[i]`): nobody receives them; their arrays are not copied.
+    pub skip: u32,
 }
 
 /// The packed rgb of a gray level (PCL / rviz: 0x00RRGGBB; the top byte is the iceoryx2 cloud's alpha,
@@ -475,9 +487,11 @@ pub fn gray_rgb(g: u8) -> u32 {
 }
 
 impl FrameSnapshot {
-    /// Copies a published frame's depth, cloud and geometry (and its fovea's). Returns the arrays that a
-    /// writer still held from an earlier frame, so that new ones were allocated (none when writers let go).
-    pub fn fill(&mut self, out: &Published) -> u32 {
+    /// Copies a published frame's depth, cloud and geometry (and its fovea's), leaving out the arrays of
+    /// the topics in `skip` ([`FrameSnapshot::skip`]). Returns the arrays that a writer still held from an
+    /// earlier frame, so that new ones were allocated (none when writers let go).
+    pub fn fill(&mut self, out: &Published, skip: u32) -> u32 {
+        self.skip = skip;
         self.seq = out.seq;
         self.t_frame_ns = out.t_frame_ns;
         self.theta = *out.theta;
@@ -486,13 +500,13 @@ impl FrameSnapshot {
         self.rect_from_left = out.rect.rect_from_left;
         self.baseline_m = out.rect.baseline_m;
         let mut replaced = 0;
-        self.main.fill(out.cam, out.depth, &mut replaced);
+        self.main.fill(out.cam, out.depth, &mut replaced, (skip, 0));
         self.has_fovea = out.fovea.is_some();
         if let Some(f) = out.fovea {
-            self.fovea.fill(&f.cam, &f.depth, &mut replaced);
+            self.fovea.fill(&f.cam, &f.depth, &mut replaced, (skip, MAIN_TOPICS));
         }
         self.has_confidence = out.confidence.is_some();
-        if let Some(c) = out.confidence {
+        if let Some(c) = out.confidence.filter(|_| skip & 1 << CONFIDENCE_TOPIC == 0) {
             let words = unshared(&mut self.confidence, &mut replaced);
             words.clear();
             // SAFETY: as the depth's: f32 and u32 have one size and alignment.
@@ -562,6 +576,8 @@ struct Message {
     head: Vec<u8>,
     body: Option<SharedBytes>,
     tail: Vec<u8>,
+    /// Not encoded for the last frame (its topic in [`FrameSnapshot::skip`]).
+    skipped: bool,
 }
 
 /// The encoded messages of one frame, buffers reused from frame to frame.
@@ -654,14 +670,19 @@ impl Message {
     }
 }
 
-/// The Image, CameraInfo and PointCloud2 of `img` into `msgs`, with the topics' `types`.
+/// The Image, CameraInfo and PointCloud2 of `img` into `msgs`, with the topics' `types`; those whose bit
+/// is in `skip` (from `first`, the Image's topic) are marked skipped.
 fn encode_image(
     msgs: &mut [Message],
     types: [&'static str; 3],
     img: &ImageSnapshot,
     header: impl Fn(&'static str) -> Header<'static>,
+    (skip, first): (u32, usize),
 ) -> Result<(), EncodeError> {
     let [depth, info, points] = msgs else { return Ok(()) };
+    for (i, m) in [&mut *depth, &mut *info, &mut *points].into_iter().enumerate() {
+        m.skipped = skip & 1 << (first + i) != 0;
+    }
     let image = Image {
         header: header(RECT_FRAME),
         height: img.height,
@@ -671,24 +692,31 @@ fn encode_image(
         step: img.width * 4,
         data: &[],
     };
-    depth.split(types[0], &image, &img.depth, 0)?;
-    info.whole(
-        types[1],
-        &CameraInfo {
-            header: header(RECT_FRAME),
-            height: img.height,
-            width: img.width,
-            // the image is rectified: no distortion left
-            distortion_model: "plumb_bob",
-            d: &[0.0; 5],
-            k: img.k(),
-            r: [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0],
-            p: [img.f, 0.0, img.cx, 0.0, 0.0, img.f, img.cy, 0.0, 0.0, 0.0, 1.0, 0.0],
-            binning_x: 0,
-            binning_y: 0,
-            roi: RegionOfInterest { x_offset: 0, y_offset: 0, height: 0, width: 0, do_rectify: false },
-        },
-    )?;
+    if !depth.skipped {
+        depth.split(types[0], &image, &img.depth, 0)?;
+    }
+    if !info.skipped {
+        info.whole(
+            types[1],
+            &CameraInfo {
+                header: header(RECT_FRAME),
+                height: img.height,
+                width: img.width,
+                // the image is rectified: no distortion left
+                distortion_model: "plumb_bob",
+                d: &[0.0; 5],
+                k: img.k(),
+                r: [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0],
+                p: [img.f, 0.0, img.cx, 0.0, 0.0, img.f, img.cy, 0.0, 0.0, 0.0, 1.0, 0.0],
+                binning_x: 0,
+                binning_y: 0,
+                roi: RegionOfInterest { x_offset: 0, y_offset: 0, height: 0, width: 0, do_rectify: false },
+            },
+        )?;
+    }
+    if points.skipped {
+        return Ok(());
+    }
     let n = img.n_points() as u32;
     let cloud = PointCloud2 {
         header: header(HEAD_FRAME),
@@ -717,54 +745,68 @@ impl Encoded {
         let types = |i: usize| [TOPICS[i].type_name, TOPICS[i + 1].type_name, TOPICS[i + 2].type_name];
         self.encoded.clear();
         let (main, rest) = self.msgs.split_at_mut(3);
-        encode_image(main, types(0), &s.main, header)?;
+        encode_image(main, types(0), &s.main, header, (s.skip, 0))?;
         let tfs = s.transforms().map(|(child, p)| TransformStamped {
             header: header(HEAD_FRAME),
             child_frame_id: child,
             transform: Transform { translation: Vector3 { x: p.t.x, y: p.t.y, z: p.t.z }, rotation: quaternion(&p.r) },
         });
-        rest[0].whole(TOPICS[3].type_name, &TfMessage { transforms: &tfs })?;
+        (rest[0].skipped, rest[1].skipped) = (s.skip & 1 << 3 != 0, s.skip & 1 << 4 != 0);
+        if !rest[0].skipped {
+            rest[0].whole(TOPICS[3].type_name, &TfMessage { transforms: &tfs })?;
+        }
         let t = &s.theta;
         let position = [t[0][0], t[0][1], t[0][2], t[1][0], t[1][1], t[1][2]].map(f64::to_radians);
-        rest[1].whole(
-            TOPICS[4].type_name,
-            &JointState {
-                header: header(HEAD_FRAME),
-                name: &JOINT_NAMES,
-                position: &position,
-                velocity: &[],
-                effort: &[],
-            },
-        )?;
+        if !rest[1].skipped {
+            rest[1].whole(
+                TOPICS[4].type_name,
+                &JointState {
+                    header: header(HEAD_FRAME),
+                    name: &JOINT_NAMES,
+                    position: &position,
+                    velocity: &[],
+                    effort: &[],
+                },
+            )?;
+        }
         self.encoded.extend(0..MAIN_TOPICS);
         if s.has_fovea {
-            encode_image(&mut rest[2..5], types(MAIN_TOPICS), &s.fovea, header)?;
+            encode_image(&mut rest[2..5], types(MAIN_TOPICS), &s.fovea, header, (s.skip, MAIN_TOPICS))?;
             self.encoded.extend(MAIN_TOPICS..CONFIDENCE_TOPIC);
         }
         if s.has_confidence {
-            let (width, height) = (s.main.width, s.main.height);
-            if s.confidence.len() != width as usize * height as usize {
-                let topic = TOPICS[CONFIDENCE_TOPIC].topic;
-                return Err(EncodeError::Shape { topic, len: s.confidence.len(), width, height });
+            let m = &mut rest[5];
+            m.skipped = s.skip & 1 << CONFIDENCE_TOPIC != 0;
+            if !m.skipped {
+                let (width, height) = (s.main.width, s.main.height);
+                if s.confidence.len() != width as usize * height as usize {
+                    let topic = TOPICS[CONFIDENCE_TOPIC].topic;
+                    return Err(EncodeError::Shape { topic, len: s.confidence.len(), width, height });
+                }
+                let image = Image {
+                    header: header(RECT_FRAME),
+                    height,
+                    width,
+                    encoding: "32FC1",
+                    is_bigendian: 0,
+                    step: width * 4,
+                    data: &[],
+                };
+                m.split(TOPICS[CONFIDENCE_TOPIC].type_name, &image, &s.confidence, 0)?;
             }
-            let image = Image {
-                header: header(RECT_FRAME),
-                height: s.main.height,
-                width: s.main.width,
-                encoding: "32FC1",
-                is_bigendian: 0,
-                step: s.main.width * 4,
-                data: &[],
-            };
-            rest[5].split(TOPICS[CONFIDENCE_TOPIC].type_name, &image, &s.confidence, 0)?;
             self.encoded.push(CONFIDENCE_TOPIC);
         }
         Ok(())
     }
 
-    /// (topic, CDR bytes) of the last encoded frame, in [`TOPICS`] order.
+    /// (topic, CDR bytes) of the last encoded frame, in [`TOPICS`] order, without the skipped topics.
     pub fn messages(&self) -> impl Iterator<Item = (&'static Topic, Cdr<'_>)> {
-        self.encoded.iter().map(|&i| (&TOPICS[i], self.msgs[i].cdr()))
+        self.encoded.iter().map(|&i| (&TOPICS[i], &self.msgs[i])).filter(|(_, m)| !m.skipped).map(|(t, m)| (t, m.cdr()))
+    }
+
+    /// The topics of the last frame that were skipped (not encoded: [`FrameSnapshot::skip`]).
+    pub fn skipped(&self) -> impl Iterator<Item = &'static Topic> + '_ {
+        self.encoded.iter().filter(|&&i| self.msgs[i].skipped).map(|&i| &TOPICS[i])
     }
 
     /// Lets go of the snapshot's buffers (once the writer is done with them), so that it can be filled again
@@ -874,6 +916,32 @@ mod tests {
             e.release();
             assert!(Arc::get_mut(&mut s.main.cloud).is_some() && Arc::get_mut(&mut s.fovea.depth).is_some());
         }
+    }
+
+    #[test]
+    fn skipped_topics_are_not_encoded() {
+        let mut s = FrameSnapshot {
+            main: image(2, 1, 100.0, &[[1.0, 2.0, 3.0]]),
+            fovea: image(1, 1, 200.0, &[]),
+            has_fovea: true,
+            rect_from_left: Matrix3::identity(),
+            skip: 1 << 2 | 1 << 3 | 1 << 5,
+            ..Default::default()
+        };
+        let mut e = Encoded::default();
+        e.encode(&s).unwrap();
+        let names = |it: &mut dyn Iterator<Item = &'static Topic>| it.map(|t| t.topic).collect::<Vec<_>>();
+        let written = names(&mut e.messages().map(|(t, _)| t));
+        assert_eq!(
+            written,
+            ["/abvs/depth", "/abvs/camera_info", "/abvs/joint_states", "/abvs/fovea/camera_info", "/abvs/fovea/points"]
+        );
+        assert_eq!(names(&mut e.skipped()), ["/abvs/points", "/tf", "/abvs/fovea/depth"]);
+        // the skip lasts one frame: the next encodes every topic again
+        e.release();
+        s.skip = 0;
+        e.encode(&s).unwrap();
+        assert_eq!((e.messages().count(), e.skipped().count()), (8, 0));
     }
 
     #[test]

@@ -377,6 +377,11 @@ impl abvs_runtime_core::sink::Sink for ZenohGaze {
 /// relative to that file), plus `connect` and `listen` endpoints.
 pub fn config(settings: &ZenohSettings) -> abvs_runtime_core::error::Result<Config> {
     let mut c = super::zenoh::config(settings.config.as_deref(), &settings.connect)?;
+    if !settings.shared_memory {
+        // no shared memory at all: neither the writer's pool nor Zenoh's own for large payloads
+        const SHM: &str = "transport/shared_memory/enabled";
+        c.insert_json5(SHM, "false").map_err(|e| err(SHM, e))?;
+    }
     const DICT: &str = "transport/auth/usrpwd/dictionary_file";
     let dict = c.get_json(DICT).ok().and_then(|j| serde_json::from_str::<Option<String>>(&j).ok().flatten());
     if let (Some(d), Some(dir)) = (dict, settings.config.as_deref().and_then(|p| p.parent())) {

@@ -4,6 +4,8 @@
 //! [`Ros2Writer`] (the network, a file). The queue is bounded: when the
 //! writer falls behind, the oldest queued frame is dropped (counted) and the pipeline never waits on it,
 //! except in blocking mode (lossless runs: every frame is written).
+use std::sync::atomic::{AtomicU32, Ordering};
+use std::sync::Arc;
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
@@ -70,6 +72,13 @@ pub trait Ros2Writer: Send + 'static {
         stamp_ns: i64,
         msg: Cdr<'_>,
     ) -> std::result::Result<(), OutputError>;
+    /// The topics nobody receives now (bit i: [`crate::ros2::TOPICS`]`[i]`), kept current by the writer
+    /// (Zenoh's matching status): they are neither copied nor encoded. `None` (a file): every topic.
+    fn unwanted(&self) -> Option<Arc<AtomicU32>> {
+        None
+    }
+    /// A message of the frame not written because nobody receives its topic.
+    fn skipped(&mut self, _topic: &'static Topic) {}
     /// Ends the output (closes the file); what it reports goes into the stats.
     fn finish(&mut self) -> std::result::Result<serde_json::Value, OutputError> {
         Ok(serde_json::Value::Null)
@@ -87,8 +96,10 @@ pub struct Ros2OutStats {
     pub frames_dropped: u64,
     /// Frames whose encoding or writing failed (the first error is in `last_error`).
     pub frames_failed: u64,
-    /// Messages written, per frame five.
+    /// Messages written, per frame five (eight with the fovea) less the skipped.
     pub messages: u64,
+    /// Messages neither copied nor encoded because no subscriber matched their topic.
+    pub messages_skipped: u64,
     /// Encoding + writing time per frame on the sink's thread (ms): median and largest.
     pub write_ms_p50: f64,
     /// Largest encoding + writing time per frame (ms).
@@ -119,6 +130,8 @@ pub struct Ros2OutSink {
     dropped: u64,
     copy_cpu_ns: i64,
     reallocated: u64,
+    /// The writer's [`Ros2Writer::unwanted`].
+    unwanted: Option<Arc<AtomicU32>>,
     worker: Option<JoinHandle<Ros2OutStats>>,
 }
 
@@ -136,6 +149,7 @@ impl Ros2OutSink {
             let _ = free_tx.send(Box::default());
         }
         let (rx, free) = (queue_rx.clone(), free_tx.clone());
+        let unwanted = writer.unwanted();
         let worker = std::thread::Builder::new()
             .name(format!("abvs-{name}"))
             .spawn(move || worker(writer, rx, free))
@@ -151,6 +165,7 @@ impl Ros2OutSink {
             dropped: 0,
             copy_cpu_ns: 0,
             reallocated: 0,
+            unwanted,
             worker: Some(worker),
         })
     }
@@ -168,6 +183,10 @@ fn worker<W: Ros2Writer>(
     for snap in queue.iter() {
         let t0 = Instant::now();
         let r = enc.encode(&snap).map_err(OutputError::from).and_then(|()| {
+            for topic in enc.skipped() {
+                writer.skipped(topic);
+                st.messages_skipped += 1;
+            }
             for (topic, bytes) in enc.messages() {
                 writer.write(topic, snap.seq, snap.t_frame_ns, bytes)?;
                 st.messages += 1;
@@ -231,7 +250,8 @@ impl Sink for Ros2OutSink {
             return Ok(());
         };
         let cpu0 = abvs_runtime_core::cpu::thread_cpu_ns();
-        self.reallocated += snap.fill(out) as u64;
+        let skip = self.unwanted.as_ref().map_or(0, |u| u.load(Ordering::Relaxed));
+        self.reallocated += snap.fill(out, skip) as u64;
         self.copy_cpu_ns += abvs_runtime_core::cpu::thread_cpu_ns() - cpu0;
         loop {
             match tx.try_send(snap) {
