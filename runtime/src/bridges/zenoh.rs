@@ -38,7 +38,7 @@ use ::zenoh::shm::{GarbageCollect, PosixShmProviderBackend, ShmProvider, ShmProv
 use ::zenoh::{Config, Session, Wait};
 
 use super::rmw_zenoh::{self, EntityKind, Qos};
-use crate::ros2::{Cdr, Topic, TopicSet};
+use crate::ros2::{Cdr, Topic, TopicSet, TOPICS};
 use crate::sinks::ros2_out::{OutputError, Ros2Writer};
 use abvs_runtime_core::config::Ros2Keys;
 use abvs_runtime_core::config::ZenohSettings;
