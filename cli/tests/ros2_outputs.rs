@@ -129,13 +129,16 @@ fn zenoh_messages_reach_a_python_listener() {
     assert_eq!(z["frames_failed"].as_u64(), Some(0), "{z}");
     // shared memory (the default): the large messages were written into the pool, none fell back, and the
     // session with shared memory received every large payload as a shared buffer (the one without, none)
+    // (a message finding every buffer still held by the subscribers goes the ordinary way, counted: allowed
+    // for a few, the pool never makes the sink wait)
     let w = &z["writer"];
-    assert_eq!((w["shared_memory"].as_bool(), w["shm_fallbacks"].as_u64()), (Some(true), Some(0)), "{z}");
-    assert!(w["shm_messages"].as_u64().unwrap() as f64 >= 2.0 * 0.9 * n as f64, "{z}");
+    assert_eq!(w["shared_memory"].as_bool(), Some(true), "{z}");
+    let (shm, fallbacks) = (w["shm_messages"].as_u64().unwrap(), w["shm_fallbacks"].as_u64().unwrap());
+    assert!(shm as f64 >= 2.0 * 0.9 * n as f64 && fallbacks * 50 <= shm, "{z}");
     for key in ["abvs/depth", "abvs/points", "abvs/fovea/depth", "abvs/confidence"] {
         let large = r["large"][key].as_u64().unwrap();
         assert!(large as f64 >= 0.9 * n as f64, "{key}: {r}");
-        assert_eq!(r["large_shm"][key].as_u64(), Some(large), "{key}: {r}");
+        assert!(r["large_shm"][key].as_u64().unwrap() + fallbacks >= large, "{key}: {r}");
     }
     assert_eq!(r["plain"]["shm"].as_u64(), Some(0), "{r}");
     for key in [
