@@ -9,63 +9,18 @@ GT: the pair's ground truth (PFM, or an 8-bit PNG divided by S; 0 / inf unknown)
 mask (threshold, density, bad-2 among kept) and bad-2 at a given density. Aloe (opencv-doc) was the pair.
 Never fit on the held-out Motorcycle."""
 import argparse
-import struct
-import zlib
 
 import numpy as np
+
+from image_io import pfm, png_first_channel
 
 W, H = 640, 480
 w, h = 320, 240
 NAMES = ["acc", "m", "edge", "ln1p(span)", "ln1p(agree)"]
 
 
-def png(path):
-    """An 8-bit grayscale / RGB / RGBA, non-interlaced PNG (the first channel)."""
-    b = open(path, "rb").read()
-    pos, idat, hdr = 8, b"", None
-    while pos < len(b):
-        n, t = struct.unpack(">I4s", b[pos : pos + 8])
-        data = b[pos + 8 : pos + 8 + n]
-        if t == b"IHDR":
-            hdr = struct.unpack(">IIBBBBB", data)
-        elif t == b"IDAT":
-            idat += data
-        pos += 12 + n
-    gw, gh, depth, ctype, _, _, inter = hdr
-    assert depth == 8 and inter == 0, f"{path}: only 8-bit non-interlaced PNG"
-    ch = {0: 1, 2: 3, 4: 2, 6: 4}[ctype]
-    raw = np.frombuffer(zlib.decompress(idat), np.uint8).reshape(gh, 1 + gw * ch)
-    out = np.zeros((gh, gw * ch), np.int32)
-    prev = np.zeros(gw * ch, np.int32)
-    for y in range(gh):
-        f, row = raw[y, 0], raw[y, 1:].astype(np.int32)
-        if f == 0:
-            cur = row
-        elif f == 2:
-            cur = (row + prev) & 255
-        else:
-            cur = np.zeros_like(row)
-            for i in range(len(row)):
-                a = cur[i - ch] if i >= ch else 0
-                c = prev[i - ch] if i >= ch else 0
-                p = {1: a, 3: (a + prev[i]) // 2}.get(f)
-                if p is None:  # Paeth
-                    pa, pb, pc = abs(prev[i] - c), abs(a - c), abs(a + prev[i] - 2 * c)
-                    p = a if pa <= pb and pa <= pc else (prev[i] if pb <= pc else c)
-                cur[i] = (row[i] + p) & 255
-        out[y], prev = cur, cur
-    return out.reshape(gh, gw, ch)[:, :, 0].astype(np.float32)
-
-
-def pfm(path):
-    b = open(path, "rb").read()
-    head = b.split(b"\n", 3)
-    gw, gh = map(int, head[1].split())
-    return np.frombuffer(head[3][: gw * gh * 4], "<f4").reshape(gh, gw)[::-1].astype(np.float32)
-
-
 def ground_truth(path, scale):
-    g = pfm(path) if path.lower().endswith(".pfm") else png(path) / scale
+    g = pfm(path) if path.lower().endswith(".pfm") else png_first_channel(path).astype(np.float32) / scale
     g = np.where(np.isfinite(g) & (g > 0), g, np.nan)
     gh, gw = g.shape
     sx = np.float32(W) / np.float32(gw)

@@ -11,50 +11,7 @@ import zlib
 
 import numpy as np
 
-
-def pfm(path):
-    b = open(path, "rb").read()
-    head = b.split(b"\n", 3)
-    w, h = map(int, head[1].split())
-    d = np.frombuffer(head[3][: w * h * 4], "<f4").reshape(h, w)[::-1].astype(np.float32)
-    return np.where(np.isfinite(d), d, np.nan)
-
-
-def png_gray(path):
-    """8-bit non-interlaced PNG, first channel (the OAK-D pairs are gray)."""
-    b = open(path, "rb").read()
-    pos, idat, hdr = 8, b"", None
-    while pos < len(b):
-        n, t = struct.unpack(">I4s", b[pos : pos + 8])
-        if t == b"IHDR":
-            hdr = struct.unpack(">IIBBBBB", b[pos + 8 : pos + 8 + n])
-        elif t == b"IDAT":
-            idat += b[pos + 8 : pos + 8 + n]
-        pos += 12 + n
-    w, h, depth, ctype, _, _, inter = hdr
-    assert depth == 8 and inter == 0, f"{path}: only 8-bit non-interlaced PNG"
-    ch = {0: 1, 2: 3, 4: 2, 6: 4}[ctype]
-    raw = np.frombuffer(zlib.decompress(idat), np.uint8).reshape(h, 1 + w * ch)
-    out = np.zeros((h, w * ch), np.int32)
-    prev = np.zeros(w * ch, np.int32)
-    for y in range(h):
-        f, row = raw[y, 0], raw[y, 1:].astype(np.int32)
-        if f == 0:
-            cur = row
-        elif f == 2:
-            cur = (row + prev) & 255
-        else:
-            cur = np.zeros_like(row)
-            for i in range(len(row)):
-                a = cur[i - ch] if i >= ch else 0
-                c = prev[i - ch] if i >= ch else 0
-                p = {1: a, 3: (a + prev[i]) // 2}.get(f)
-                if p is None:  # Paeth
-                    pa, pb, pc = abs(prev[i] - c), abs(a - c), abs(a + prev[i] - 2 * c)
-                    p = a if pa <= pb and pa <= pc else (prev[i] if pb <= pc else c)
-                cur[i] = (row[i] + p) & 255
-        out[y], prev = cur, cur
-    return out.reshape(h, w, ch)[:, :, 0].astype(np.uint8)
+from image_io import pfm, png_first_channel
 
 
 def turbo(t):
@@ -86,8 +43,8 @@ def main():
     pal[128:] = turbo(np.linspace(0, 1, 128))
     rows = []
     for n in names:
-        left = png_gray(f"{d}/{n}_left.png")
-        dense, masked = pfm(f"{d}/{n}_0.pfm"), pfm(f"{d}/{n}_d.pfm")
+        left = png_first_channel(f"{d}/{n}_left.png")
+        dense, masked = (np.where(np.isfinite(a), a, np.nan) for a in (pfm(f"{d}/{n}_0.pfm"), pfm(f"{d}/{n}_d.pfm")))
         lo, hi = np.nanpercentile(dense, 2), np.nanpercentile(dense, 98)
         # the top band (the top 10 % of rows: ceiling and the wall's top, 2 m and more away): its wrong
         # disparities are those above twice the dense map's median (nearer than half the scene's depth)
