@@ -86,12 +86,10 @@ impl CheckConfig {
 
 /// The default threshold of the validity mask (`[disparity] min_confidence`, `--min-confidence`): published
 /// depth is NaN where the confidence is below it. 0 keeps every pixel (the dense output, bit for bit).
-/// Chosen on the development pairs at 640x480 (Aloe and the 12 rendered ones of the confidence's fit,
-/// disparity/src/census_confidence.rs; scripts/fit_census_confidence.py) as the threshold at which the most
-/// of them publish at least 5 points more than SGBM_3WAY's density at no more than its bad-2 (4 of 13 at
-/// 0.67 and 0.675; on the rest SGBM_3WAY publishes over 0.9 or is far worse), Aloe among them at 0.645 to
-/// 0.675 (0.67: 0.778 / 3.56 % against SGBM_3WAY's 0.725 / 3.85 %).
-pub const DEFAULT_MIN_CONFIDENCE: f32 = 0.67;
+/// Chosen on Aloe at 640x480 (`abvs disparity-eval --resolution 640x480 --json`, `own_confidence.mask_curve`)
+/// among the thresholds that publish at least 5 points more than SGBM_3WAY's density (0.725) at no more than
+/// its bad-2 (3.85 %): 0.7 gives 0.783 / 3.41 % (0.65: 0.795 / 3.88 %; 0.75: 0.769 / 2.93 %).
+pub const DEFAULT_MIN_CONFIDENCE: f32 = 0.7;
 
 /// What the fovea computes and where it looks by default.
 #[derive(Debug, Clone, Copy, PartialEq)]
