@@ -433,7 +433,9 @@ fn empty_cloud(header: Header<'static>, n: u32) -> PointCloud2<'static> {
 /// `words` (float32 values) into `out`, which holds as many bytes as they have.
 fn copy_f32(out: &mut [u8], words: &[f32]) {
     // SAFETY: f32 has no padding and any byte is a valid u8; the slice covers exactly the values' memory.
-    out.copy_from_slice(unsafe { std::slice::from_raw_parts(words.as_ptr().cast::<u8>(), std::mem::size_of_val(words)) });
+    out.copy_from_slice(unsafe {
+        std::slice::from_raw_parts(words.as_ptr().cast::<u8>(), std::mem::size_of_val(words))
+    });
 }
 
 /// The cloud's points with their gray levels into `out` ([`POINT_STEP`] bytes a point).
@@ -674,7 +676,12 @@ impl Message {
     /// message encoded with an empty array ends with the array's length (a u32 aligned by what precedes
     /// it, whatever the array holds) and the fields after it, whose alignment is 1, so the length is
     /// patched in.
-    fn split<T: Serialize>(&mut self, type_name: &'static str, msg: &T, buf: &mut MessageBuf) -> Result<(), EncodeError> {
+    fn split<T: Serialize>(
+        &mut self,
+        type_name: &'static str,
+        msg: &T,
+        buf: &mut MessageBuf,
+    ) -> Result<(), EncodeError> {
         encode_into(&mut self.bytes, type_name, msg)?;
         let Layout { head, array, tail } = buf.layout();
         if self.bytes.len() != head + tail {
@@ -799,7 +806,10 @@ impl Encoded {
 
     /// (topic, CDR bytes) of the last encoded frame `s`, in [`TOPICS`] order, without the skipped topics:
     /// a large message is handed over in its buffer (lent by the writer's pool or shared with the snapshot).
-    pub fn messages<'a>(&'a self, s: &'a mut FrameSnapshot) -> impl Iterator<Item = (&'static Topic, Payload<'a>)> + 'a {
+    pub fn messages<'a, 's>(
+        &'a self,
+        s: &'s mut FrameSnapshot,
+    ) -> impl Iterator<Item = (&'static Topic, Payload<'a>)> + use<'a, 's> {
         self.encoded.iter().filter(|&&i| !self.msgs[i].skipped).map(move |&i| {
             let m = &self.msgs[i];
             let p = match s.large_mut(i).filter(|_| m.large) {
@@ -898,11 +908,11 @@ mod tests {
                 assert_eq!(msg.bytes(), &expected_conf[..], "{k}");
             }
             let lent = m.iter().filter(|(_, p)| matches!(p, Payload::Lent(_))).count();
-            let m = &m[..MAIN_TOPICS + 3 * s.has_fovea as usize];
-            for (first, [depth, cloud]) in [0, MAIN_TOPICS].into_iter().zip(&expected).take(m.len() / 4) {
-                assert_eq!(m[first].1.bytes(), &depth[..], "{k} {}", m[first].0.topic);
-                assert_eq!(m[first + 2].1.bytes(), &cloud[..], "{k} {}", m[first + 2].0.topic);
-                assert!(matches!(m[first + 1].1, Payload::Small(_)));
+            let images = &m[..MAIN_TOPICS + 3 * s.has_fovea as usize];
+            for (first, [depth, cloud]) in [0, MAIN_TOPICS].into_iter().zip(&expected).take(images.len() / 4) {
+                assert_eq!(images[first].1.bytes(), &depth[..], "{k} {}", images[first].0.topic);
+                assert_eq!(images[first + 2].1.bytes(), &cloud[..], "{k} {}", images[first + 2].0.topic);
+                assert!(matches!(images[first + 1].1, Payload::Small(_)));
             }
             // the pool's buffers went to the writer, as many as it lent for the topics sent
             assert_eq!(lent > 0, k > 0, "{k}");
