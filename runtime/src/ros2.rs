@@ -430,11 +430,11 @@ fn empty_cloud(header: Header<'static>, n: u32) -> PointCloud2<'static> {
     }
 }
 
-/// `words` (float32 values) into `out`, which holds as many bytes as they have.
-fn copy_f32(out: &mut [u8], words: &[f32]) {
+/// `values` (float32) into `out`, which holds as many bytes as they have.
+fn copy_f32(out: &mut [u8], values: &[f32]) {
     // SAFETY: f32 has no padding and any byte is a valid u8; the slice covers exactly the values' memory.
     out.copy_from_slice(unsafe {
-        std::slice::from_raw_parts(words.as_ptr().cast::<u8>(), std::mem::size_of_val(words))
+        std::slice::from_raw_parts(values.as_ptr().cast::<u8>(), std::mem::size_of_val(values))
     });
 }
 

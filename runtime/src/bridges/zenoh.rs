@@ -19,8 +19,8 @@
 //! (the default), in buffers of the writer's Zenoh shared-memory pool ([`super::zenoh_shm`]: the output
 //! thread's one copy of the array goes there) and put as such. Without shared memory (or when the pool is
 //! full), a large message goes out without a copy of ours: the sample's payload is the snapshot's buffer
-//! of the message itself, which Zenoh copies once into its batches. A topic that no subscriber matches (Zenoh's matching status) is neither copied nor encoded
-//! ([`Ros2Writer::unwanted`]).
+//! of the message itself, which Zenoh copies once into its batches. A topic that no subscriber matches
+//! (Zenoh's matching status) is neither copied nor encoded ([`Ros2Writer::unwanted`]).
 use std::path::Path;
 use std::sync::atomic::{AtomicU32, Ordering};
 use std::sync::Arc;
