@@ -26,7 +26,7 @@ pub const SHM_MIN_BYTES: usize = 64 * 1024;
 /// go; 16 fell back to the ordinary path for 3 % of the messages with such a Python subscriber).
 const SHM_POOL_MESSAGES: usize = 32;
 
-/// The pool, made at the first large message: [`SHM_POOL_MESSAGES`] times its size (at least 32 MiB).
+/// The pool, made at the first large message: `SHM_POOL_MESSAGES` times its size (at least 32 MiB).
 #[derive(Default)]
 pub struct ShmPool {
     state: Mutex<State>,
