@@ -243,12 +243,21 @@ fn rmw_zenoh_node_is_seen_by_a_python_client() {
     let p = prefix("rmw");
     let port = std::net::TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port();
     let endpoint = format!("tcp/127.0.0.1:{port}");
+    // the runtime's shared memory off here (on in the bridge keys' test): the large messages go out of the
+    // snapshot's own buffers, and decode all the same
+    let printed = Command::new(env!("CARGO_BIN_EXE_abvs")).args(["run", "--print-config"]).output().unwrap();
+    let printed = String::from_utf8(printed.stdout).unwrap();
+    assert!(printed.contains("\nshared_memory = true\n"), "{printed}");
+    let cfg = d.path().join("shm_off.toml");
+    std::fs::write(&cfg, printed.replace("\nshared_memory = true\n", "\nshared_memory = false\n")).unwrap();
     let (child, out) = start_check(&["rmw", &endpoint]);
     let args = ["--zenoh-connect", &endpoint, "--ros2-keys", "rmw-zenoh", "--ros-distro", "jazzy"];
-    let s = run(d.path(), &p, &[&args[..], &["--frames", "12", "--truth-stride", "0", "--no-self-check"]].concat());
+    let more = ["--frames", "12", "--truth-stride", "0", "--no-self-check", "--config", cfg.to_str().unwrap()];
+    let s = run(d.path(), &p, &[&args[..], &more].concat());
     let r = finish_check(child, out);
     let z = &s["zenoh"];
     println!("zenoh stats {z}; python {r}");
+    assert_eq!(z["writer"]["shared_memory"], Value::Bool(false), "{z}");
     let written = z["frames_written"].as_u64().unwrap();
     assert!(written >= 6 && z["frames_failed"].as_u64() == Some(0), "{z}");
     assert_eq!(r["decode_errors"], serde_json::json!([]));

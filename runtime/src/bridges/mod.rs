@@ -8,3 +8,5 @@ pub mod rmw_zenoh;
 pub mod zenoh;
 #[cfg(feature = "zenoh")]
 pub mod zenoh_gaze;
+#[cfg(feature = "zenoh")]
+pub mod zenoh_shm;

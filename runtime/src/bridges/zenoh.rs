@@ -15,16 +15,12 @@
 //! so a large cloud is never half-dropped), never the pipeline, whose frames wait in a bounded queue
 //! that drops the oldest (counted in the stats under `zenoh`).
 //!
-//! Large messages (depth images, clouds: [`SHM_MIN_BYTES`] and more) are written, with `shared_memory`
-//! (the default), straight into a buffer of the writer's Zenoh shared-memory pool and put as such: a
-//! subscriber on this computer whose session enables shared memory receives a descriptor of the buffer,
-//! not the bytes (no copy into Zenoh's batches nor the socket); any other subscriber gets the same bytes,
-//! which Zenoh copies out of the buffer. When the pool has no free buffer (subscribers still hold them) the
-//! message goes the ordinary way (counted: `shm_fallbacks`), so the pool never blocks the sink. Without
-//! shared memory, a large message goes out without a copy of ours: the sample's payload is the message's
-//! encoded fields and the snapshot's array itself ([`crate::ros2::Cdr`]), which Zenoh copies once into its
-//! batches. A topic that no subscriber matches (Zenoh's matching status) is neither copied nor encoded
-//! ([`Ros2Writer::unwanted`]).
+//! Large messages (depth images, clouds: [`SHM_MIN_BYTES`] and more) are built, with `shared_memory`
+//! (the default), in buffers of the writer's Zenoh shared-memory pool ([`super::zenoh_shm`]: the output
+//! thread's one copy of the array goes there) and put as such. Without shared memory (or when the pool is
+//! full), a large message goes out without a copy of ours: the sample's payload is the snapshot's buffer
+//! of the message itself, which Zenoh copies once into its batches. A topic that no subscriber matches
+//! (Zenoh's matching status) is neither copied nor encoded ([`Ros2Writer::unwanted`]).
 use std::path::Path;
 use std::sync::atomic::{AtomicU32, Ordering};
 use std::sync::Arc;
@@ -34,11 +30,12 @@ use ::zenoh::bytes::ZBytes;
 use ::zenoh::liveliness::LivelinessToken;
 use ::zenoh::pubsub::Publisher;
 use ::zenoh::qos::CongestionControl;
-use ::zenoh::shm::{GarbageCollect, PosixShmProviderBackend, ShmProvider, ShmProviderBuilder};
 use ::zenoh::{Config, Session, Wait};
 
 use super::rmw_zenoh::{self, EntityKind, Qos};
-use crate::ros2::{Cdr, Topic, TopicSet, TOPICS};
+pub use super::zenoh_shm::SHM_MIN_BYTES;
+use super::zenoh_shm::{self, ShmPool};
+use crate::ros2::{BufferPool, Payload, Topic, TopicSet, TOPICS};
 use crate::sinks::ros2_out::{OutputError, Ros2Writer};
 use abvs_runtime_core::config::Ros2Keys;
 use abvs_runtime_core::config::ZenohSettings;
@@ -52,56 +49,6 @@ struct Output {
     rmw: Option<([u8; 16], i64)>,
 }
 
-/// Messages this large and larger go through shared memory: the depth images and the clouds; a smaller
-/// one (CameraInfo, /tf, JointState: < 1 KiB; a cloud of few points) fits one of Zenoh's 64 KiB batches
-/// and costs less copied than a buffer's bookkeeping.
-pub const SHM_MIN_BYTES: usize = 64 * 1024;
-
-/// The writer's shared-memory pool, made at the first large message: [`SHM_POOL_MESSAGES`] times its size
-/// (at least 32 MiB), so that a few frames' large messages fit while subscribers still hold earlier ones.
-struct Shm {
-    provider: Option<ShmProvider<PosixShmProviderBackend>>,
-    /// Why the pool could not be made (then every message goes the ordinary way).
-    failed: Option<String>,
-    pool_bytes: usize,
-    messages: u64,
-    fallbacks: u64,
-}
-
-/// The pool holds this many of the first large message (the main depth image: a frame's large messages
-/// are at most about four of it, the cloud's 16 bytes a point against the image's 4 a pixel, plus the fovea's
-/// and the confidence: 32 hold about five frames, for a subscriber that copies each sample out before it lets
-/// go; 16 fell back to the ordinary path for 3 % of the messages with such a Python subscriber).
-const SHM_POOL_MESSAGES: usize = 32;
-
-impl Shm {
-    /// `msg` in a buffer of the pool, or `None` (no pool, or no free buffer: the caller sends it the
-    /// ordinary way).
-    fn payload(&mut self, msg: &Cdr<'_>) -> Option<ZBytes> {
-        let len = msg.len();
-        if self.provider.is_none() && self.failed.is_none() {
-            let size = (SHM_POOL_MESSAGES * len).max(32 << 20);
-            match ShmProviderBuilder::default_backend(size).wait() {
-                Ok(p) => (self.provider, self.pool_bytes) = (Some(p), size),
-                Err(e) => self.failed = Some(e.to_string()),
-            }
-        }
-        let provider = self.provider.as_ref()?;
-        // GarbageCollect: when the pool is full, reclaim the buffers subscribers let go and try once more;
-        // never waits
-        let Ok(mut buf) = provider.alloc(len).with_policy::<GarbageCollect>().wait() else {
-            self.fallbacks += 1;
-            return None;
-        };
-        let (h, b) = (msg.head.len(), msg.body.map_or(&[][..], |b| b.as_ref()));
-        buf[..h].copy_from_slice(msg.head);
-        buf[h..h + b.len()].copy_from_slice(b);
-        buf[h + b.len()..].copy_from_slice(msg.tail);
-        self.messages += 1;
-        Some(ZBytes::from(buf))
-    }
-}
-
 /// The ROS 2 messages published over Zenoh, one publisher per key.
 pub struct ZenohWriter {
     outputs: Vec<Output>,
@@ -109,8 +56,8 @@ pub struct ZenohWriter {
     tokens: Vec<LivelinessToken>,
     /// Bit i set while no subscriber matches output i (the matching listeners keep it current).
     unwanted: Arc<AtomicU32>,
-    /// With `shared_memory`: the pool the large messages are written into.
-    shm: Option<Shm>,
+    /// With `shared_memory`: the pool the large messages are written into, and how many were sent so.
+    shm: Option<(Arc<ShmPool>, u64)>,
     session: Session,
 }
 
@@ -201,33 +148,27 @@ impl ZenohWriter {
             set(now.matching());
             outputs.push(Output { topic: t, publisher, rmw });
         }
-        let shm = settings.shared_memory.then_some(Shm {
-            provider: None,
-            failed: None,
-            pool_bytes: 0,
-            messages: 0,
-            fallbacks: 0,
-        });
+        let shm = settings.shared_memory.then(|| (Arc::default(), 0));
         Ok(ZenohWriter { outputs, tokens, unwanted, shm, session })
     }
 }
 
-/// A sample's payload: a small message copied whole; a large one as its fields and the shared array
-/// (Zenoh's slices: the array is not copied here, only into Zenoh's batches).
-fn payload(msg: Cdr<'_>) -> ZBytes {
-    let Some(body) = msg.body else { return ZBytes::from(msg.head) };
-    let mut w = ZBytes::writer();
-    std::io::Write::write_all(&mut w, msg.head).unwrap_or(());
-    w.append(ZBytes::from(bytes::Bytes::from_owner(body.clone())));
-    std::io::Write::write_all(&mut w, msg.tail).unwrap_or(());
-    w.finish()
-}
-
 impl Ros2Writer for ZenohWriter {
-    fn write(&mut self, topic: &'static Topic, _seq: u64, _stamp_ns: i64, msg: Cdr<'_>) -> Result<(), OutputError> {
+    fn write(&mut self, topic: &'static Topic, _seq: u64, _stamp_ns: i64, msg: Payload<'_>) -> Result<(), OutputError> {
         let out = self.outputs.iter_mut().find(|o| o.topic == topic).ok_or(OutputError::UnknownTopic(topic.topic))?;
-        let shm = self.shm.as_mut().filter(|_| msg.len() >= SHM_MIN_BYTES).and_then(|s| s.payload(&msg));
-        let put = out.publisher.put(shm.unwrap_or_else(|| payload(msg)));
+        let payload = match msg {
+            Payload::Small(b) => ZBytes::from(b),
+            // the snapshot's buffer, shared: Zenoh copies it into its batches
+            Payload::Shared(m) => ZBytes::from(bytes::Bytes::from_owner(m)),
+            Payload::Lent(b) => {
+                let b = zenoh_shm::payload(b).ok_or(OutputError::ForeignBuffer(topic.topic))?;
+                if let Some((_, n)) = &mut self.shm {
+                    *n += 1;
+                }
+                b
+            }
+        };
+        let put = out.publisher.put(payload);
         let r = match &mut out.rmw {
             None => put.wait(),
             Some((gid, seq)) => {
@@ -243,6 +184,10 @@ impl Ros2Writer for ZenohWriter {
 
     fn unwanted(&self) -> Option<Arc<AtomicU32>> {
         Some(Arc::clone(&self.unwanted))
+    }
+
+    fn pool(&self) -> Option<Arc<dyn BufferPool>> {
+        self.shm.as_ref().map(|(p, _)| Arc::clone(p) as Arc<dyn BufferPool>)
     }
 
     fn skipped(&mut self, topic: &'static Topic) {
@@ -262,13 +207,7 @@ impl Ros2Writer for ZenohWriter {
         self.session.close().wait().map_err(|source| OutputError::Zenoh { key: "(closing the session)", source })?;
         Ok(match &self.shm {
             None => serde_json::json!({ "shared_memory": false }),
-            Some(s) => serde_json::json!({
-                "shared_memory": true,
-                "shm_messages": s.messages,
-                "shm_fallbacks": s.fallbacks,
-                "shm_pool_bytes": s.pool_bytes,
-                "shm_error": s.failed,
-            }),
+            Some((pool, messages)) => pool.report(*messages),
         })
     }
 }

@@ -6,7 +6,7 @@ use std::fs::File;
 use std::io::BufWriter;
 use std::path::Path;
 
-use crate::ros2::{Cdr, Topic, TopicSet};
+use crate::ros2::{Payload, Topic, TopicSet};
 use crate::sinks::ros2_out::{OutputError, Ros2OutSink, Ros2Writer};
 use abvs_runtime_core::error::RuntimeError;
 
@@ -17,8 +17,6 @@ pub struct McapWriter {
     channels: Vec<u16>,
     counts: Vec<u64>,
     path: String,
-    /// A large message joined into one piece.
-    joined: Vec<u8>,
 }
 
 impl McapWriter {
@@ -55,12 +53,12 @@ impl McapWriter {
             channels.push(writer.add_channel(schema, t.topic, "cdr", &BTreeMap::new()).map_err(|e| err("channel", e))?);
         }
         let counts = vec![0; topics.len()];
-        Ok(McapWriter { writer: Some(writer), topics, channels, counts, path: name, joined: Vec::new() })
+        Ok(McapWriter { writer: Some(writer), topics, channels, counts, path: name })
     }
 }
 
 impl Ros2Writer for McapWriter {
-    fn write(&mut self, topic: &'static Topic, seq: u64, stamp_ns: i64, msg: Cdr<'_>) -> Result<(), OutputError> {
+    fn write(&mut self, topic: &'static Topic, seq: u64, stamp_ns: i64, msg: Payload<'_>) -> Result<(), OutputError> {
         let i = self.topics.iter().position(|&t| t == topic).ok_or(OutputError::UnknownTopic(topic.topic))?;
         let w = self.writer.as_mut().ok_or(OutputError::Closed)?;
         let t = stamp_ns.max(0) as u64;
@@ -70,7 +68,7 @@ impl Ros2Writer for McapWriter {
             log_time: t,
             publish_time: t,
         };
-        w.write_to_known_channel(&header, msg.contiguous(&mut self.joined))
+        w.write_to_known_channel(&header, msg.bytes())
             .map_err(|source| OutputError::Mcap { path: self.path.clone(), source })?;
         self.counts[i] += 1;
         Ok(())

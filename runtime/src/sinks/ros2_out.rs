@@ -1,7 +1,8 @@
 //! The sink behind every ROS 2 output (`bridges::zenoh`, `sinks::mcap_log`): the output thread only copies
-//! the frame into a pooled [`FrameSnapshot`] and queues it; the sink's own thread encodes the messages
-//! ([`crate::ros2`]: their fields, the large arrays shared with the snapshot) and hands them to a
-//! [`Ros2Writer`] (the network, a file). The queue is bounded: when the
+//! the frame into a pooled [`FrameSnapshot`] (the large arrays straight into their messages' buffers, lent
+//! by the writer's pool when it has one: [`crate::ros2::buffers`]) and queues it; the sink's own thread
+//! encodes the messages' fields around them ([`crate::ros2`]) and hands them to a [`Ros2Writer`] (the
+//! network, a file). The queue is bounded: when the
 //! writer falls behind, the oldest queued frame is dropped (counted) and the pipeline never waits on it,
 //! except in blocking mode (lossless runs: every frame is written).
 use std::sync::atomic::{AtomicU32, Ordering};
@@ -12,7 +13,7 @@ use std::time::{Duration, Instant};
 use crossbeam_channel::{bounded, Receiver, Sender, TrySendError};
 use serde::Serialize;
 
-use crate::ros2::{Cdr, EncodeError, Encoded, FrameSnapshot, Topic};
+use crate::ros2::{BufferPool, EncodeError, Encoded, FrameSnapshot, Payload, Topic};
 use abvs_runtime_core::error::{Result, RuntimeError};
 use abvs_runtime_core::messages::Published;
 use abvs_runtime_core::sink::Sink;
@@ -53,6 +54,9 @@ pub enum OutputError {
         #[source]
         source: std::io::Error,
     },
+    /// A lent buffer that is not the writer's own pool's.
+    #[error("{0}: a message in a buffer the writer did not lend")]
+    ForeignBuffer(&'static str),
     /// A topic the outputs do not have.
     #[error("{0}: not one of the ROS 2 outputs' topics")]
     UnknownTopic(&'static str),
@@ -63,15 +67,21 @@ pub enum OutputError {
 
 /// Where encoded messages go.
 pub trait Ros2Writer: Send + 'static {
-    /// Writes one message of the frame `seq` stamped `stamp_ns` (CLOCK_MONOTONIC). The message's array is
-    /// the snapshot's buffer: a writer that keeps it past this call makes the next fill allocate a new one.
+    /// Writes one message of the frame `seq` stamped `stamp_ns` (CLOCK_MONOTONIC). A large message's
+    /// shared buffer is the snapshot's: a writer that keeps it past this call makes the next fill
+    /// allocate a new one.
     fn write(
         &mut self,
         topic: &'static Topic,
         seq: u64,
         stamp_ns: i64,
-        msg: Cdr<'_>,
+        msg: Payload<'_>,
     ) -> std::result::Result<(), OutputError>;
+    /// The pool the output thread writes the large messages into (Zenoh's shared memory); `None`: the
+    /// snapshot's own buffers.
+    fn pool(&self) -> Option<Arc<dyn BufferPool>> {
+        None
+    }
     /// The topics nobody receives now (bit i: [`crate::ros2::TOPICS`]`[i]`), kept current by the writer
     /// (Zenoh's matching status): they are neither copied nor encoded. `None` (a file): every topic.
     fn unwanted(&self) -> Option<Arc<AtomicU32>> {
@@ -132,6 +142,8 @@ pub struct Ros2OutSink {
     reallocated: u64,
     /// The writer's [`Ros2Writer::unwanted`].
     unwanted: Option<Arc<AtomicU32>>,
+    /// The writer's [`Ros2Writer::pool`].
+    pool: Option<Arc<dyn BufferPool>>,
     worker: Option<JoinHandle<Ros2OutStats>>,
 }
 
@@ -149,7 +161,7 @@ impl Ros2OutSink {
             let _ = free_tx.send(Box::default());
         }
         let (rx, free) = (queue_rx.clone(), free_tx.clone());
-        let unwanted = writer.unwanted();
+        let (unwanted, pool) = (writer.unwanted(), writer.pool());
         let worker = std::thread::Builder::new()
             .name(format!("abvs-{name}"))
             .spawn(move || worker(writer, rx, free))
@@ -166,6 +178,7 @@ impl Ros2OutSink {
             copy_cpu_ns: 0,
             reallocated: 0,
             unwanted,
+            pool,
             worker: Some(worker),
         })
     }
@@ -180,15 +193,16 @@ fn worker<W: Ros2Writer>(
     let mut enc = Encoded::default();
     let mut times: Vec<f64> = Vec::new();
     // ends when the sink drops its sender (finish) and the queue is drained
-    for snap in queue.iter() {
+    for mut snap in queue.iter() {
         let t0 = Instant::now();
-        let r = enc.encode(&snap).map_err(OutputError::from).and_then(|()| {
+        let (seq, stamp) = (snap.seq, snap.t_frame_ns);
+        let r = enc.encode(&mut snap).map_err(OutputError::from).and_then(|()| {
             for topic in enc.skipped() {
                 writer.skipped(topic);
                 st.messages_skipped += 1;
             }
-            for (topic, bytes) in enc.messages() {
-                writer.write(topic, snap.seq, snap.t_frame_ns, bytes)?;
+            for (topic, msg) in enc.messages(&mut snap) {
+                writer.write(topic, seq, stamp, msg)?;
                 st.messages += 1;
             }
             Ok(())
@@ -200,8 +214,8 @@ fn worker<W: Ros2Writer>(
                 st.last_error.get_or_insert(format!("frame {}: {e}", snap.seq));
             }
         }
-        // the writer is done with the snapshot's arrays: the next fill writes them in place
-        enc.release();
+        // buffers lent for messages a failure left unsent go back to the pool now
+        snap.release();
         if times.len() < 1_000_000 {
             times.push(t0.elapsed().as_secs_f64() * 1e3);
         }
@@ -251,7 +265,7 @@ impl Sink for Ros2OutSink {
         };
         let cpu0 = abvs_runtime_core::cpu::thread_cpu_ns();
         let skip = self.unwanted.as_ref().map_or(0, |u| u.load(Ordering::Relaxed));
-        self.reallocated += snap.fill(out, skip) as u64;
+        self.reallocated += snap.fill(out, skip, self.pool.as_deref()) as u64;
         self.copy_cpu_ns += abvs_runtime_core::cpu::thread_cpu_ns() - cpu0;
         loop {
             match tx.try_send(snap) {
