@@ -34,7 +34,8 @@ c.insert_json5("transport/shared_memory/enabled", "true")
 s = zenoh.open(c)
 n = {}
 subs = [s.declare_subscriber(k, lambda x: n.__setitem__(str(x.key_expr), n.get(str(x.key_expr), 0) + 1))
-        for k in ["abvs/depth", "abvs/camera_info", "abvs/points", "tf", "abvs/joint_states", "abvs/fovea/**", "0/abvs/**",
+        for k in ["abvs/depth", "abvs/camera_info", "abvs/points", "tf", "abvs/joint_states", "abvs/fovea/**", "abvs/confidence",
+                  "0/abvs/**",
                   "0/tf/**"]]
 threading.Event().wait()
 PY
