@@ -8,7 +8,6 @@ use abvs_render::{RenderOptions, Surface, Texture};
 use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion, Vector3};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
-use std::io::Write;
 
 fn main() {
     let a: Vec<String> = std::env::args().collect();
@@ -51,15 +50,9 @@ fn main() {
         std::fs::create_dir_all(&dir).unwrap();
         l.gray_image().save(dir.join("left.png")).unwrap();
         r.gray_image().save(dir.join("right.png")).unwrap();
-        // PFM rows bottom to top
-        let mut pfm = format!("Pf\n{w} {h}\n-1.0\n").into_bytes();
-        for y in (0..h as usize).rev() {
-            for z in &l.depth[y * w as usize..(y + 1) * w as usize] {
-                let d = if z.is_finite() { (f * b / *z as f64) as f32 } else { f32::INFINITY };
-                pfm.extend_from_slice(&d.to_le_bytes());
-            }
-        }
-        std::fs::File::create(dir.join("gt.pfm")).unwrap().write_all(&pfm).unwrap();
+        let gt: Vec<f32> =
+            l.depth.iter().map(|z| if z.is_finite() { (f * b / *z as f64) as f32 } else { f32::INFINITY }).collect();
+        abvs_disparity::pfm::write_pfm(&dir.join("gt.pfm"), w as usize, h as usize, &gt).unwrap();
         eprintln!("s{seed}: f {f:.0} px, baseline {b:.3} m, noise {noise:.1}");
     }
 }

@@ -5,7 +5,6 @@
 //! not the bytes; any other gets the same bytes, which Zenoh copies out of it. When the pool has no free
 //! buffer (subscribers still hold them) the message goes in the snapshot's own buffer, the ordinary way
 //! (counted: `shm_fallbacks`), so the pool never blocks the pipeline.
-use std::any::Any;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Mutex;
 
@@ -41,23 +40,6 @@ struct State {
     bytes: usize,
 }
 
-/// A buffer of the pool.
-struct ShmBuf(ZShmMut);
-
-impl LentBuf for ShmBuf {
-    fn bytes(&self) -> &[u8] {
-        &self.0
-    }
-
-    fn bytes_mut(&mut self) -> &mut [u8] {
-        &mut self.0
-    }
-
-    fn into_any(self: Box<Self>) -> Box<dyn Any> {
-        self
-    }
-}
-
 impl BufferPool for ShmPool {
     fn lend(&self, len: usize) -> Option<Box<dyn LentBuf>> {
         if len < SHM_MIN_BYTES {
@@ -74,7 +56,7 @@ impl BufferPool for ShmPool {
         // GarbageCollect: when the pool is full, reclaim the buffers subscribers let go and try once more;
         // never waits
         match st.provider.as_ref()?.alloc(len).with_policy::<GarbageCollect>().wait() {
-            Ok(buf) => Some(Box::new(ShmBuf(buf))),
+            Ok(buf) => Some(Box::new(buf)),
             Err(_) => {
                 self.fallbacks.fetch_add(1, Ordering::Relaxed);
                 None
@@ -99,5 +81,5 @@ impl ShmPool {
 
 /// A buffer this pool lent, as a sample's payload (`None`: another pool's).
 pub fn payload(buf: Box<dyn LentBuf>) -> Option<ZBytes> {
-    buf.into_any().downcast::<ShmBuf>().ok().map(|b| ZBytes::from(b.0))
+    buf.into_any().downcast::<ZShmMut>().ok().map(|b| ZBytes::from(*b))
 }

@@ -17,6 +17,19 @@ pub trait LentBuf: Send {
     fn into_any(self: Box<Self>) -> Box<dyn Any>;
 }
 
+/// Any owned byte buffer (Zenoh's `ZShmMut`, a `Vec<u8>`) can be lent.
+impl<T: AsRef<[u8]> + AsMut<[u8]> + Send + 'static> LentBuf for T {
+    fn bytes(&self) -> &[u8] {
+        self.as_ref()
+    }
+    fn bytes_mut(&mut self) -> &mut [u8] {
+        self.as_mut()
+    }
+    fn into_any(self: Box<Self>) -> Box<dyn Any> {
+        self
+    }
+}
+
 /// A writer's pool of message buffers, asked on the pipeline's output thread.
 pub trait BufferPool: Send + Sync {
     /// A buffer of exactly `len` bytes, or `None`: the message goes in the snapshot's own buffer (a pool
@@ -177,27 +190,13 @@ pub(crate) mod tests {
         pub left: AtomicUsize,
     }
 
-    pub(crate) struct VecBuf(pub Vec<u8>);
-
-    impl LentBuf for VecBuf {
-        fn bytes(&self) -> &[u8] {
-            &self.0
-        }
-        fn bytes_mut(&mut self) -> &mut [u8] {
-            &mut self.0
-        }
-        fn into_any(self: Box<Self>) -> Box<dyn Any> {
-            self
-        }
-    }
-
     impl BufferPool for VecPool {
         fn lend(&self, len: usize) -> Option<Box<dyn LentBuf>> {
             let left = self.left.load(Ordering::Relaxed);
             (left > 0).then(|| {
                 self.left.store(left - 1, Ordering::Relaxed);
                 // not zeroed, as a shared-memory buffer from a pool is not
-                Box::new(VecBuf(vec![0xa5; len])) as Box<dyn LentBuf>
+                Box::new(vec![0xa5u8; len]) as Box<dyn LentBuf>
             })
         }
     }
