@@ -241,8 +241,7 @@ fn rmw_zenoh_node_is_seen_by_a_python_client() {
     let _one = one_run();
     let d = tempfile::tempdir().unwrap();
     let p = prefix("rmw");
-    let port = std::net::TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port();
-    let endpoint = format!("tcp/127.0.0.1:{port}");
+    let endpoint = free_endpoint();
     // the runtime's shared memory off here (on in the bridge keys' test): the large messages go out of the
     // snapshot's own buffers, and decode all the same
     let printed = Command::new(env!("CARGO_BIN_EXE_abvs")).args(["run", "--print-config"]).output().unwrap();
