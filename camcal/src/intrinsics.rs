@@ -192,7 +192,21 @@ fn calibrate_once(
             let flags = calib3d::Fisheye_CALIB_RECOMPUTE_EXTRINSIC | calib3d::Fisheye_CALIB_FIX_SKEW;
             let mut rv: Vector<Vec3d> = Vector::new();
             let mut tv: Vector<Vec3d> = Vector::new();
-            let r = calib3d::calibrate(&obj, &img, size, &mut k, &mut d, &mut rv, &mut tv, flags, criteria()?);
+            let mut r = calib3d::calibrate(&obj, &img, size, &mut k, &mut d, &mut rv, &mut tv, flags, criteria()?);
+            if r.is_err() {
+                // OpenCV starts a fisheye from f = size / pi and, with that, cannot undistort a board seen near
+                // the border (boards close to the camera) to find its first pose: start instead from the
+                // views that stay in the centre, then fit every view from there
+                let central = central_views(views, width, height);
+                if central.len() >= 3 && central.len() < views.len() {
+                    let (guess, _) = calibrate_once(&central, width, height, model)?;
+                    k = camera_matrix(&guess)?;
+                    d = dist_coeffs(&guess)?;
+                    let flags = flags | calib3d::Fisheye_CALIB_USE_INTRINSIC_GUESS;
+                    (rv, tv) = (Vector::new(), Vector::new());
+                    r = calib3d::calibrate(&obj, &img, size, &mut k, &mut d, &mut rv, &mut tv, flags, criteria()?);
+                }
+            }
             for (a, b) in rv.iter().zip(tv.iter()) {
                 rvecs.push(Mat::from_slice(&[a[0], a[1], a[2]])?.try_clone()?);
                 tvecs.push(Mat::from_slice(&[b[0], b[1], b[2]])?.try_clone()?);
@@ -214,6 +228,12 @@ fn calibrate_once(
         ext.push((vec3(&r)?, vec3(&t)?));
     }
     Ok((intr, ext))
+}
+
+/// The views whose corners all lie within half the image's height of its centre.
+fn central_views(views: &[View], width: u32, height: u32) -> Vec<View> {
+    let (cx, cy, r) = (0.5 * width as f32, 0.5 * height as f32, 0.5 * height as f32);
+    views.iter().filter(|v| v.pixels.iter().all(|p| (p.x - cx).hypot(p.y - cy) <= r)).cloned().collect()
 }
 
 /// Squared reprojection errors of each view's corners.

@@ -49,6 +49,9 @@ pub fn tag_bits(id: u32) -> Result<[[bool; 10]; 10]> {
     Ok(bits)
 }
 
+/// How far the paper's scene puts its nearest boards from the home camera (mm).
+pub const BOARDS_MM: f64 = 1500.0;
+
 impl GridScene {
     /// The paper's setup: four boards (indices 0-3) in a 2x2 arrangement about 1.5 m in front
     /// of the home camera, each turned 12-18 deg toward the centre (a shallow bowl, which gives
@@ -59,7 +62,7 @@ impl GridScene {
         let mut boards = Vec::new();
         for (b, (sx, sy)) in [(-1.0, 1.0), (1.0, 1.0), (-1.0, -1.0), (1.0, -1.0)].iter().enumerate() {
             // board centre in the world (y down: sy = 1 is the lower row)
-            let centre = Vector3::new(sx * (0.5 * w + 40.0), sy * (0.5 * h + 40.0), 1500.0 + 60.0 * (b as f64));
+            let centre = Vector3::new(sx * (0.5 * w + 40.0), sy * (0.5 * h + 40.0), BOARDS_MM + 60.0 * (b as f64));
             // facing the camera: board x = world x, board y (up) = -world y, board z = -world z,
             // then turned toward the centre about the world y and x axes
             let face = Matrix3::from_diagonal(&Vector3::new(1.0, -1.0, -1.0));
@@ -317,6 +320,9 @@ pub struct StereoSessionSpec {
     /// little roll) and both cameras move with it, as on a rig turned in front of the boards.
     pub n: usize,
     pub half_range_deg: f64,
+    /// Distances (mm) of the head from the boards' nearest row, each with all `n x n` orientations: at one
+    /// distance, a camera a little further forward cannot be told from one with a slightly longer lens.
+    pub distances_mm: Vec<f64>,
     pub noise_sigma: f64,
     pub blur_sigma: f64,
     pub supersample: u32,
@@ -329,6 +335,7 @@ impl Default for StereoSessionSpec {
             grid: AprilGridSpec::default(),
             n: 3,
             half_range_deg: 20.0,
+            distances_mm: vec![600.0, 1000.0, BOARDS_MM],
             noise_sigma: 1.0,
             blur_sigma: 0.6,
             supersample: 2,
@@ -371,12 +378,24 @@ pub fn write_stereo_sim_session(
     let rt = truth.rotation.transpose();
     let right_in_left = Pose::new(rt, -(rt * truth.translation_mm));
     let n = spec.n;
+    if spec.distances_mm.is_empty() || spec.distances_mm.iter().any(|d| !(d.is_finite() && *d >= 200.0)) {
+        return Err(CamcalError::Invalid(format!(
+            "stereo session: distances {:?} mm (each 200 or more)",
+            spec.distances_mm
+        )));
+    }
+    let views = n * n * spec.distances_mm.len();
     let mut pairs = Vec::new();
-    for k in 0..n * n {
-        progress(k, n * n);
+    for k in 0..views {
+        progress(k, views);
         let at = |i: usize| -spec.half_range_deg + 2.0 * spec.half_range_deg * i as f64 / (n - 1) as f64;
-        let (alpha, gamma) = (at(k / n), at(k % n));
-        let head = Pose::new(abvs_eye::Fick::from_deg([alpha, 0.15 * gamma, gamma]).to_matrix(), Vector3::zeros());
+        let (alpha, gamma) = (at(k % (n * n) / n), at(k % n));
+        // the head moved toward the boards (world z) from where the paper's scene puts them
+        let ahead = BOARDS_MM - spec.distances_mm[k / (n * n)];
+        let head = Pose::new(
+            abvs_eye::Fick::from_deg([alpha, 0.15 * gamma, gamma]).to_matrix(),
+            Vector3::new(0.0, 0.0, ahead),
+        );
         let mut names = Vec::new();
         for (side, pose) in [(0, head), (1, head.compose(&right_in_left))] {
             let opts = RenderOptions {
@@ -395,7 +414,7 @@ pub fn write_stereo_sim_session(
         }
         pairs.push((names[0].clone(), names[1].clone()));
     }
-    progress(n * n, n * n);
+    progress(views, views);
     let meta = StereoMeta {
         format: STEREO_FORMAT.into(),
         target: crate::target::Target::AprilGrid(spec.grid).to_string(),

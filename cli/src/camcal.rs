@@ -276,10 +276,7 @@ pub fn sim_session(a: SimSessionArgs) -> anyhow::Result<ExitCode> {
         ..Default::default()
     };
     let pb = crate::progress_bar(0, "rendering");
-    let truth = write_sim_session(&a.out, &unit, &spec, |k, n| {
-        pb.set_length(n as u64);
-        pb.set_position(k as u64)
-    })?;
+    let truth = write_sim_session(&a.out, &unit, &spec, crate::progress_to(&pb))?;
     pb.finish_and_clear();
     println!("wrote {} ({} images + {} home; truth.csv, camera.yaml)", a.out.display(), truth.len() - a.home, a.home);
     Ok(ExitCode::SUCCESS)
@@ -293,13 +290,16 @@ pub struct SimStereoArgs {
     /// Session directory to write (stereo.toml, pairs.csv, images).
     #[arg(long)]
     out: PathBuf,
-    /// n x n head orientations (alpha, gamma over +-range). On the fixture's 800x600 fisheye pair,
-    /// 3 x 3 over 20 deg leaves 0.08 deg of rotation error, 5 x 5 over 25 deg 0.02 deg.
+    /// n x n head orientations (alpha, gamma over +-range) at each distance.
     #[arg(long, default_value_t = 5, value_parser = crate::args::count(2usize, 20))]
     n: usize,
     /// Half-range of the head orientations (deg, up to 60).
     #[arg(long, default_value_t = 25.0, value_parser = crate::args::positive_up_to(60.0))]
     range_deg: f64,
+    /// Distances from the boards (mm, comma-separated, each >= 200): at one alone, a camera slightly forward
+    /// and one with a slightly longer lens look alike (the fixture's T was 0.6 mm off along the axis).
+    #[arg(long, value_delimiter = ',', default_value = "600,1000,1500", value_parser = crate::args::finite_in(200.0, 1e5))]
+    distances_mm: Vec<f64>,
     /// Seed of the image noise.
     #[arg(long, default_value_t = 0)]
     seed: u64,
@@ -321,6 +321,7 @@ pub fn sim_stereo(a: SimStereoArgs) -> anyhow::Result<ExitCode> {
     let spec = StereoSessionSpec {
         n: a.n,
         half_range_deg: a.range_deg,
+        distances_mm: a.distances_mm,
         noise_sigma: a.noise,
         blur_sigma: a.blur,
         supersample: a.supersample,
@@ -328,10 +329,7 @@ pub fn sim_stereo(a: SimStereoArgs) -> anyhow::Result<ExitCode> {
         ..Default::default()
     };
     let pb = crate::progress_bar(0, "rendering");
-    let n = write_stereo_sim_session(&a.out, &truth, &spec, |k, n| {
-        pb.set_length(n as u64);
-        pb.set_position(k as u64)
-    })?;
+    let n = write_stereo_sim_session(&a.out, &truth, &spec, crate::progress_to(&pb))?;
     pb.finish_and_clear();
     println!("wrote {} ({n} pairs; stereo.toml, pairs.csv, truth.yaml)", a.out.display());
     Ok(ExitCode::SUCCESS)

@@ -56,10 +56,7 @@ pub fn run(a: DemoArgs) -> anyhow::Result<ExitCode> {
     let t0 = Instant::now();
     let spec = SimSpec { commanded: Commanded::Step(a.step_deg), seed: a.seed, ..Default::default() };
     let pb = crate::progress_bar(0, "simulating");
-    let (data, stats) = simulate_dataset(&unit, &spec, |d, t| {
-        pb.set_length(t as u64);
-        pb.set_position(d as u64);
-    })?;
+    let (data, stats) = simulate_dataset(&unit, &spec, crate::progress_to(&pb))?;
     pb.finish_and_clear();
     let data_path = a.out.join(format!("dataset_{}deg.csv", a.step_deg));
     data.write(&data_path)?;

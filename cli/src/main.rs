@@ -313,6 +313,14 @@ pub fn progress_bar(total: u64, what: &str) -> indicatif::ProgressBar {
     pb
 }
 
+/// A `(done, total)` progress callback that moves `pb`.
+pub fn progress_to(pb: &indicatif::ProgressBar) -> impl FnMut(usize, usize) + '_ {
+    |done, total| {
+        pb.set_length(total as u64);
+        pb.set_position(done as u64)
+    }
+}
+
 /// Parses "a,b,c;a,b,c;..." into triples of finite numbers.
 pub fn parse_list(s: &str) -> anyhow::Result<Vec<[f64; 3]>> {
     s.split(';').map(|t| args::vec3(t.trim()).map_err(anyhow::Error::msg)).collect()

@@ -342,10 +342,7 @@ pub fn run(cmd: SimCmd) -> anyhow::Result<ExitCode> {
             };
             let t0 = std::time::Instant::now();
             let pb = crate::progress_bar(0, "simulating");
-            let (data, stats) = simulate_dataset(&unit, &spec, |done, total| {
-                pb.set_length(total as u64);
-                pb.set_position(done as u64);
-            })?;
+            let (data, stats) = simulate_dataset(&unit, &spec, crate::progress_to(&pb))?;
             pb.finish_and_clear();
             data.write(&a.out)?;
             eprintln!(

@@ -223,7 +223,7 @@ fn topics_nobody_receives_are_neither_copied_nor_encoded() {
     let endpoint = free_endpoint();
     let (child, out) = start_check(&["count", &endpoint, "abvs/depth"]);
     let s =
-        run(d.path(), &p, &["--zenoh-connect", &endpoint, "--frames", "12", "--truth-stride", "0", "--no-self-check"]);
+        run(d.path(), &p, &["--zenoh-connect", &endpoint, "--frames", "24", "--truth-stride", "0", "--no-self-check"]);
     let r = finish_check(child, out);
     let z = &s["zenoh"];
     println!("zenoh stats {z}; python {r}");
@@ -251,7 +251,7 @@ fn rmw_zenoh_node_is_seen_by_a_python_client() {
     std::fs::write(&cfg, printed.replace("\nshared_memory = true\n", "\nshared_memory = false\n")).unwrap();
     let (child, out) = start_check(&["rmw", &endpoint]);
     let args = ["--zenoh-connect", &endpoint, "--ros2-keys", "rmw-zenoh", "--ros-distro", "jazzy"];
-    let more = ["--frames", "12", "--truth-stride", "0", "--no-self-check", "--config", cfg.to_str().unwrap()];
+    let more = ["--frames", "24", "--truth-stride", "0", "--no-self-check", "--config", cfg.to_str().unwrap()];
     let s = run(d.path(), &p, &[&args[..], &more].concat());
     let r = finish_check(child, out);
     let z = &s["zenoh"];
