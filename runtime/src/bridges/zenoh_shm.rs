@@ -9,7 +9,7 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Mutex;
 
 use ::zenoh::bytes::ZBytes;
-use ::zenoh::shm::{GarbageCollect, PosixShmProviderBackend, ShmProvider, ShmProviderBuilder, ZShmMut};
+use ::zenoh::shm::{AllocAlignment, GarbageCollect, PosixShmProviderBackend, ShmProvider, ShmProviderBuilder, ZShmMut};
 use ::zenoh::Wait;
 
 use crate::ros2::buffers::{BufferPool, LentBuf};
@@ -54,8 +54,10 @@ impl BufferPool for ShmPool {
             }
         }
         // GarbageCollect: when the pool is full, reclaim the buffers subscribers let go and try once more;
-        // never waits
-        match st.provider.as_ref()?.alloc(len).with_policy::<GarbageCollect>().wait() {
+        // never waits. 4-byte aligned (the default is 1): the depth stage writes its float map in place
+        // (`F32Map::lend` refuses a misaligned buffer), the cloud is packed as words.
+        let layout = (len, AllocAlignment::ALIGN_4_BYTES);
+        match st.provider.as_ref()?.alloc(layout).with_policy::<GarbageCollect>().wait() {
             Ok(buf) => Some(Box::new(buf)),
             Err(_) => {
                 self.fallbacks.fetch_add(1, Ordering::Relaxed);

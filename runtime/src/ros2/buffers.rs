@@ -4,31 +4,9 @@
 //! into a buffer lent by the writer ([`BufferPool`]: Zenoh's shared memory, which a subscriber on this
 //! computer reads in place) or, when the writer has no pool or its pool is full, into the snapshot's own
 //! buffer, reused from frame to frame (a file writer writes it as it is; Zenoh copies it into its batches).
-use std::any::Any;
 use std::sync::Arc;
 
-/// A buffer lent by a writer's pool for one message.
-pub trait LentBuf: Send {
-    /// The message's bytes.
-    fn bytes(&self) -> &[u8];
-    /// The same, to write.
-    fn bytes_mut(&mut self) -> &mut [u8];
-    /// The buffer as its own type again, for the writer that lent it.
-    fn into_any(self: Box<Self>) -> Box<dyn Any>;
-}
-
-/// Any owned byte buffer (Zenoh's `ZShmMut`, a `Vec<u8>`) can be lent.
-impl<T: AsRef<[u8]> + AsMut<[u8]> + Send + 'static> LentBuf for T {
-    fn bytes(&self) -> &[u8] {
-        self.as_ref()
-    }
-    fn bytes_mut(&mut self) -> &mut [u8] {
-        self.as_mut()
-    }
-    fn into_any(self: Box<Self>) -> Box<dyn Any> {
-        self
-    }
-}
+pub use abvs_runtime_core::lent::LentBuf;
 
 /// A writer's pool of message buffers, asked on the pipeline's output thread.
 pub trait BufferPool: Send + Sync {
@@ -164,6 +142,24 @@ impl MessageBuf {
         };
         let (h, rest) = msg.split_at_mut(head);
         (h, &mut rest[array..])
+    }
+
+    /// Readies the buffer for a message of `layout` whose array is already written in a buffer lent for it
+    /// elsewhere (the depth map's, [`abvs_runtime_core::lent::F32Map::lend`]), which comes with
+    /// [`MessageBuf::adopt`]; until then the buffer has no message.
+    pub fn expect_lent(&mut self, layout: Layout) {
+        self.layout = layout;
+        self.lent = None;
+    }
+
+    /// Takes the lent buffer that holds this message's array (its length the layout's), after
+    /// [`MessageBuf::expect_lent`]; a buffer of another length is returned.
+    pub fn adopt(&mut self, buf: Box<dyn LentBuf>) -> Result<(), Box<dyn LentBuf>> {
+        if buf.bytes().len() != self.layout.len() {
+            return Err(buf);
+        }
+        self.lent = Some(buf);
+        Ok(())
     }
 
     /// The message for a writer: the lent buffer itself (this one no longer has it), or the own one shared.

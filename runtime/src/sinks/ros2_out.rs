@@ -5,7 +5,7 @@
 //! network, a file). The queue is bounded: when the
 //! writer falls behind, the oldest queued frame is dropped (counted) and the pipeline never waits on it,
 //! except in blocking mode (lossless runs: every frame is written).
-use std::sync::atomic::{AtomicU32, Ordering};
+use std::sync::atomic::{AtomicU32, AtomicUsize, Ordering};
 use std::sync::Arc;
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
@@ -13,9 +13,9 @@ use std::time::{Duration, Instant};
 use crossbeam_channel::{bounded, Receiver, Sender, TrySendError};
 use serde::Serialize;
 
-use crate::ros2::{BufferPool, EncodeError, Encoded, FrameSnapshot, Payload, Topic};
+use crate::ros2::{image_layout, BufferPool, EncodeError, Encoded, FrameSnapshot, Payload, Topic};
 use abvs_runtime_core::error::{Result, RuntimeError};
-use abvs_runtime_core::messages::Published;
+use abvs_runtime_core::messages::{DepthFrame, Published};
 use abvs_runtime_core::sink::Sink;
 use abvs_runtime_core::stats::RunStats;
 
@@ -144,8 +144,15 @@ pub struct Ros2OutSink {
     unwanted: Option<Arc<AtomicU32>>,
     /// The writer's [`Ros2Writer::pool`].
     pool: Option<Arc<dyn BufferPool>>,
+    /// What this sink's buffers lent to depth maps are known by ([`abvs_runtime_core::lent::F32Map::lend`]).
+    lender: usize,
+    /// The frame consumed whose depth image awaits the buffer lent to its depth map ([`Sink::frame_done`]).
+    pending: Option<Box<FrameSnapshot>>,
     worker: Option<JoinHandle<Ros2OutStats>>,
 }
+
+/// Numbers the sinks' lent buffers apart.
+static LENDERS: AtomicUsize = AtomicUsize::new(1);
 
 impl Ros2OutSink {
     /// A sink named `name` (its stats key) writing through `writer` on its own thread, `queue` frames deep.
@@ -179,6 +186,8 @@ impl Ros2OutSink {
             reallocated: 0,
             unwanted,
             pool,
+            lender: LENDERS.fetch_add(1, Ordering::Relaxed),
+            pending: None,
             worker: Some(worker),
         })
     }
@@ -239,7 +248,9 @@ impl Sink for Ros2OutSink {
     }
 
     fn consume(&mut self, out: &Published) -> Result<()> {
-        let Some(tx) = &self.queue_tx else { return Ok(()) };
+        if self.queue_tx.is_none() {
+            return Ok(());
+        }
         self.frames_in += 1;
         let alive = |w: &Option<JoinHandle<Ros2OutStats>>| w.as_ref().is_some_and(|w| !w.is_finished());
         let snap = if self.blocking {
@@ -265,8 +276,64 @@ impl Sink for Ros2OutSink {
         };
         let cpu0 = abvs_runtime_core::cpu::thread_cpu_ns();
         let skip = self.unwanted.as_ref().map_or(0, |u| u.load(Ordering::Relaxed));
-        self.reallocated += snap.fill(out, skip, self.pool.as_deref()) as u64;
+        self.reallocated += snap.fill(out, skip, self.pool.as_deref(), Some(self.lender)) as u64;
         self.copy_cpu_ns += abvs_runtime_core::cpu::thread_cpu_ns() - cpu0;
+        if snap.awaits_depth {
+            // the depth map is in this sink's buffer: sent once every sink has read it (frame_done)
+            self.pending = Some(snap);
+            return Ok(());
+        }
+        self.queue(snap)
+    }
+
+    fn lend_depth(&mut self, depth: &mut DepthFrame) -> Result<bool> {
+        let (Some(pool), Some(_)) = (&self.pool, &self.queue_tx) else { return Ok(false) };
+        // nobody receives the depth image: no message to write it into
+        if self.unwanted.as_ref().is_some_and(|u| u.load(Ordering::Relaxed) & 1 != 0) {
+            return Ok(false);
+        }
+        let cpu0 = abvs_runtime_core::cpu::thread_cpu_ns();
+        let layout = image_layout(depth.depth.len());
+        // a buffer the map refuses (misaligned) goes back to the pool: the map is copied, the usual way
+        let lent = pool.lend(layout.len()).is_some_and(|b| depth.depth.lend(b, layout.head, self.lender).is_ok());
+        self.copy_cpu_ns += abvs_runtime_core::cpu::thread_cpu_ns() - cpu0;
+        Ok(lent)
+    }
+
+    fn frame_done(&mut self, depth: &mut DepthFrame) -> Result<()> {
+        // a buffer lent for a frame that was not consumed (failed, dropped, depth unwanted by then) is
+        // dropped here: back to its pool
+        let buf = depth.depth.take_lent(self.lender);
+        let Some(mut snap) = self.pending.take() else { return Ok(()) };
+        let cpu0 = abvs_runtime_core::cpu::thread_cpu_ns();
+        let adopted = match buf {
+            Some(b) => snap.adopt_depth(b).is_ok(),
+            None => false,
+        };
+        self.copy_cpu_ns += abvs_runtime_core::cpu::thread_cpu_ns() - cpu0;
+        if !adopted {
+            // cannot happen (the buffer is lent at the map's size and only this sink takes it): not sent
+            snap.awaits_depth = false;
+            let _ = self.free_tx.try_send(snap);
+            self.dropped += 1;
+            return Err(RuntimeError::Invalid(format!("{}: the depth map's buffer did not come back", self.name)));
+        }
+        self.queue(snap)
+    }
+
+    fn finish(&mut self, stats: &mut RunStats) {
+        // (a frame awaiting its depth buffer would be one whose frame_done never came: not sent)
+        self.dropped += self.pending.take().is_some() as u64;
+        self.finish_worker(stats);
+    }
+}
+
+impl Ros2OutSink {
+    /// Hands a filled snapshot to the worker; when its queue is full, the oldest queued frame makes room
+    /// (blocking mode: waits).
+    fn queue(&mut self, mut snap: Box<FrameSnapshot>) -> Result<()> {
+        let Some(tx) = &self.queue_tx else { return Ok(()) };
+        let alive = |w: &Option<JoinHandle<Ros2OutStats>>| w.as_ref().is_some_and(|w| !w.is_finished());
         loop {
             match tx.try_send(snap) {
                 Ok(()) => return Ok(()),
@@ -296,7 +363,7 @@ impl Sink for Ros2OutSink {
         }
     }
 
-    fn finish(&mut self, stats: &mut RunStats) {
+    fn finish_worker(&mut self, stats: &mut RunStats) {
         // the worker writes what is queued, then ends
         self.queue_tx = None;
         let mut st = match self.worker.take().map(|w| w.join()) {
