@@ -89,6 +89,11 @@ impl F32Map {
         self.lent.take().map(|l| l.buf)
     }
 
+    /// Values the own buffer has room for without allocating.
+    pub fn capacity(&self) -> usize {
+        self.own.capacity()
+    }
+
     /// The own buffer, to resize or refill (a lent buffer is given back first).
     pub fn vec_mut(&mut self) -> &mut Vec<f32> {
         self.lent = None;
@@ -188,7 +193,7 @@ mod tests {
         let back = Arc::new(AtomicUsize::new(0));
         let mut m = F32Map::from(vec![5.0; 3]);
         for skew in 1..4 {
-            let b = m.lend(buffer(32, 4, skew, &back), 4, 1).err().expect("misaligned: refused");
+            let Err(b) = m.lend(buffer(32, 4, skew, &back), 4, 1) else { panic!("misaligned: refused") };
             assert_ne!(b.bytes()[4..].as_ptr().align_offset(4), 0);
         }
         assert!(m.lend(buffer(4 + 11, 4, 0, &back), 4, 1).is_err(), "too short");

@@ -377,3 +377,136 @@ impl Ros2OutSink {
         stats.extra.insert(self.name.into(), serde_json::to_value(&st).unwrap_or_default());
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::ros2::buffers::LentBuf;
+    use abvs_eye::Pose;
+    use abvs_runtime_core::messages::{FrameMotion, Rectification, RectifiedCamera, StereoPose};
+    use std::sync::Mutex;
+
+    /// (topic, whether in a lent buffer, bytes) of every message written.
+    type Written = Arc<Mutex<Vec<(&'static str, bool, Vec<u8>)>>>;
+
+    /// A lent buffer that counts itself back to its pool when dropped.
+    struct Counted(Vec<u8>, Arc<AtomicUsize>);
+    impl AsRef<[u8]> for Counted {
+        fn as_ref(&self) -> &[u8] {
+            &self.0
+        }
+    }
+    impl AsMut<[u8]> for Counted {
+        fn as_mut(&mut self) -> &mut [u8] {
+            &mut self.0
+        }
+    }
+    impl Drop for Counted {
+        fn drop(&mut self) {
+            self.1.fetch_sub(1, Ordering::Relaxed);
+        }
+    }
+
+    /// Lends every buffer, counting those out.
+    struct Pool(Arc<AtomicUsize>);
+    impl BufferPool for Pool {
+        fn lend(&self, len: usize) -> Option<Box<dyn LentBuf>> {
+            self.0.fetch_add(1, Ordering::Relaxed);
+            // not zeroed, as a shared-memory buffer from a pool is not
+            Some(Box::new(Counted(vec![0xa5; len], self.0.clone())))
+        }
+    }
+
+    struct Recorder {
+        written: Written,
+        pool: Option<Arc<dyn BufferPool>>,
+        unwanted: Arc<AtomicU32>,
+    }
+    impl Ros2Writer for Recorder {
+        fn write(&mut self, t: &'static Topic, _: u64, _: i64, msg: Payload<'_>) -> std::result::Result<(), OutputError> {
+            let lent = matches!(msg, Payload::Lent(_));
+            self.written.lock().unwrap().push((t.topic, lent, msg.bytes().to_vec()));
+            Ok(())
+        }
+        fn pool(&self) -> Option<Arc<dyn BufferPool>> {
+            self.pool.clone()
+        }
+        fn unwanted(&self) -> Option<Arc<AtomicU32>> {
+            Some(self.unwanted.clone())
+        }
+    }
+
+    #[test]
+    fn a_depth_map_written_in_the_lent_message_is_sent_as_the_copied_one_and_unsent_buffers_go_back() {
+        let out = Arc::new(AtomicUsize::new(0));
+        let unwanted = Arc::new(AtomicU32::new(0));
+        let (lent_w, copied_w) = (Written::default(), Written::default());
+        let pool: Arc<dyn BufferPool> = Arc::new(Pool(out.clone()));
+        let rec = |written: &Written, pool, unwanted| Recorder { written: written.clone(), pool, unwanted };
+        // as the runner holds them: the first lends, the second (a file: no pool, every topic) copies
+        let mut sinks = [
+            Ros2OutSink::new("zenoh", rec(&lent_w, Some(pool), unwanted.clone()), 4, true).unwrap(),
+            Ros2OutSink::new("mcap", rec(&copied_w, None, Arc::default()), 4, true).unwrap(),
+        ];
+        let cam = RectifiedCamera::with_hfov(5, 3, 90.0);
+        let pose = StereoPose { rel_left: Pose::identity(), rel_right: Pose::identity(), left_to_right: Pose::identity() };
+        let rect = Rectification {
+            rect_from_left: nalgebra::Matrix3::identity(),
+            rect_from_right: nalgebra::Matrix3::identity(),
+            baseline_m: 0.06,
+        };
+        let motion = FrameMotion::new();
+        let mut depth = DepthFrame::new(5, 3);
+        // frame 0 sent; frame 1 fails before the sinks; frame 2's depth topic has no subscriber
+        for (seq, consumed, unwanted_bits) in [(0u64, true, 0u32), (1, false, 0), (2, true, 1)] {
+            unwanted.store(unwanted_bits, Ordering::Relaxed);
+            let lent = sinks.iter_mut().map(|s| s.lend_depth(&mut depth).unwrap()).collect::<Vec<_>>();
+            assert_eq!(lent, [unwanted_bits == 0, false], "frame {seq}");
+            assert_eq!(depth.depth.lent_by().is_some(), unwanted_bits == 0);
+            // the depth stage, in place
+            for (i, d) in depth.depth.iter_mut().enumerate() {
+                *d = if i % 4 == 0 { f32::NAN } else { seq as f32 + i as f32 * 0.125 };
+            }
+            if consumed {
+                let p = Published {
+                    seq,
+                    session_seq: seq,
+                    t_frame_ns: 1_000_000_007 * seq as i64,
+                    theta: &[[0.0; 3]; 2],
+                    pose: &pose,
+                    rect: &rect,
+                    cam: &cam,
+                    depth: &depth,
+                    left_rect: &[],
+                    right_rect: &[],
+                    disparity: &[],
+                    confidence: None,
+                    dense_disparity: None,
+                    motion: &motion,
+                    fovea: None,
+                };
+                sinks.iter_mut().for_each(|s| s.consume(&p).unwrap());
+            }
+            sinks.iter_mut().for_each(|s| s.frame_done(&mut depth).unwrap());
+            assert_eq!(depth.depth.lent_by(), None);
+        }
+        let mut stats = RunStats::new(&[]);
+        sinks.iter_mut().for_each(|s| s.finish(&mut stats));
+        // every buffer came back: the sent one from the writer, the failed frame's and the refused ones
+        assert_eq!(out.load(Ordering::Relaxed), 0);
+        let (lent_w, copied_w) = (lent_w.lock().unwrap(), copied_w.lock().unwrap());
+        let depth_msgs = |w: &[(&'static str, bool, Vec<u8>)]| w.iter().filter(|m| m.0 == "/abvs/depth").cloned().collect::<Vec<_>>();
+        let (lent_d, copied_d) = (depth_msgs(&lent_w), depth_msgs(&copied_w));
+        // frame 0's depth image in the lent buffer, byte for byte the copied one's; frame 2's only in the file
+        assert_eq!((lent_d.len(), copied_d.len()), (1, 2));
+        assert!(lent_d[0].1 && lent_d[0].2 == copied_d[0].2);
+        assert_eq!(lent_d[0].2.len(), image_layout(15).len());
+        // every other message alike in both
+        let rest = |w: &[(&'static str, bool, Vec<u8>)]| {
+            w.iter().filter(|m| m.0 != "/abvs/depth").map(|m| (m.0, m.2.clone())).collect::<Vec<_>>()
+        };
+        assert_eq!(rest(&lent_w), rest(&copied_w));
+        let zenoh = &stats.extra["zenoh"];
+        assert_eq!((zenoh["frames_written"].as_u64(), zenoh["frames_dropped"].as_u64()), (Some(2), Some(0)));
+    }
+}
