@@ -120,6 +120,9 @@ pub struct Ros2OutStats {
     /// Arrays the copy found still held by the writer (a new buffer allocated instead): 0 when the writer
     /// lets go of them after each frame, as Zenoh and MCAP do.
     pub arrays_reallocated: u64,
+    /// Depth images whose array the depth stage wrote straight into the message's lent buffer (not copied:
+    /// [`Sink::lend_depth`]).
+    pub depth_in_place: u64,
     /// The first error, when a frame failed.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub last_error: Option<String>,
@@ -146,6 +149,8 @@ pub struct Ros2OutSink {
     pool: Option<Arc<dyn BufferPool>>,
     /// What this sink's buffers lent to depth maps are known by ([`abvs_runtime_core::lent::F32Map::lend`]).
     lender: usize,
+    /// [`Ros2OutStats::depth_in_place`].
+    depth_in_place: u64,
     /// The frame consumed whose depth image awaits the buffer lent to its depth map ([`Sink::frame_done`]).
     pending: Option<Box<FrameSnapshot>>,
     worker: Option<JoinHandle<Ros2OutStats>>,
@@ -187,6 +192,7 @@ impl Ros2OutSink {
             unwanted,
             pool,
             lender: LENDERS.fetch_add(1, Ordering::Relaxed),
+            depth_in_place: 0,
             pending: None,
             worker: Some(worker),
         })
@@ -318,6 +324,7 @@ impl Sink for Ros2OutSink {
             self.dropped += 1;
             return Err(RuntimeError::Invalid(format!("{}: the depth map's buffer did not come back", self.name)));
         }
+        self.depth_in_place += 1;
         self.queue(snap)
     }
 
@@ -374,6 +381,7 @@ impl Ros2OutSink {
         st.frames_dropped = self.dropped;
         st.copy_cpu_ms_per_frame = self.copy_cpu_ns as f64 / 1e6 / self.frames_in.max(1) as f64;
         st.arrays_reallocated = self.reallocated;
+        st.depth_in_place = self.depth_in_place;
         stats.extra.insert(self.name.into(), serde_json::to_value(&st).unwrap_or_default());
     }
 }
@@ -423,7 +431,13 @@ mod tests {
         unwanted: Arc<AtomicU32>,
     }
     impl Ros2Writer for Recorder {
-        fn write(&mut self, t: &'static Topic, _: u64, _: i64, msg: Payload<'_>) -> std::result::Result<(), OutputError> {
+        fn write(
+            &mut self,
+            t: &'static Topic,
+            _: u64,
+            _: i64,
+            msg: Payload<'_>,
+        ) -> std::result::Result<(), OutputError> {
             let lent = matches!(msg, Payload::Lent(_));
             self.written.lock().unwrap().push((t.topic, lent, msg.bytes().to_vec()));
             Ok(())
@@ -449,7 +463,8 @@ mod tests {
             Ros2OutSink::new("mcap", rec(&copied_w, None, Arc::default()), 4, true).unwrap(),
         ];
         let cam = RectifiedCamera::with_hfov(5, 3, 90.0);
-        let pose = StereoPose { rel_left: Pose::identity(), rel_right: Pose::identity(), left_to_right: Pose::identity() };
+        let pose =
+            StereoPose { rel_left: Pose::identity(), rel_right: Pose::identity(), left_to_right: Pose::identity() };
         let rect = Rectification {
             rect_from_left: nalgebra::Matrix3::identity(),
             rect_from_right: nalgebra::Matrix3::identity(),
@@ -495,7 +510,9 @@ mod tests {
         // every buffer came back: the sent one from the writer, the failed frame's and the refused ones
         assert_eq!(out.load(Ordering::Relaxed), 0);
         let (lent_w, copied_w) = (lent_w.lock().unwrap(), copied_w.lock().unwrap());
-        let depth_msgs = |w: &[(&'static str, bool, Vec<u8>)]| w.iter().filter(|m| m.0 == "/abvs/depth").cloned().collect::<Vec<_>>();
+        let depth_msgs = |w: &[(&'static str, bool, Vec<u8>)]| {
+            w.iter().filter(|m| m.0 == "/abvs/depth").cloned().collect::<Vec<_>>()
+        };
         let (lent_d, copied_d) = (depth_msgs(&lent_w), depth_msgs(&copied_w));
         // frame 0's depth image in the lent buffer, byte for byte the copied one's; frame 2's only in the file
         assert_eq!((lent_d.len(), copied_d.len()), (1, 2));
@@ -508,5 +525,9 @@ mod tests {
         assert_eq!(rest(&lent_w), rest(&copied_w));
         let zenoh = &stats.extra["zenoh"];
         assert_eq!((zenoh["frames_written"].as_u64(), zenoh["frames_dropped"].as_u64()), (Some(2), Some(0)));
+        assert_eq!(
+            (zenoh["depth_in_place"].as_u64(), stats.extra["mcap"]["depth_in_place"].as_u64()),
+            (Some(1), Some(0))
+        );
     }
 }
