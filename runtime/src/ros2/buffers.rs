@@ -4,6 +4,8 @@
 //! into a buffer lent by the writer ([`BufferPool`]: Zenoh's shared memory, which a subscriber on this
 //! computer reads in place) or, when the writer has no pool or its pool is full, into the snapshot's own
 //! buffer, reused from frame to frame (a file writer writes it as it is; Zenoh copies it into its batches).
+//! The main depth image's array is not copied at all when the pool lends: the depth stage wrote it in the
+//! lent buffer ([`MessageBuf::expect_lent`], [`MessageBuf::adopt`]; `sinks::ros2_out`).
 use std::sync::Arc;
 
 pub use abvs_runtime_core::lent::LentBuf;
@@ -217,6 +219,23 @@ pub(crate) mod tests {
         assert_eq!(out.iter().map(|o| o.0).collect::<Vec<_>>(), [true, false, false]);
         assert!(out.iter().all(|o| o.1 == [7, 8, 9, 1, 2, 3, 4, 5]));
         assert_eq!(replaced, 0);
+    }
+
+    #[test]
+    fn an_adopted_buffer_is_the_message_and_one_of_another_length_is_refused() {
+        let layout = Layout { head: 2, array: 4, tail: 1 };
+        let mut b = MessageBuf::default();
+        b.expect_lent(layout);
+        assert!(b.adopt(Box::new(vec![0u8; 6])).is_err());
+        // the array as the depth stage wrote it in the lent buffer, the fields written around it
+        b.adopt(Box::new(vec![0, 0, 1, 2, 3, 4, 0])).map_err(|_| ()).unwrap();
+        let (h, t) = b.fields_mut();
+        h.copy_from_slice(&[8, 9]);
+        t.copy_from_slice(&[7]);
+        assert_eq!(b.array(), [1, 2, 3, 4]);
+        let p = b.payload();
+        assert!(matches!(p, Payload::Lent(_)));
+        assert_eq!(p.bytes(), [8, 9, 1, 2, 3, 4, 7]);
     }
 
     #[test]

@@ -4,7 +4,9 @@
 //! encodes the messages' fields around them ([`crate::ros2`]) and hands them to a [`Ros2Writer`] (the
 //! network, a file). The queue is bounded: when the
 //! writer falls behind, the oldest queued frame is dropped (counted) and the pipeline never waits on it,
-//! except in blocking mode (lossless runs: every frame is written).
+//! except in blocking mode (lossless runs: every frame is written). The main depth image is not copied
+//! when the writer's pool lends: the sink lends the frame's depth map its message's buffer before the depth
+//! stage runs ([`Sink::lend_depth`]) and queues the frame once every sink has read it ([`Sink::frame_done`]).
 use std::sync::atomic::{AtomicU32, AtomicUsize, Ordering};
 use std::sync::Arc;
 use std::thread::JoinHandle;
