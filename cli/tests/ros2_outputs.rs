@@ -135,6 +135,8 @@ fn zenoh_messages_reach_a_python_listener() {
     assert_eq!(w["shared_memory"].as_bool(), Some(true), "{z}");
     let (shm, fallbacks) = (w["shm_messages"].as_u64().unwrap(), w["shm_fallbacks"].as_u64().unwrap());
     assert!(shm as f64 >= 2.0 * 0.9 * n as f64 && fallbacks * 50 <= shm, "{z}");
+    // the depth map written by the depth stage straight into its message's shared buffer, not copied
+    assert!(z["depth_in_place"].as_u64().unwrap() as f64 >= 0.9 * n as f64, "{z}");
     for key in ["abvs/depth", "abvs/points", "abvs/fovea/depth", "abvs/confidence"] {
         let large = r["large"][key].as_u64().unwrap();
         assert!(large as f64 >= 0.9 * n as f64, "{key}: {r}");

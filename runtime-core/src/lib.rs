@@ -14,6 +14,7 @@
 //!   statistics.
 //! - [`config`]: the deployment file (`format = "abvs-runtime/1"`) as plain data with its defaults and checks;
 //!   [`params`]: the settings each part runs with.
+//! - [`lent`]: buffers a writer lends for one message, and the float map that can live in one.
 //! - [`session`]: the on-disk format of recorded sessions, with the encoder time offset ([`session::TimeOffsetMs`]).
 //!
 //! The runtime (abvs-runtime) builds on it: the sources, the stages, the sinks and bridges, the runner.
@@ -22,6 +23,7 @@ pub mod config;
 pub mod cpu;
 pub mod error;
 pub mod gaze;
+pub mod lent;
 pub mod messages;
 pub mod params;
 pub mod session;

@@ -11,6 +11,8 @@ use nalgebra::{Matrix3, Vector3};
 
 use abvs_eye::Pose;
 
+use crate::lent::F32Map;
+
 // ---------------------------------------------------------------- clock
 
 /// CLOCK_MONOTONIC in nanoseconds (the clock of `t_frame_ns` and `t_publish_ns`).
@@ -272,8 +274,9 @@ pub struct DepthFrame {
     pub width: u32,
     /// Height (px).
     pub height: u32,
-    /// Z (m) per rectified left pixel, NaN = invalid.
-    pub depth: Vec<f32>,
+    /// Z (m) per rectified left pixel, NaN = invalid: in the frame's own buffer, or in the message a sink
+    /// will send it in, when one lent its buffer for it ([`crate::sink::Sink::lend_depth`]).
+    pub depth: F32Map,
     /// Valid points in the left home camera frame (first `n_points` entries are meaningful).
     pub points: Vec<Vec3>,
     /// Gray level of each point (rectified left image).
@@ -291,7 +294,7 @@ impl DepthFrame {
         DepthFrame {
             width,
             height,
-            depth: vec![f32::NAN; n],
+            depth: vec![f32::NAN; n].into(),
             points: vec![Vec3::ZERO; n],
             intensity: vec![0; n],
             pixel: vec![0; n],

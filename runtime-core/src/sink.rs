@@ -1,7 +1,7 @@
 //! The sink contract: where finished frames go (statistics, dumps, the self-check, recordings, and the
 //! bridges, sinks whose output leaves the process).
 use crate::error::Result;
-use crate::messages::Published;
+use crate::messages::{DepthFrame, Published};
 use crate::stats::RunStats;
 
 /// Where finished frames go. Runs on the output lane, after every stage.
@@ -18,5 +18,18 @@ pub trait Sink: Send {
     /// so only a sink that scores what the mask removed (the truth of synthetic sessions) asks.
     fn wants_dense_disparity(&self) -> bool {
         false
+    }
+    /// Offers the sink the frame's depth map before the output lane's stages fill it: a sink that sends the
+    /// map in a message lends the map that message's buffer ([`crate::lent::F32Map::lend`]), so the depth
+    /// stage writes it in place and every sink reads it there. Asked of the sinks in turn until one lends
+    /// (returns true); the sink takes the buffer back in [`Sink::frame_done`].
+    fn lend_depth(&mut self, _depth: &mut DepthFrame) -> Result<bool> {
+        Ok(false)
+    }
+    /// The frame is done: every sink consumed it (or it failed before they could). A sink that lent the
+    /// depth map its buffer takes it back now (and sends it when it consumed the frame; an unsent buffer
+    /// goes back to its pool).
+    fn frame_done(&mut self, _depth: &mut DepthFrame) -> Result<()> {
+        Ok(())
     }
 }

@@ -484,24 +484,34 @@ fn pack_words(out: &mut [u32], pts: &[glam::Vec3], gray: &[u8]) {
 impl ImageSnapshot {
     /// Copies the camera, and the depth and the cloud unless `skip` has their topics' bits (`first`: the
     /// image's first topic in [`TOPICS`]; a skipped array is not copied, nobody encodes it), each into a
-    /// buffer of `pool` when it lends one.
+    /// buffer of `pool` when it lends one. A depth map already in a buffer `lender` lent
+    /// ([`abvs_runtime_core::lent::F32Map::lent_by`]) is not copied: the message waits for that buffer
+    /// ([`MessageBuf::adopt`]); returns whether it does.
     fn fill(
         &mut self,
         cam: &abvs_runtime_core::messages::RectifiedCamera,
         d: &abvs_runtime_core::messages::DepthFrame,
-        (pool, replaced): (Option<&dyn BufferPool>, &mut u32),
+        (pool, replaced, lender): (Option<&dyn BufferPool>, &mut u32, Option<usize>),
         (skip, first): (u32, usize),
-    ) {
+    ) -> bool {
         (self.width, self.height) = (cam.width, cam.height);
         (self.f, self.cx, self.cy) = (cam.f, cam.cx, cam.cy);
+        let mut awaits = false;
         if skip & 1 << first == 0 {
-            copy_f32(self.depth.array_mut(image_layout(d.depth.len()), pool, replaced), &d.depth);
+            let layout = image_layout(d.depth.len());
+            if lender.is_some() && d.depth.lent_by() == lender {
+                self.depth.expect_lent(layout);
+                awaits = true;
+            } else {
+                copy_f32(self.depth.array_mut(layout, pool, replaced), &d.depth);
+            }
         }
         if skip & 1 << (first + 2) == 0 {
             let n = d.n_points;
             let (pts, gray) = (&d.points[..n], &d.intensity[..n]);
             pack_cloud(self.cloud.array_mut(cloud_layout(n), pool, replaced), pts, gray);
         }
+        awaits
     }
 
     /// Points in the cloud.
@@ -547,6 +557,9 @@ pub struct FrameSnapshot {
     pub has_confidence: bool,
     /// Topics not to encode (bit i: [`TOPICS`]`[i]`): nobody receives them; their arrays are not copied.
     pub skip: u32,
+    /// The main depth image's array is in a buffer lent to the frame's depth map, not copied: the message
+    /// is complete once that buffer comes ([`FrameSnapshot::adopt_depth`]).
+    pub awaits_depth: bool,
 }
 
 /// The packed rgb of a gray level (PCL / rviz: 0x00RRGGBB; the top byte is the iceoryx2 cloud's alpha,
@@ -561,8 +574,9 @@ impl FrameSnapshot {
     /// Copies a published frame's depth, cloud and geometry (and its fovea's), leaving out the arrays of
     /// the topics in `skip` ([`FrameSnapshot::skip`]), each into a buffer of the writer's `pool` when it
     /// lends one ([`buffers`]). Returns the arrays that a writer still held from an earlier frame, so that
-    /// new ones were allocated (none when writers let go).
-    pub fn fill(&mut self, out: &Published, skip: u32, pool: Option<&dyn BufferPool>) -> u32 {
+    /// new ones were allocated (none when writers let go). The main depth map, when it is in a buffer
+    /// `lender` lent, is not copied: see [`FrameSnapshot::awaits_depth`].
+    pub fn fill(&mut self, out: &Published, skip: u32, pool: Option<&dyn BufferPool>, lender: Option<usize>) -> u32 {
         self.skip = skip;
         self.seq = out.seq;
         self.t_frame_ns = out.t_frame_ns;
@@ -572,16 +586,24 @@ impl FrameSnapshot {
         self.rect_from_left = out.rect.rect_from_left;
         self.baseline_m = out.rect.baseline_m;
         let mut replaced = 0;
-        self.main.fill(out.cam, out.depth, (pool, &mut replaced), (skip, 0));
+        self.awaits_depth = self.main.fill(out.cam, out.depth, (pool, &mut replaced, lender), (skip, 0));
         self.has_fovea = out.fovea.is_some();
         if let Some(f) = out.fovea {
-            self.fovea.fill(&f.cam, &f.depth, (pool, &mut replaced), (skip, MAIN_TOPICS));
+            self.fovea.fill(&f.cam, &f.depth, (pool, &mut replaced, None), (skip, MAIN_TOPICS));
         }
         self.has_confidence = out.confidence.is_some();
         if let Some(c) = out.confidence.filter(|_| skip & 1 << CONFIDENCE_TOPIC == 0) {
             copy_f32(self.confidence.array_mut(image_layout(c.len()), pool, &mut replaced), c);
         }
         replaced
+    }
+
+    /// Completes the main depth image with the buffer the depth map was written in (lent for it by this
+    /// output and taken back from the map), ending the wait ([`FrameSnapshot::awaits_depth`]); a buffer
+    /// not of the message's length is returned.
+    pub fn adopt_depth(&mut self, buf: Box<dyn buffers::LentBuf>) -> Result<(), Box<dyn buffers::LentBuf>> {
+        self.awaits_depth = false;
+        self.main.depth.adopt(buf)
     }
 
     /// The buffer of topic `i`'s message ([`TOPICS`]) when it is a large one.

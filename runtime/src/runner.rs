@@ -459,21 +459,21 @@ pub fn run<S: PairSource>(graph: Graph<S>, cfg: &RunConfig) -> Result<RunStats> 
             };
             let t0 = monotonic_ns();
             std::mem::swap(&mut w.depth, &mut depth);
+            // a sink that sends the depth map lends it its message's buffer (see `Sink::lend_depth`)
+            for sink in sinks.iter_mut() {
+                match sink.lend_depth(&mut w.depth) {
+                    Ok(true) => break,
+                    Ok(false) => {}
+                    Err(e) => sink_failed(&mut stats, sink.name(), w.seq, &e),
+                }
+            }
             if let Err(reason) = process(&mut output.stages, &mut w) {
                 stats.fail(reason);
             } else if let Some(published) = w.published(&cam) {
                 for sink in sinks.iter_mut() {
                     if let Err(e) = sink.consume(&published) {
                         // that sink's failure, not the frame's: the other sinks took it
-                        let n = stats.sink_failures.entry(sink.name().to_string()).or_default();
-                        *n += 1;
-                        if *n == 1 {
-                            log::warn!(
-                                "frame {}: sink {}: {e} (further failures of this sink are counted)",
-                                w.seq,
-                                sink.name()
-                            );
-                        }
+                        sink_failed(&mut stats, sink.name(), w.seq, &e);
                     }
                 }
                 let t1 = monotonic_ns();
@@ -488,6 +488,11 @@ pub fn run<S: PairSource>(graph: Graph<S>, cfg: &RunConfig) -> Result<RunStats> 
                 stats.end_to_end.record_ns(t1 - ready);
                 win.latency.record_ns(t1 - ready);
                 stats.digest(&w.depth.depth);
+            }
+            for sink in sinks.iter_mut() {
+                if let Err(e) = sink.frame_done(&mut w.depth) {
+                    sink_failed(&mut stats, sink.name(), w.seq, &e);
+                }
             }
             std::mem::swap(&mut w.depth, &mut depth);
             let _ = free_tx.send(w);
@@ -531,6 +536,15 @@ pub fn run<S: PairSource>(graph: Graph<S>, cfg: &RunConfig) -> Result<RunStats> 
         sink.finish(&mut stats);
     }
     Ok(stats)
+}
+
+/// Counts a sink's failure on frame `seq` (the frame still went to the other sinks); logs the first.
+fn sink_failed(stats: &mut RunStats, sink: &str, seq: u64, e: &RuntimeError) {
+    let n = stats.sink_failures.entry(sink.to_string()).or_default();
+    *n += 1;
+    if *n == 1 {
+        log::warn!("frame {seq}: sink {sink}: {e} (further failures of this sink are counted)");
+    }
 }
 
 /// The statistics window being filled (see [`RunConfig::window`]): closing one reads the counters and the

@@ -9,7 +9,7 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Mutex;
 
 use ::zenoh::bytes::ZBytes;
-use ::zenoh::shm::{GarbageCollect, PosixShmProviderBackend, ShmProvider, ShmProviderBuilder, ZShmMut};
+use ::zenoh::shm::{AllocAlignment, GarbageCollect, PosixShmProviderBackend, ShmProvider, ShmProviderBuilder, ZShmMut};
 use ::zenoh::Wait;
 
 use crate::ros2::buffers::{BufferPool, LentBuf};
@@ -47,8 +47,11 @@ impl BufferPool for ShmPool {
         }
         let mut st = self.state.lock().unwrap_or_else(|e| e.into_inner());
         if st.provider.is_none() && st.failed.is_none() {
-            let size = (SHM_POOL_MESSAGES * len).max(32 << 20);
-            match ShmProviderBuilder::default_backend(size).wait() {
+            let size = (SHM_POOL_MESSAGES * len).max(32 << 20).next_multiple_of(4);
+            // every buffer 4-byte aligned (the default is 1): the depth stage writes its float map in place
+            // (`F32Map::lend` refuses a misaligned buffer), the cloud is packed as words. (The provider rounds
+            // each buffer's room up to 4 bytes; its length stays the one asked.)
+            match ShmProviderBuilder::default_backend((size, AllocAlignment::ALIGN_4_BYTES)).wait() {
                 Ok(p) => (st.provider, st.bytes) = (Some(p), size),
                 Err(e) => st.failed = Some(e.to_string()),
             }

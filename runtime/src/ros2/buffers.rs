@@ -4,31 +4,11 @@
 //! into a buffer lent by the writer ([`BufferPool`]: Zenoh's shared memory, which a subscriber on this
 //! computer reads in place) or, when the writer has no pool or its pool is full, into the snapshot's own
 //! buffer, reused from frame to frame (a file writer writes it as it is; Zenoh copies it into its batches).
-use std::any::Any;
+//! The main depth image's array is not copied at all when the pool lends: the depth stage wrote it in the
+//! lent buffer ([`MessageBuf::expect_lent`], [`MessageBuf::adopt`]; `sinks::ros2_out`).
 use std::sync::Arc;
 
-/// A buffer lent by a writer's pool for one message.
-pub trait LentBuf: Send {
-    /// The message's bytes.
-    fn bytes(&self) -> &[u8];
-    /// The same, to write.
-    fn bytes_mut(&mut self) -> &mut [u8];
-    /// The buffer as its own type again, for the writer that lent it.
-    fn into_any(self: Box<Self>) -> Box<dyn Any>;
-}
-
-/// Any owned byte buffer (Zenoh's `ZShmMut`, a `Vec<u8>`) can be lent.
-impl<T: AsRef<[u8]> + AsMut<[u8]> + Send + 'static> LentBuf for T {
-    fn bytes(&self) -> &[u8] {
-        self.as_ref()
-    }
-    fn bytes_mut(&mut self) -> &mut [u8] {
-        self.as_mut()
-    }
-    fn into_any(self: Box<Self>) -> Box<dyn Any> {
-        self
-    }
-}
+pub use abvs_runtime_core::lent::LentBuf;
 
 /// A writer's pool of message buffers, asked on the pipeline's output thread.
 pub trait BufferPool: Send + Sync {
@@ -166,6 +146,24 @@ impl MessageBuf {
         (h, &mut rest[array..])
     }
 
+    /// Readies the buffer for a message of `layout` whose array is already written in a buffer lent for it
+    /// elsewhere (the depth map's, [`abvs_runtime_core::lent::F32Map::lend`]), which comes with
+    /// [`MessageBuf::adopt`]; until then the buffer has no message.
+    pub fn expect_lent(&mut self, layout: Layout) {
+        self.layout = layout;
+        self.lent = None;
+    }
+
+    /// Takes the lent buffer that holds this message's array (its length the layout's), after
+    /// [`MessageBuf::expect_lent`]; a buffer of another length is returned.
+    pub fn adopt(&mut self, buf: Box<dyn LentBuf>) -> Result<(), Box<dyn LentBuf>> {
+        if buf.bytes().len() != self.layout.len() {
+            return Err(buf);
+        }
+        self.lent = Some(buf);
+        Ok(())
+    }
+
     /// The message for a writer: the lent buffer itself (this one no longer has it), or the own one shared.
     pub fn payload(&mut self) -> Payload<'static> {
         match self.lent.take() {
@@ -221,6 +219,23 @@ pub(crate) mod tests {
         assert_eq!(out.iter().map(|o| o.0).collect::<Vec<_>>(), [true, false, false]);
         assert!(out.iter().all(|o| o.1 == [7, 8, 9, 1, 2, 3, 4, 5]));
         assert_eq!(replaced, 0);
+    }
+
+    #[test]
+    fn an_adopted_buffer_is_the_message_and_one_of_another_length_is_refused() {
+        let layout = Layout { head: 2, array: 4, tail: 1 };
+        let mut b = MessageBuf::default();
+        b.expect_lent(layout);
+        assert!(b.adopt(Box::new(vec![0u8; 6])).is_err());
+        // the array as the depth stage wrote it in the lent buffer, the fields written around it
+        b.adopt(Box::new(vec![0, 0, 1, 2, 3, 4, 0])).map_err(|_| ()).unwrap();
+        let (h, t) = b.fields_mut();
+        h.copy_from_slice(&[8, 9]);
+        t.copy_from_slice(&[7]);
+        assert_eq!(b.array(), [1, 2, 3, 4]);
+        let p = b.payload();
+        assert!(matches!(p, Payload::Lent(_)));
+        assert_eq!(p.bytes(), [8, 9, 1, 2, 3, 4, 7]);
     }
 
     #[test]

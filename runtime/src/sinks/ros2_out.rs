@@ -4,8 +4,10 @@
 //! encodes the messages' fields around them ([`crate::ros2`]) and hands them to a [`Ros2Writer`] (the
 //! network, a file). The queue is bounded: when the
 //! writer falls behind, the oldest queued frame is dropped (counted) and the pipeline never waits on it,
-//! except in blocking mode (lossless runs: every frame is written).
-use std::sync::atomic::{AtomicU32, Ordering};
+//! except in blocking mode (lossless runs: every frame is written). The main depth image is not copied
+//! when the writer's pool lends: the sink lends the frame's depth map its message's buffer before the depth
+//! stage runs ([`Sink::lend_depth`]) and queues the frame once every sink has read it ([`Sink::frame_done`]).
+use std::sync::atomic::{AtomicU32, AtomicUsize, Ordering};
 use std::sync::Arc;
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
@@ -13,9 +15,9 @@ use std::time::{Duration, Instant};
 use crossbeam_channel::{bounded, Receiver, Sender, TrySendError};
 use serde::Serialize;
 
-use crate::ros2::{BufferPool, EncodeError, Encoded, FrameSnapshot, Payload, Topic};
+use crate::ros2::{image_layout, BufferPool, EncodeError, Encoded, FrameSnapshot, Payload, Topic};
 use abvs_runtime_core::error::{Result, RuntimeError};
-use abvs_runtime_core::messages::Published;
+use abvs_runtime_core::messages::{DepthFrame, Published};
 use abvs_runtime_core::sink::Sink;
 use abvs_runtime_core::stats::RunStats;
 
@@ -120,6 +122,9 @@ pub struct Ros2OutStats {
     /// Arrays the copy found still held by the writer (a new buffer allocated instead): 0 when the writer
     /// lets go of them after each frame, as Zenoh and MCAP do.
     pub arrays_reallocated: u64,
+    /// Depth images whose array the depth stage wrote straight into the message's lent buffer (not copied:
+    /// [`Sink::lend_depth`]).
+    pub depth_in_place: u64,
     /// The first error, when a frame failed.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub last_error: Option<String>,
@@ -144,8 +149,17 @@ pub struct Ros2OutSink {
     unwanted: Option<Arc<AtomicU32>>,
     /// The writer's [`Ros2Writer::pool`].
     pool: Option<Arc<dyn BufferPool>>,
+    /// What this sink's buffers lent to depth maps are known by ([`abvs_runtime_core::lent::F32Map::lend`]).
+    lender: usize,
+    /// [`Ros2OutStats::depth_in_place`].
+    depth_in_place: u64,
+    /// The frame consumed whose depth image awaits the buffer lent to its depth map ([`Sink::frame_done`]).
+    pending: Option<Box<FrameSnapshot>>,
     worker: Option<JoinHandle<Ros2OutStats>>,
 }
+
+/// Numbers the sinks' lent buffers apart.
+static LENDERS: AtomicUsize = AtomicUsize::new(1);
 
 impl Ros2OutSink {
     /// A sink named `name` (its stats key) writing through `writer` on its own thread, `queue` frames deep.
@@ -179,6 +193,9 @@ impl Ros2OutSink {
             reallocated: 0,
             unwanted,
             pool,
+            lender: LENDERS.fetch_add(1, Ordering::Relaxed),
+            depth_in_place: 0,
+            pending: None,
             worker: Some(worker),
         })
     }
@@ -239,7 +256,9 @@ impl Sink for Ros2OutSink {
     }
 
     fn consume(&mut self, out: &Published) -> Result<()> {
-        let Some(tx) = &self.queue_tx else { return Ok(()) };
+        if self.queue_tx.is_none() {
+            return Ok(());
+        }
         self.frames_in += 1;
         let alive = |w: &Option<JoinHandle<Ros2OutStats>>| w.as_ref().is_some_and(|w| !w.is_finished());
         let snap = if self.blocking {
@@ -265,8 +284,65 @@ impl Sink for Ros2OutSink {
         };
         let cpu0 = abvs_runtime_core::cpu::thread_cpu_ns();
         let skip = self.unwanted.as_ref().map_or(0, |u| u.load(Ordering::Relaxed));
-        self.reallocated += snap.fill(out, skip, self.pool.as_deref()) as u64;
+        self.reallocated += snap.fill(out, skip, self.pool.as_deref(), Some(self.lender)) as u64;
         self.copy_cpu_ns += abvs_runtime_core::cpu::thread_cpu_ns() - cpu0;
+        if snap.awaits_depth {
+            // the depth map is in this sink's buffer: sent once every sink has read it (frame_done)
+            self.pending = Some(snap);
+            return Ok(());
+        }
+        self.queue(snap)
+    }
+
+    fn lend_depth(&mut self, depth: &mut DepthFrame) -> Result<bool> {
+        let (Some(pool), Some(_)) = (&self.pool, &self.queue_tx) else { return Ok(false) };
+        // nobody receives the depth image: no message to write it into
+        if self.unwanted.as_ref().is_some_and(|u| u.load(Ordering::Relaxed) & 1 != 0) {
+            return Ok(false);
+        }
+        let cpu0 = abvs_runtime_core::cpu::thread_cpu_ns();
+        let layout = image_layout(depth.depth.len());
+        // a buffer the map refuses (misaligned) goes back to the pool: the map is copied, the usual way
+        let lent = pool.lend(layout.len()).is_some_and(|b| depth.depth.lend(b, layout.head, self.lender).is_ok());
+        self.copy_cpu_ns += abvs_runtime_core::cpu::thread_cpu_ns() - cpu0;
+        Ok(lent)
+    }
+
+    fn frame_done(&mut self, depth: &mut DepthFrame) -> Result<()> {
+        // a buffer lent for a frame that was not consumed (failed, dropped, depth unwanted by then) is
+        // dropped here: back to its pool
+        let buf = depth.depth.take_lent(self.lender);
+        let Some(mut snap) = self.pending.take() else { return Ok(()) };
+        let cpu0 = abvs_runtime_core::cpu::thread_cpu_ns();
+        let adopted = match buf {
+            Some(b) => snap.adopt_depth(b).is_ok(),
+            None => false,
+        };
+        self.copy_cpu_ns += abvs_runtime_core::cpu::thread_cpu_ns() - cpu0;
+        if !adopted {
+            // cannot happen (the buffer is lent at the map's size and only this sink takes it): not sent
+            snap.awaits_depth = false;
+            let _ = self.free_tx.try_send(snap);
+            self.dropped += 1;
+            return Err(RuntimeError::Invalid(format!("{}: the depth map's buffer did not come back", self.name)));
+        }
+        self.depth_in_place += 1;
+        self.queue(snap)
+    }
+
+    fn finish(&mut self, stats: &mut RunStats) {
+        // (a frame awaiting its depth buffer would be one whose frame_done never came: not sent)
+        self.dropped += self.pending.take().is_some() as u64;
+        self.finish_worker(stats);
+    }
+}
+
+impl Ros2OutSink {
+    /// Hands a filled snapshot to the worker; when its queue is full, the oldest queued frame makes room
+    /// (blocking mode: waits).
+    fn queue(&mut self, mut snap: Box<FrameSnapshot>) -> Result<()> {
+        let Some(tx) = &self.queue_tx else { return Ok(()) };
+        let alive = |w: &Option<JoinHandle<Ros2OutStats>>| w.as_ref().is_some_and(|w| !w.is_finished());
         loop {
             match tx.try_send(snap) {
                 Ok(()) => return Ok(()),
@@ -296,7 +372,7 @@ impl Sink for Ros2OutSink {
         }
     }
 
-    fn finish(&mut self, stats: &mut RunStats) {
+    fn finish_worker(&mut self, stats: &mut RunStats) {
         // the worker writes what is queued, then ends
         self.queue_tx = None;
         let mut st = match self.worker.take().map(|w| w.join()) {
@@ -307,6 +383,153 @@ impl Sink for Ros2OutSink {
         st.frames_dropped = self.dropped;
         st.copy_cpu_ms_per_frame = self.copy_cpu_ns as f64 / 1e6 / self.frames_in.max(1) as f64;
         st.arrays_reallocated = self.reallocated;
+        st.depth_in_place = self.depth_in_place;
         stats.extra.insert(self.name.into(), serde_json::to_value(&st).unwrap_or_default());
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::ros2::buffers::LentBuf;
+    use abvs_eye::Pose;
+    use abvs_runtime_core::messages::{FrameMotion, Rectification, RectifiedCamera, StereoPose};
+    use std::sync::Mutex;
+
+    /// (topic, whether in a lent buffer, bytes) of every message written.
+    type Written = Arc<Mutex<Vec<(&'static str, bool, Vec<u8>)>>>;
+
+    /// A lent buffer that counts itself back to its pool when dropped.
+    struct Counted(Vec<u8>, Arc<AtomicUsize>);
+    impl AsRef<[u8]> for Counted {
+        fn as_ref(&self) -> &[u8] {
+            &self.0
+        }
+    }
+    impl AsMut<[u8]> for Counted {
+        fn as_mut(&mut self) -> &mut [u8] {
+            &mut self.0
+        }
+    }
+    impl Drop for Counted {
+        fn drop(&mut self) {
+            self.1.fetch_sub(1, Ordering::Relaxed);
+        }
+    }
+
+    /// Lends every buffer, counting those out.
+    struct Pool(Arc<AtomicUsize>);
+    impl BufferPool for Pool {
+        fn lend(&self, len: usize) -> Option<Box<dyn LentBuf>> {
+            self.0.fetch_add(1, Ordering::Relaxed);
+            // not zeroed, as a shared-memory buffer from a pool is not
+            Some(Box::new(Counted(vec![0xa5; len], self.0.clone())))
+        }
+    }
+
+    struct Recorder {
+        written: Written,
+        pool: Option<Arc<dyn BufferPool>>,
+        unwanted: Arc<AtomicU32>,
+    }
+    impl Ros2Writer for Recorder {
+        fn write(
+            &mut self,
+            t: &'static Topic,
+            _: u64,
+            _: i64,
+            msg: Payload<'_>,
+        ) -> std::result::Result<(), OutputError> {
+            let lent = matches!(msg, Payload::Lent(_));
+            self.written.lock().unwrap().push((t.topic, lent, msg.bytes().to_vec()));
+            Ok(())
+        }
+        fn pool(&self) -> Option<Arc<dyn BufferPool>> {
+            self.pool.clone()
+        }
+        fn unwanted(&self) -> Option<Arc<AtomicU32>> {
+            Some(self.unwanted.clone())
+        }
+    }
+
+    #[test]
+    fn a_depth_map_written_in_the_lent_message_is_sent_as_the_copied_one_and_unsent_buffers_go_back() {
+        let out = Arc::new(AtomicUsize::new(0));
+        let unwanted = Arc::new(AtomicU32::new(0));
+        let (lent_w, copied_w) = (Written::default(), Written::default());
+        let pool: Arc<dyn BufferPool> = Arc::new(Pool(out.clone()));
+        let rec = |written: &Written, pool, unwanted| Recorder { written: written.clone(), pool, unwanted };
+        // as the runner holds them: the first lends, the second (a file: no pool, every topic) copies
+        let mut sinks = [
+            Ros2OutSink::new("zenoh", rec(&lent_w, Some(pool), unwanted.clone()), 4, true).unwrap(),
+            Ros2OutSink::new("mcap", rec(&copied_w, None, Arc::default()), 4, true).unwrap(),
+        ];
+        let cam = RectifiedCamera::with_hfov(5, 3, 90.0);
+        let pose =
+            StereoPose { rel_left: Pose::identity(), rel_right: Pose::identity(), left_to_right: Pose::identity() };
+        let rect = Rectification {
+            rect_from_left: nalgebra::Matrix3::identity(),
+            rect_from_right: nalgebra::Matrix3::identity(),
+            baseline_m: 0.06,
+        };
+        let motion = FrameMotion::new();
+        let mut depth = DepthFrame::new(5, 3);
+        // frame 0 sent; frame 1 fails before the sinks; frame 2's depth topic has no subscriber
+        for (seq, consumed, unwanted_bits) in [(0u64, true, 0u32), (1, false, 0), (2, true, 1)] {
+            unwanted.store(unwanted_bits, Ordering::Relaxed);
+            let lent = sinks.iter_mut().map(|s| s.lend_depth(&mut depth).unwrap()).collect::<Vec<_>>();
+            assert_eq!(lent, [unwanted_bits == 0, false], "frame {seq}");
+            assert_eq!(depth.depth.lent_by().is_some(), unwanted_bits == 0);
+            // the depth stage, in place
+            for (i, d) in depth.depth.iter_mut().enumerate() {
+                *d = if i % 4 == 0 { f32::NAN } else { seq as f32 + i as f32 * 0.125 };
+            }
+            if consumed {
+                let p = Published {
+                    seq,
+                    session_seq: seq,
+                    t_frame_ns: 1_000_000_007 * seq as i64,
+                    theta: &[[0.0; 3]; 2],
+                    pose: &pose,
+                    rect: &rect,
+                    cam: &cam,
+                    depth: &depth,
+                    left_rect: &[],
+                    right_rect: &[],
+                    disparity: &[],
+                    confidence: None,
+                    dense_disparity: None,
+                    motion: &motion,
+                    fovea: None,
+                };
+                sinks.iter_mut().for_each(|s| s.consume(&p).unwrap());
+            }
+            sinks.iter_mut().for_each(|s| s.frame_done(&mut depth).unwrap());
+            assert_eq!(depth.depth.lent_by(), None);
+        }
+        let mut stats = RunStats::new(&[]);
+        sinks.iter_mut().for_each(|s| s.finish(&mut stats));
+        // every buffer came back: the sent one from the writer, the failed frame's and the refused ones
+        assert_eq!(out.load(Ordering::Relaxed), 0);
+        let (lent_w, copied_w) = (lent_w.lock().unwrap(), copied_w.lock().unwrap());
+        let depth_msgs = |w: &[(&'static str, bool, Vec<u8>)]| {
+            w.iter().filter(|m| m.0 == "/abvs/depth").cloned().collect::<Vec<_>>()
+        };
+        let (lent_d, copied_d) = (depth_msgs(&lent_w), depth_msgs(&copied_w));
+        // frame 0's depth image in the lent buffer, byte for byte the copied one's; frame 2's only in the file
+        assert_eq!((lent_d.len(), copied_d.len()), (1, 2));
+        assert!(lent_d[0].1 && lent_d[0].2 == copied_d[0].2);
+        assert_eq!(lent_d[0].2.len(), image_layout(15).len());
+        // every other message alike in both
+        let rest = |w: &[(&'static str, bool, Vec<u8>)]| {
+            w.iter().filter(|m| m.0 != "/abvs/depth").map(|m| (m.0, m.2.clone())).collect::<Vec<_>>()
+        };
+        assert_eq!(rest(&lent_w), rest(&copied_w));
+        let zenoh = &stats.extra["zenoh"];
+        assert_eq!((zenoh["frames_written"].as_u64(), zenoh["frames_dropped"].as_u64()), (Some(2), Some(0)));
+        assert_eq!(
+            (zenoh["depth_in_place"].as_u64(), stats.extra["mcap"]["depth_in_place"].as_u64()),
+            (Some(1), Some(0))
+        );
     }
 }

@@ -94,7 +94,7 @@ impl PublishedCopy {
             rect: *out.rect,
             cam: *out.cam,
             depth: DepthFrame {
-                depth: resident(out.depth.depth.len()),
+                depth: resident(out.depth.depth.len()).into(),
                 points: resident(out.depth.points.len()),
                 intensity: resident(out.depth.intensity.len()),
                 pixel: resident(out.depth.pixel.len()),
@@ -121,7 +121,7 @@ impl PublishedCopy {
         (self.theta, self.pose, self.rect, self.cam) = (*out.theta, *out.pose, *out.rect, *out.cam);
         let (d, n) = (&mut self.depth, out.depth.n_points);
         (d.width, d.height, d.n_points) = (out.depth.width, out.depth.height, n);
-        copy_into(&mut d.depth, &out.depth.depth);
+        copy_into(d.depth.vec_mut(), &out.depth.depth);
         // only the valid points: the rest of the source's buffers is stale
         copy_into(&mut d.points, &out.depth.points[..n]);
         copy_into(&mut d.intensity, &out.depth.intensity[..n]);

@@ -58,20 +58,23 @@ pub fn compute(
     let (w, h) = (out.width as usize, out.height as usize);
     let (inv_f, cx, cy) = (1.0 / cam.f as f32, cam.cx as f32, cam.cy as f32);
     let mut n = 0;
+    // the map's slice taken once: it may be in a message's lent buffer (`F32Map`)
+    let DepthFrame { depth, points, intensity, pixel, .. } = out;
+    let depth = &mut depth[..];
     for v in 0..h {
         for u in 0..w {
             let i = v * w + u;
             let d = disparity[i];
             let z = fb / d;
             if !(d > 0.0) || !(z >= cfg.min_m && z <= cfg.max_m) || !valid(i) {
-                out.depth[i] = f32::NAN;
+                depth[i] = f32::NAN;
                 continue;
             }
-            out.depth[i] = z;
+            depth[i] = z;
             let p = Vec3::new((u as f32 - cx) * inv_f * z, (v as f32 - cy) * inv_f * z, z);
-            out.points[n] = rot * p + t;
-            out.intensity[n] = left_rect[i];
-            out.pixel[n] = i as u32;
+            points[n] = rot * p + t;
+            intensity[n] = left_rect[i];
+            pixel[n] = i as u32;
             n += 1;
         }
     }
