@@ -5,11 +5,16 @@
 # true R and T; the true intrinsics with the measured R and T, with the measured T alone, with the measured R
 # alone), then `abvs calib self-check --rounds 0` on each log. Extra OpenCV stereo YAML files given as arguments
 # (e.g. from `abvs sim stereo-session` + `abvs calib stereo`) are replayed the same way.
-#   cargo build --release -p abvs && scripts/timing_calibration_parts.sh [RESOLUTION=640x480] [more.yaml ...]
+# ROUNDS=3 replays with zero timing applied instead and lets the fit refine it in that many rounds (the loop
+# `cli/tests/timing.rs` the_fixture asserts on the shipped calibration).
+#   cargo build --release -p abvs && [ROUNDS=3] scripts/timing_calibration_parts.sh [RESOLUTION=640x480] [more.yaml ...]
 set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
 BIN=${ABVS:-target/release/abvs}
 RES=${1:-640x480}
+ROUNDS=${ROUNDS:-0}
+START=()
+if (( ROUNDS > 0 )); then START=(--time-offset-ms 0 --readout-ms 0); fi
 shift $(( $# > 0 ? 1 : 0 ))
 OUT=$(mktemp -d)
 trap 'rm -rf "$OUT"' EXIT
@@ -31,14 +36,14 @@ for f in "$@"; do
   cp "$f" "$OUT/fx/truth/extra_$(basename "$f")"
   cases+=("$f:truth/extra_$(basename "$f")")
 done
-printf '%-40s %s\n' "stereo calibration ($RES, true timing)" "offset left / right (ms), readout (ms); true 3.58 / 3.40, 30"
+printf '%-40s %s\n' "stereo calibration ($RES, $([ "$ROUNDS" = 0 ] && echo true timing || echo "zero timing, $ROUNDS rounds"))" "offset left / right (ms), readout (ms); true 3.58 / 3.40, 30"
 for c in "${cases[@]}"; do
   name=${c%%:*}; file=${c#*:}
   sed -i "s#^stereo = .*#stereo = \"$file\"#" "$OUT/fx/session.toml"
   "$BIN" run --quiet --no-publish --lossless --engine sgbm --truth-stride 0 --self-check-every 1 --resolution "$RES" \
-    --session "$OUT/fx" --self-check-log "$OUT/log.csv" >/dev/null 2>&1
+    "${START[@]}" --session "$OUT/fx" --self-check-log "$OUT/log.csv" >/dev/null 2>&1
   rm -rf "$OUT/e"
-  "$BIN" calib self-check --log "$OUT/log.csv" --out "$OUT/e" --rounds 0 >/dev/null
+  "$BIN" calib self-check --log "$OUT/log.csv" --out "$OUT/e" --rounds "$ROUNDS" >/dev/null
   python3 - "$OUT/e/summary.json" "$name" <<'PY'
 import json, sys
 t = json.load(open(sys.argv[1]))["timing"]
