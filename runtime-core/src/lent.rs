@@ -1,7 +1,8 @@
-//! Buffers a writer lends for one message, and [`F32Map`], a float map that lives either in its own memory
-//! or inside such a buffer: the depth stage then writes the depth map straight into the message a sink
-//! will send (a ROS 2 Image in Zenoh's shared memory), and every other sink reads that same memory, so the
-//! map is never copied into the message.
+//! Buffers a writer lends for one message, and [`LentMap`], an array that lives either in its own memory
+//! or inside such a buffer: the depth stage then writes the depth map ([`F32Map`]) and the cloud
+//! ([`crate::messages::CloudMap`]) straight into the messages a sink will send (a ROS 2 Image and
+//! PointCloud2 in Zenoh's shared memory), and every other sink reads that same memory, so neither is ever
+//! copied into its message.
 use std::any::Any;
 use std::ops::{Deref, DerefMut};
 
@@ -28,48 +29,66 @@ impl<T: AsRef<[u8]> + AsMut<[u8]> + Send + 'static> LentBuf for T {
     }
 }
 
+/// Values whose every bit pattern is valid and that have no padding, so that a message's bytes can be
+/// read and written as them.
+///
+/// # Safety
+/// Only for such types (plain `repr(C)` numbers).
+pub unsafe trait Plain: Copy + Send + 'static {}
+
+// SAFETY: any 4 bytes are an f32; no padding.
+unsafe impl Plain for f32 {}
+
 /// The map's values inside a lent message buffer.
 struct Lent {
     buf: Box<dyn LentBuf>,
     /// Byte offset of the first value in the message.
     at: usize,
-    /// Who lent it ([`F32Map::lend`]).
+    /// Who lent it ([`LentMap::lend`]).
     owner: usize,
 }
 
-/// A map of `f32` (a depth map) that derefs to `[f32]`: its own buffer, or, while a sink lends one
-/// ([`F32Map::lend`]), the values' place in that sink's message. The own buffer is kept meanwhile, so a
-/// map whose lent buffer is taken back or refused has its full size again without allocating (its values
+/// An array of `T` (a depth map, a cloud) that derefs to `[T]`: its own buffer, or, while a sink lends
+/// one ([`LentMap::lend`]), the values' place in that sink's message. The own buffer is kept meanwhile, so
+/// a map whose lent buffer is taken back or refused has its full size again without allocating (its values
 /// are then stale: the map is filled every frame).
-#[derive(Default)]
-pub struct F32Map {
-    own: Vec<f32>,
+pub struct LentMap<T: Plain> {
+    own: Vec<T>,
     lent: Option<Lent>,
 }
 
-impl std::fmt::Debug for F32Map {
+/// A float map (the depth map).
+pub type F32Map = LentMap<f32>;
+
+impl<T: Plain> Default for LentMap<T> {
+    fn default() -> Self {
+        LentMap { own: Vec::new(), lent: None }
+    }
+}
+
+impl<T: Plain> std::fmt::Debug for LentMap<T> {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         let lent = self.lent.as_ref().map(|l| l.owner);
-        f.debug_struct("F32Map").field("len", &self.own.len()).field("lent_by", &lent).finish()
+        f.debug_struct("LentMap").field("len", &self.own.len()).field("lent_by", &lent).finish()
     }
 }
 
-impl From<Vec<f32>> for F32Map {
-    fn from(own: Vec<f32>) -> Self {
-        F32Map { own, lent: None }
+impl<T: Plain> From<Vec<T>> for LentMap<T> {
+    fn from(own: Vec<T>) -> Self {
+        LentMap { own, lent: None }
     }
 }
 
-impl F32Map {
+impl<T: Plain> LentMap<T> {
     /// Places the map's values in `buf` from byte `at` on, as many as the map has, for `owner` (any number
     /// the lender recognises its buffers by). Refused (the buffer is returned, the map stays in its own
-    /// memory) when they do not fit or `at` is not 4-byte aligned in memory. A buffer lent before is given
+    /// memory) when they do not fit or `at` is not aligned for `T` in memory. A buffer lent before is given
     /// back to its pool.
     pub fn lend(&mut self, buf: Box<dyn LentBuf>, at: usize, owner: usize) -> Result<(), Box<dyn LentBuf>> {
         self.lent = None;
         let need = at.checked_add(std::mem::size_of_val(&self.own[..]));
         let fits = need.is_some_and(|n| n <= buf.bytes().len());
-        if !fits || buf.bytes()[at..].as_ptr().align_offset(std::mem::align_of::<f32>()) != 0 {
+        if !fits || buf.bytes()[at..].as_ptr().align_offset(std::mem::align_of::<T>()) != 0 {
             return Err(buf);
         }
         self.lent = Some(Lent { buf, at, owner });
@@ -95,56 +114,56 @@ impl F32Map {
     }
 
     /// The own buffer, to resize or refill (a lent buffer is given back first).
-    pub fn vec_mut(&mut self) -> &mut Vec<f32> {
+    pub fn vec_mut(&mut self) -> &mut Vec<T> {
         self.lent = None;
         &mut self.own
     }
 }
 
-impl Deref for F32Map {
-    type Target = [f32];
+impl<T: Plain> Deref for LentMap<T> {
+    type Target = [T];
 
-    fn deref(&self) -> &[f32] {
+    fn deref(&self) -> &[T] {
         match &self.lent {
             None => &self.own,
             Some(l) => {
                 let b = &l.buf.bytes()[l.at..l.at + std::mem::size_of_val(&self.own[..])];
-                assert_eq!(b.as_ptr().align_offset(std::mem::align_of::<f32>()), 0, "a lent buffer moved");
-                // SAFETY: the bytes are 4-byte aligned (checked), hold exactly `own.len()` values, borrowed
-                // from `self`, and any bits are a valid f32.
-                unsafe { std::slice::from_raw_parts(b.as_ptr().cast::<f32>(), self.own.len()) }
+                assert_eq!(b.as_ptr().align_offset(std::mem::align_of::<T>()), 0, "a lent buffer moved");
+                // SAFETY: the bytes are aligned for T (checked), hold exactly `own.len()` values, borrowed
+                // from `self`, and any bits are a valid T (`Plain`).
+                unsafe { std::slice::from_raw_parts(b.as_ptr().cast::<T>(), self.own.len()) }
             }
         }
     }
 }
 
-impl DerefMut for F32Map {
-    fn deref_mut(&mut self) -> &mut [f32] {
+impl<T: Plain> DerefMut for LentMap<T> {
+    fn deref_mut(&mut self) -> &mut [T] {
         let n = self.own.len();
         match &mut self.lent {
             None => &mut self.own,
             Some(l) => {
-                let b = &mut l.buf.bytes_mut()[l.at..l.at + n * std::mem::size_of::<f32>()];
-                assert_eq!(b.as_ptr().align_offset(std::mem::align_of::<f32>()), 0, "a lent buffer moved");
+                let b = &mut l.buf.bytes_mut()[l.at..l.at + n * std::mem::size_of::<T>()];
+                assert_eq!(b.as_ptr().align_offset(std::mem::align_of::<T>()), 0, "a lent buffer moved");
                 // SAFETY: as deref's, borrowed mutably from `self`.
-                unsafe { std::slice::from_raw_parts_mut(b.as_mut_ptr().cast::<f32>(), n) }
+                unsafe { std::slice::from_raw_parts_mut(b.as_mut_ptr().cast::<T>(), n) }
             }
         }
     }
 }
 
-impl<'a> IntoIterator for &'a F32Map {
-    type Item = &'a f32;
-    type IntoIter = std::slice::Iter<'a, f32>;
+impl<'a, T: Plain> IntoIterator for &'a LentMap<T> {
+    type Item = &'a T;
+    type IntoIter = std::slice::Iter<'a, T>;
 
     fn into_iter(self) -> Self::IntoIter {
         self.iter()
     }
 }
 
-impl<'a> IntoIterator for &'a mut F32Map {
-    type Item = &'a mut f32;
-    type IntoIter = std::slice::IterMut<'a, f32>;
+impl<'a, T: Plain> IntoIterator for &'a mut LentMap<T> {
+    type Item = &'a mut T;
+    type IntoIter = std::slice::IterMut<'a, T>;
 
     fn into_iter(self) -> Self::IntoIter {
         self.iter_mut()

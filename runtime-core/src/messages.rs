@@ -11,7 +11,7 @@ use nalgebra::{Matrix3, Vector3};
 
 use abvs_eye::Pose;
 
-use crate::lent::F32Map;
+use crate::lent::{F32Map, LentMap, Plain};
 
 // ---------------------------------------------------------------- clock
 
@@ -268,6 +268,50 @@ impl RectifiedPair {
 
 // ---------------------------------------------------------------- depth
 
+/// One point of a frame's cloud: metres in the left home camera frame and the pixel's gray level. Its 16
+/// bytes are those of a point of the ROS 2 PointCloud2 (fields x, y, z, rgb) and of the iceoryx2 cloud
+/// (x, y, z, rgba): each output sends the depth stage's array as it is.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+#[repr(C)]
+pub struct CloudPoint {
+    /// X (m, right).
+    pub x: f32,
+    /// Y (m, down).
+    pub y: f32,
+    /// Z (m, forward).
+    pub z: f32,
+    /// The gray level as packed rgb with an opaque alpha: 0xffGGGGGG (PCL's 0x00RRGGBB, whose top byte
+    /// rviz ignores; iceoryx2's 0xAABBGGRR).
+    pub rgb: u32,
+}
+
+// SAFETY: four 4-byte numbers, repr(C): no padding, any bits valid.
+unsafe impl Plain for CloudPoint {}
+
+impl CloudPoint {
+    /// The point at `p` of gray level `g`.
+    #[inline]
+    pub fn new(p: Vec3, g: u8) -> CloudPoint {
+        let g32 = g as u32;
+        CloudPoint { x: p.x, y: p.y, z: p.z, rgb: 0xff00_0000 | g32 << 16 | g32 << 8 | g32 }
+    }
+
+    /// Its position (m).
+    #[inline]
+    pub fn pos(&self) -> Vec3 {
+        Vec3::new(self.x, self.y, self.z)
+    }
+
+    /// Its gray level.
+    #[inline]
+    pub fn gray(&self) -> u8 {
+        self.rgb as u8
+    }
+}
+
+/// A frame's cloud: its own memory, or a lent PointCloud2 message's ([`crate::sink::Sink::lend_depth`]).
+pub type CloudMap = LentMap<CloudPoint>;
+
 /// The depth map and the valid points of one frame.
 pub struct DepthFrame {
     /// Width (px).
@@ -277,13 +321,12 @@ pub struct DepthFrame {
     /// Z (m) per rectified left pixel, NaN = invalid: in the frame's own buffer, or in the message a sink
     /// will send it in, when one lent its buffer for it ([`crate::sink::Sink::lend_depth`]).
     pub depth: F32Map,
-    /// Valid points in the left home camera frame (first `n_points` entries are meaningful).
-    pub points: Vec<Vec3>,
-    /// Gray level of each point (rectified left image).
-    pub intensity: Vec<u8>,
+    /// Valid points in the left home camera frame with their gray level (rectified left image); the first
+    /// `n_points` entries are meaningful. In the frame's own buffer, or in the cloud message a sink lent.
+    pub cloud: CloudMap,
     /// Pixel index of each point (row-major), to look truth up.
     pub pixel: Vec<u32>,
-    /// Number of valid points (and meaningful entries of `points`, `intensity`, `pixel`).
+    /// Number of valid points (and meaningful entries of `cloud`, `pixel`).
     pub n_points: usize,
 }
 
@@ -295,8 +338,7 @@ impl DepthFrame {
             width,
             height,
             depth: vec![f32::NAN; n].into(),
-            points: vec![Vec3::ZERO; n],
-            intensity: vec![0; n],
+            cloud: vec![CloudPoint::default(); n].into(),
             pixel: vec![0; n],
             n_points: 0,
         }
@@ -383,8 +425,7 @@ impl FoveaFrame {
         self.disparity.copy_from_slice(&other.disparity);
         let (d, o, n) = (&mut self.depth, &other.depth, other.depth.n_points);
         d.depth.copy_from_slice(&o.depth);
-        d.points[..n].copy_from_slice(&o.points[..n]);
-        d.intensity[..n].copy_from_slice(&o.intensity[..n]);
+        d.cloud[..n].copy_from_slice(&o.cloud[..n]);
         d.pixel[..n].copy_from_slice(&o.pixel[..n]);
         d.n_points = n;
     }

@@ -19,15 +19,15 @@ pub trait Sink: Send {
     fn wants_dense_disparity(&self) -> bool {
         false
     }
-    /// Offers the sink the frame's depth map before the output lane's stages fill it: a sink that sends the
-    /// map in a message lends the map that message's buffer ([`crate::lent::F32Map::lend`]), so the depth
-    /// stage writes it in place and every sink reads it there. Asked of the sinks in turn until one lends
-    /// (returns true); the sink takes the buffer back in [`Sink::frame_done`].
+    /// Offers the sink the frame's depth map and cloud before the output lane's stages fill them: a sink that
+    /// sends them in messages lends each its message's buffer ([`crate::lent::LentMap::lend`]), so the depth
+    /// stage writes them in place and every sink reads them there. Asked of the sinks in turn until one lends
+    /// (returns true); the sink takes the buffers back in [`Sink::frame_done`].
     fn lend_depth(&mut self, _depth: &mut DepthFrame) -> Result<bool> {
         Ok(false)
     }
     /// The frame is done: every sink consumed it (or it failed before they could). A sink that lent the
-    /// depth map its buffer takes it back now (and sends it when it consumed the frame; an unsent buffer
+    /// depth map or cloud its buffer takes it back now (and sends it when it consumed the frame; an unsent buffer
     /// goes back to its pool).
     fn frame_done(&mut self, _depth: &mut DepthFrame) -> Result<()> {
         Ok(())

@@ -37,6 +37,7 @@ use abvs_eye::Pose;
 use nalgebra::{Matrix3, Rotation3, UnitQuaternion};
 use serde::Serialize;
 
+use abvs_runtime_core::lent::Plain;
 use abvs_runtime_core::messages::Published;
 
 pub mod buffers;
@@ -430,63 +431,22 @@ fn empty_cloud(header: Header<'static>, n: u32) -> PointCloud2<'static> {
     }
 }
 
-/// `values` (float32) into `out`, which holds as many bytes as they have.
-fn copy_f32(out: &mut [u8], values: &[f32]) {
-    // SAFETY: f32 has no padding and any byte is a valid u8; the slice covers exactly the values' memory.
+/// `values` (float32 depths, cloud points) into `out`, which holds as many bytes as they have: their bytes
+/// are the message array's (little-endian machines only: [`EncodeError::BigEndian`]).
+fn copy_values<T: Plain>(out: &mut [u8], values: &[T]) {
+    // SAFETY: `Plain` types have no padding and any byte is a valid u8; the slice covers exactly the values'
+    // memory.
     out.copy_from_slice(unsafe {
         std::slice::from_raw_parts(values.as_ptr().cast::<u8>(), std::mem::size_of_val(values))
     });
 }
 
-/// The cloud's points with their gray levels into `out` ([`POINT_STEP`] bytes a point).
-fn pack_cloud(out: &mut [u8], pts: &[glam::Vec3], gray: &[u8]) {
-    let n = pts.len().min(gray.len());
-    let out = &mut out[..n * POINT_STEP];
-    if out.as_ptr().align_offset(std::mem::align_of::<u32>()) == 0 {
-        // SAFETY: the bytes are u32-aligned (checked), 4n words long, and any bits are a valid u32.
-        pack_words(unsafe { std::slice::from_raw_parts_mut(out.as_mut_ptr().cast::<u32>(), n * 4) }, pts, gray);
-        return;
-    }
-    // a buffer that is not 4-byte aligned (a pool other than the Zenoh writer's, which aligns its own): unaligned
-    // stores cost five times aligned ones at opt-level 1, so a block at a time into aligned memory, then copied
-    const BLOCK: usize = 1024;
-    let mut block = [0u32; 4 * BLOCK];
-    for (i, dst) in out.chunks_mut(BLOCK * POINT_STEP).enumerate() {
-        let at = i * BLOCK;
-        let (p, g) = (&pts[at..at + dst.len() / POINT_STEP], &gray[at..at + dst.len() / POINT_STEP]);
-        let words = &mut block[..p.len() * 4];
-        pack_words(words, p, g);
-        // SAFETY: as copy_f32's: u32 has no padding, the slice covers exactly the words' memory.
-        dst.copy_from_slice(unsafe { std::slice::from_raw_parts(words.as_ptr().cast::<u8>(), dst.len()) });
-    }
-}
-
-/// The points with their gray levels as PointCloud2 words (four a point) into `out`.
-fn pack_words(out: &mut [u32], pts: &[glam::Vec3], gray: &[u8]) {
-    let n = pts.len().min(gray.len());
-    assert!(out.len() >= n * 4);
-    // one pass of plain stores: this runs on the pipeline's output thread, and a loop of iterator adapters
-    // was most of the sink's cost there where the runtime is built at opt-level 1
-    // SAFETY: out holds 4n words (checked above), pts and gray n values each.
-    unsafe {
-        let o = out.as_mut_ptr();
-        for i in 0..n {
-            let (p, g) = (*pts.as_ptr().add(i), *gray.as_ptr().add(i));
-            let w = o.add(4 * i);
-            w.write(p.x.to_bits());
-            w.add(1).write(p.y.to_bits());
-            w.add(2).write(p.z.to_bits());
-            w.add(3).write(gray_rgb(g));
-        }
-    }
-}
-
 impl ImageSnapshot {
     /// Copies the camera, and the depth and the cloud unless `skip` has their topics' bits (`first`: the
     /// image's first topic in [`TOPICS`]; a skipped array is not copied, nobody encodes it), each into a
-    /// buffer of `pool` when it lends one. A depth map already in a buffer `lender` lent
-    /// ([`abvs_runtime_core::lent::F32Map::lent_by`]) is not copied: the message waits for that buffer
-    /// ([`MessageBuf::adopt`]); returns whether it does.
+    /// buffer of `pool` when it lends one. A depth map or cloud already in a buffer `lender` lent
+    /// ([`abvs_runtime_core::lent::LentMap::lent_by`]) is not copied: its message waits for that buffer
+    /// ([`MessageBuf::adopt`]); returns whether one does.
     fn fill(
         &mut self,
         cam: &abvs_runtime_core::messages::RectifiedCamera,
@@ -503,13 +463,17 @@ impl ImageSnapshot {
                 self.depth.expect_lent(layout);
                 awaits = true;
             } else {
-                copy_f32(self.depth.array_mut(layout, pool, replaced), &d.depth);
+                copy_values(self.depth.array_mut(layout, pool, replaced), &d.depth);
             }
         }
         if skip & 1 << (first + 2) == 0 {
-            let n = d.n_points;
-            let (pts, gray) = (&d.points[..n], &d.intensity[..n]);
-            pack_cloud(self.cloud.array_mut(cloud_layout(n), pool, replaced), pts, gray);
+            let layout = cloud_layout(d.n_points);
+            if lender.is_some() && d.cloud.lent_by() == lender {
+                self.cloud.expect_lent(layout);
+                awaits = true;
+            } else {
+                copy_values(self.cloud.array_mut(layout, pool, replaced), &d.cloud[..d.n_points]);
+            }
         }
         awaits
     }
@@ -557,17 +521,9 @@ pub struct FrameSnapshot {
     pub has_confidence: bool,
     /// Topics not to encode (bit i: [`TOPICS`]`[i]`): nobody receives them; their arrays are not copied.
     pub skip: u32,
-    /// The main depth image's array is in a buffer lent to the frame's depth map, not copied: the message
-    /// is complete once that buffer comes ([`FrameSnapshot::adopt_depth`]).
+    /// The main depth image's or cloud's array is in a buffer lent to the frame's depth map or cloud, not
+    /// copied: the message is complete once that buffer comes ([`FrameSnapshot::adopt`]).
     pub awaits_depth: bool,
-}
-
-/// The packed rgb of a gray level (PCL / rviz: 0x00RRGGBB; the top byte is the iceoryx2 cloud's alpha,
-/// 0xff, so the 16 bytes of a point are those of its `CloudPoint`).
-#[inline]
-pub fn gray_rgb(g: u8) -> u32 {
-    let g = g as u32;
-    0xff00_0000 | g << 16 | g << 8 | g
 }
 
 impl FrameSnapshot {
@@ -575,7 +531,7 @@ impl FrameSnapshot {
     /// the topics in `skip` ([`FrameSnapshot::skip`]), each into a buffer of the writer's `pool` when it
     /// lends one ([`buffers`]). Returns the arrays that a writer still held from an earlier frame, so that
     /// new ones were allocated (none when writers let go). The main depth map, when it is in a buffer
-    /// `lender` lent, is not copied: see [`FrameSnapshot::awaits_depth`].
+    /// `lender` lent, and the cloud likewise, is not copied: see [`FrameSnapshot::awaits_depth`].
     pub fn fill(&mut self, out: &Published, skip: u32, pool: Option<&dyn BufferPool>, lender: Option<usize>) -> u32 {
         self.skip = skip;
         self.seq = out.seq;
@@ -593,17 +549,23 @@ impl FrameSnapshot {
         }
         self.has_confidence = out.confidence.is_some();
         if let Some(c) = out.confidence.filter(|_| skip & 1 << CONFIDENCE_TOPIC == 0) {
-            copy_f32(self.confidence.array_mut(image_layout(c.len()), pool, &mut replaced), c);
+            copy_values(self.confidence.array_mut(image_layout(c.len()), pool, &mut replaced), c);
         }
         replaced
     }
 
-    /// Completes the main depth image with the buffer the depth map was written in (lent for it by this
-    /// output and taken back from the map), ending the wait ([`FrameSnapshot::awaits_depth`]); a buffer
-    /// not of the message's length is returned.
-    pub fn adopt_depth(&mut self, buf: Box<dyn buffers::LentBuf>) -> Result<(), Box<dyn buffers::LentBuf>> {
-        self.awaits_depth = false;
-        self.main.depth.adopt(buf)
+    /// Completes the main depth image or cloud with the buffer its array was written in (lent for it by
+    /// this output and taken back from the frame: `cloud` says which), ending the wait when no other message
+    /// waits ([`FrameSnapshot::awaits_depth`]); a buffer the message does not wait for, or too short, is
+    /// returned.
+    pub fn adopt(&mut self, buf: Box<dyn buffers::LentBuf>, cloud: bool) -> Result<(), Box<dyn buffers::LentBuf>> {
+        let m = if cloud { &mut self.main.cloud } else { &mut self.main.depth };
+        if !m.expecting() {
+            return Err(buf);
+        }
+        m.adopt(buf)?;
+        self.awaits_depth = self.main.depth.expecting() || self.main.cloud.expecting();
+        Ok(())
     }
 
     /// The buffer of topic `i`'s message ([`TOPICS`]) when it is a large one.
@@ -872,6 +834,7 @@ impl Encoded {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use abvs_runtime_core::messages::CloudPoint;
 
     #[test]
     fn time_and_header_bytes() {
@@ -887,11 +850,11 @@ mod tests {
     /// An image of `w` x `h` with `points`, its arrays in buffers of `pool` while it lends them.
     fn image_in(w: u32, h: u32, f: f64, points: &[[f32; 3]], pool: Option<&dyn BufferPool>) -> ImageSnapshot {
         let depth: Vec<f32> = (0..w * h).map(|i| if i % 3 == 0 { f32::NAN } else { i as f32 * 0.25 }).collect();
-        let pts: Vec<glam::Vec3> = points.iter().map(|p| glam::Vec3::from_array(*p)).collect();
+        let pts: Vec<CloudPoint> = points.iter().map(|p| CloudPoint::new(glam::Vec3::from_array(*p), 9)).collect();
         let mut img = ImageSnapshot { width: w, height: h, f, cx: 0.5, cy: 0.0, ..Default::default() };
         let mut replaced = 0;
-        copy_f32(img.depth.array_mut(image_layout(depth.len()), pool, &mut replaced), &depth);
-        pack_cloud(img.cloud.array_mut(cloud_layout(pts.len()), pool, &mut replaced), &pts, &vec![9; pts.len()]);
+        copy_values(img.depth.array_mut(image_layout(depth.len()), pool, &mut replaced), &depth);
+        copy_values(img.cloud.array_mut(cloud_layout(pts.len()), pool, &mut replaced), &pts);
         img
     }
 
@@ -901,7 +864,7 @@ mod tests {
 
     fn confidence(values: &[f32], pool: Option<&dyn BufferPool>) -> MessageBuf {
         let mut b = MessageBuf::default();
-        copy_f32(b.array_mut(image_layout(values.len()), pool, &mut 0), values);
+        copy_values(b.array_mut(image_layout(values.len()), pool, &mut 0), values);
         b
     }
 
@@ -950,7 +913,7 @@ mod tests {
                 assert_eq!(topic.topic, "/abvs/confidence");
                 assert_eq!(msg.bytes(), &expected_conf[..], "{k}");
             }
-            let lent = m.iter().filter(|(_, p)| matches!(p, Payload::Lent(_))).count();
+            let lent = m.iter().filter(|(_, p)| matches!(p, Payload::Lent(..))).count();
             let images = &m[..MAIN_TOPICS + 3 * s.has_fovea as usize];
             for (first, [depth, cloud]) in [0, MAIN_TOPICS].into_iter().zip(&expected).take(images.len() / 4) {
                 assert_eq!(images[first].1.bytes(), &depth[..], "{k} {}", images[first].0.topic);
@@ -970,24 +933,18 @@ mod tests {
     }
 
     #[test]
-    fn clouds_pack_alike_at_any_alignment() {
-        // more points than a block, not a whole number of blocks
-        let n = 2500;
-        let pts: Vec<glam::Vec3> = (0..n).map(|i| glam::Vec3::new(i as f32, -0.5 * i as f32, 1e-3)).collect();
-        let gray: Vec<u8> = (0..n).map(|i| (i * 7) as u8).collect();
-        let expected: Vec<u8> = pts
+    fn a_cloud_point_is_its_pointcloud2_record() {
+        // x, y, z, rgb (FIELDS' offsets), little-endian, gray as 0xffGGGGGG
+        let p = CloudPoint::new(glam::Vec3::new(1.0, -0.5, 1e-3), 0x5a);
+        let mut b = [0u8; POINT_STEP + 3];
+        copy_values(&mut b[3..], &[p]);
+        let expected: Vec<u8> = [1f32.to_bits(), (-0.5f32).to_bits(), 1e-3f32.to_bits(), 0xff5a_5a5a]
             .iter()
-            .zip(&gray)
-            .flat_map(|(p, g)| [p.x.to_bits(), p.y.to_bits(), p.z.to_bits(), gray_rgb(*g)])
-            .flat_map(u32::to_le_bytes)
+            .flat_map(|w| w.to_le_bytes())
             .collect();
-        let mut buf = vec![0u8; n * POINT_STEP + 8];
-        for off in 0..5 {
-            buf.fill(0xa5);
-            pack_cloud(&mut buf[off..], &pts, &gray);
-            assert!(buf[off..off + n * POINT_STEP] == expected[..], "offset {off}");
-            assert!(buf[off + n * POINT_STEP..].iter().all(|&b| b == 0xa5), "offset {off}: past the cloud");
-        }
+        assert_eq!(&b[3..], &expected[..]);
+        assert_eq!((FIELDS[3].offset as usize, std::mem::size_of::<CloudPoint>()), (12, POINT_STEP));
+        assert_eq!((p.gray(), p.pos()), (0x5a, glam::Vec3::new(1.0, -0.5, 1e-3)));
     }
 
     #[test]
@@ -1029,7 +986,7 @@ mod tests {
         // the cloud's data ends the message, followed by is_dense
         let pc = m[2].1.bytes();
         let point: Vec<u8> =
-            [1f32, 2.0, 3.0].iter().flat_map(|v| v.to_le_bytes()).chain(gray_rgb(9).to_le_bytes()).collect();
+            [1f32, 2.0, 3.0].iter().flat_map(|v| v.to_le_bytes()).chain(0xff09_0909u32.to_le_bytes()).collect();
         assert_eq!(&pc[pc.len() - 17..pc.len() - 1], &point[..]);
         assert_eq!(pc[pc.len() - 1], 1);
         // the fovea's CameraInfo carries its own K

@@ -299,7 +299,7 @@ impl TruthSink {
         let true_pose = pose_at_row(frame_pose, &self.row_nodes, raw.y, self.camera.height);
         let origin = Point3::from(true_pose.t);
         let hit = self.scene.cast(&origin, &(true_pose.r * dir))?;
-        let p = depth.points[j];
+        let p = depth.cloud[j];
         let est = Vector3::new(p.x as f64, p.y as f64, p.z as f64);
         let r_true = (hit.point - origin).norm();
         let r_est = (est - origin.coords).norm();

@@ -60,12 +60,9 @@ impl PublishSink {
     }
 }
 
-/// The cloud's points with their gray level.
-fn cloud_points<'a>(pts: &'a [glam::Vec3], gray: &'a [u8]) -> impl Iterator<Item = CloudPoint> + 'a {
-    pts.iter().zip(gray).map(|(p, g)| {
-        let g = *g as u32;
-        CloudPoint { x: p.x, y: p.y, z: p.z, rgba: 0xff00_0000 | g << 16 | g << 8 | g }
-    })
+/// The cloud's points as the service's (the same 16 bytes: gray as 0xffGGGGGG).
+fn cloud_points(pts: &[abvs_runtime_core::messages::CloudPoint]) -> impl Iterator<Item = CloudPoint> + '_ {
+    pts.iter().map(|p| CloudPoint { x: p.x, y: p.y, z: p.z, rgba: p.rgb })
 }
 
 /// P = [alpha, beta, gamma (deg), x, y, z (mm)] of a runtime pose (metres).
@@ -102,12 +99,11 @@ impl Sink for PublishSink {
             p.publish_depth(&h, |s| s.extend_from_slice(c)).map_err(err)?;
         }
         let n = out.depth.n_points;
-        let (pts, gray) = (&out.depth.points[..n], &out.depth.intensity[..n]);
+        let pts = &out.depth.cloud[..n];
         self.cloud
             .publish_cloud(&h, n, |s| {
-                for (p, g) in pts.iter().zip(gray) {
-                    let g = *g as u32;
-                    s.push(CloudPoint { x: p.x, y: p.y, z: p.z, rgba: 0xff00_0000 | g << 16 | g << 8 | g });
+                for p in cloud_points(pts) {
+                    s.push(p);
                 }
             })
             .map_err(err)?;
@@ -119,10 +115,10 @@ impl Sink for PublishSink {
             }
             depth.publish_depth(&h, |s| s.extend_from_slice(&f.depth.depth)).map_err(err)?;
             let n = f.depth.n_points;
-            let (pts, gray) = (&f.depth.points[..n], &f.depth.intensity[..n]);
+            let pts = &f.depth.cloud[..n];
             cloud
                 .publish_cloud(&h, n, |s| {
-                    for p in cloud_points(pts, gray) {
+                    for p in cloud_points(pts) {
                         s.push(p);
                     }
                 })

@@ -160,8 +160,8 @@ impl Ros2Writer for ZenohWriter {
             Payload::Small(b) => ZBytes::from(b),
             // the snapshot's buffer, shared: Zenoh copies it into its batches
             Payload::Shared(m) => ZBytes::from(bytes::Bytes::from_owner(m)),
-            Payload::Lent(b) => {
-                let b = zenoh_shm::payload(b).ok_or(OutputError::ForeignBuffer(topic.topic))?;
+            Payload::Lent(b, len) => {
+                let b = zenoh_shm::payload(b, len).ok_or(OutputError::ForeignBuffer(topic.topic))?;
                 if let Some((_, n)) = &mut self.shm {
                     *n += 1;
                 }

@@ -5,11 +5,14 @@
 //! not the bytes; any other gets the same bytes, which Zenoh copies out of it. When the pool has no free
 //! buffer (subscribers still hold them) the message goes in the snapshot's own buffer, the ordinary way
 //! (counted: `shm_fallbacks`), so the pool never blocks the pipeline.
+use std::num::NonZeroUsize;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Mutex;
 
 use ::zenoh::bytes::ZBytes;
-use ::zenoh::shm::{AllocAlignment, GarbageCollect, PosixShmProviderBackend, ShmProvider, ShmProviderBuilder, ZShmMut};
+use ::zenoh::shm::{
+    AllocAlignment, GarbageCollect, OwnedShmBuf, PosixShmProviderBackend, ShmProvider, ShmProviderBuilder, ZShmMut,
+};
 use ::zenoh::Wait;
 
 use crate::ros2::buffers::{BufferPool, LentBuf};
@@ -20,10 +23,11 @@ use crate::ros2::buffers::{BufferPool, LentBuf};
 pub const SHM_MIN_BYTES: usize = 64 * 1024;
 
 /// The pool holds this many of the first large message (the main depth image: a frame's large messages
-/// are at most about four of it, the cloud's 16 bytes a point against the image's 4 a pixel, plus the fovea's
-/// and the confidence: 32 hold about five frames, for a subscriber that copies each sample out before it lets
-/// go; 16 fell back to the ordinary path for 3 % of the messages with such a Python subscriber).
-const SHM_POOL_MESSAGES: usize = 32;
+/// take about seven and a half of it, the cloud's buffer lent for every pixel at 16 bytes a point against
+/// the image's 4, plus the confidence and the fovea's: 40 hold about five frames, for a subscriber that
+/// copies each sample out before it lets go; 16 fell back to the ordinary path for 3 % of the messages with
+/// such a Python subscriber when the cloud took only its points).
+const SHM_POOL_MESSAGES: usize = 40;
 
 /// The pool, made at the first large message: `SHM_POOL_MESSAGES` times its size (at least 32 MiB).
 #[derive(Default)]
@@ -82,7 +86,13 @@ impl ShmPool {
     }
 }
 
-/// A buffer this pool lent, as a sample's payload (`None`: another pool's).
-pub fn payload(buf: Box<dyn LentBuf>) -> Option<ZBytes> {
-    buf.into_any().downcast::<ZShmMut>().ok().map(|b| ZBytes::from(*b))
+/// The first `len` bytes of a buffer this pool lent, as a sample's payload (`None`: another pool's, or
+/// `len` more than it holds). (A cloud's buffer is lent for every pixel and sent shortened to its points:
+/// the shared memory stays the buffer's, only the length the subscriber sees changes.)
+pub fn payload(buf: Box<dyn LentBuf>, len: usize) -> Option<ZBytes> {
+    let mut b = buf.into_any().downcast::<ZShmMut>().ok()?;
+    if len != b.len() {
+        b.try_resize(NonZeroUsize::new(len)?)?;
+    }
+    Some(ZBytes::from(*b))
 }

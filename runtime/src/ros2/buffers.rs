@@ -4,8 +4,8 @@
 //! into a buffer lent by the writer ([`BufferPool`]: Zenoh's shared memory, which a subscriber on this
 //! computer reads in place) or, when the writer has no pool or its pool is full, into the snapshot's own
 //! buffer, reused from frame to frame (a file writer writes it as it is; Zenoh copies it into its batches).
-//! The main depth image's array is not copied at all when the pool lends: the depth stage wrote it in the
-//! lent buffer ([`MessageBuf::expect_lent`], [`MessageBuf::adopt`]; `sinks::ros2_out`).
+//! The main depth image's and cloud's arrays are not copied at all when the pool lends: the depth stage
+//! wrote them in the lent buffers ([`MessageBuf::expect_lent`], [`MessageBuf::adopt`]; `sinks::ros2_out`).
 use std::sync::Arc;
 
 pub use abvs_runtime_core::lent::LentBuf;
@@ -24,8 +24,9 @@ pub enum Payload<'a> {
     /// A large message in the snapshot's buffer, shared while the writer sends it (a writer that keeps
     /// it makes the next frame allocate a new one).
     Shared(SharedMessage),
-    /// A large message in a buffer the writer's pool lent.
-    Lent(Box<dyn LentBuf>),
+    /// A large message in a buffer the writer's pool lent: its first `usize` bytes (a cloud's buffer is lent
+    /// for every pixel, before the depth stage knows how many points it has).
+    Lent(Box<dyn LentBuf>, usize),
 }
 
 impl Payload<'_> {
@@ -34,7 +35,7 @@ impl Payload<'_> {
         match self {
             Payload::Small(b) => b,
             Payload::Shared(s) => s.as_ref(),
-            Payload::Lent(l) => l.bytes(),
+            Payload::Lent(l, n) => &l.bytes()[..*n],
         }
     }
 }
@@ -78,6 +79,8 @@ pub struct MessageBuf {
     own: Arc<Vec<u8>>,
     lent: Option<Box<dyn LentBuf>>,
     layout: Layout,
+    /// Waiting for the buffer its array was written in ([`MessageBuf::expect_lent`]).
+    expecting: bool,
 }
 
 impl std::fmt::Debug for MessageBuf {
@@ -89,7 +92,7 @@ impl std::fmt::Debug for MessageBuf {
 impl Clone for MessageBuf {
     /// A copy in a buffer of its own (a lent buffer is the writer's, once).
     fn clone(&self) -> MessageBuf {
-        MessageBuf { own: Arc::new(self.message().to_vec()), lent: None, layout: self.layout }
+        MessageBuf { own: Arc::new(self.message().to_vec()), lent: None, layout: self.layout, expecting: false }
     }
 }
 
@@ -98,7 +101,7 @@ impl MessageBuf {
     /// `pool` when it lends one, else the snapshot's own (a new one, counted in `replaced`, when a writer
     /// still holds the last). The fields around the array are written later ([`MessageBuf::fields_mut`]).
     pub fn array_mut(&mut self, layout: Layout, pool: Option<&dyn BufferPool>, replaced: &mut u32) -> &mut [u8] {
-        self.layout = layout;
+        (self.layout, self.expecting) = (layout, false);
         // a buffer lent for an earlier frame that was not sent (dropped, skipped) goes back to its pool
         self.lent = pool.and_then(|p| p.lend(layout.len()));
         let msg = match &mut self.lent {
@@ -125,7 +128,7 @@ impl MessageBuf {
     /// The whole message (its fields as last written).
     pub fn message(&self) -> &[u8] {
         match &self.lent {
-            Some(l) => l.bytes(),
+            Some(l) => &l.bytes()[..self.layout.len()],
             None => &self.own[..self.layout.len()],
         }
     }
@@ -139,7 +142,7 @@ impl MessageBuf {
     pub fn fields_mut(&mut self) -> (&mut [u8], &mut [u8]) {
         let Layout { head, array, .. } = self.layout;
         let msg = match &mut self.lent {
-            Some(l) => l.bytes_mut(),
+            Some(l) => &mut l.bytes_mut()[..self.layout.len()],
             None => &mut Arc::make_mut(&mut self.own)[..self.layout.len()],
         };
         let (h, rest) = msg.split_at_mut(head);
@@ -147,34 +150,40 @@ impl MessageBuf {
     }
 
     /// Readies the buffer for a message of `layout` whose array is already written in a buffer lent for it
-    /// elsewhere (the depth map's, [`abvs_runtime_core::lent::F32Map::lend`]), which comes with
-    /// [`MessageBuf::adopt`]; until then the buffer has no message.
+    /// elsewhere (the depth map's or the cloud's, [`abvs_runtime_core::lent::LentMap::lend`]), which comes
+    /// with [`MessageBuf::adopt`]; until then the buffer has no message.
     pub fn expect_lent(&mut self, layout: Layout) {
-        self.layout = layout;
+        (self.layout, self.expecting) = (layout, true);
         self.lent = None;
     }
 
-    /// Takes the lent buffer that holds this message's array (its length the layout's), after
-    /// [`MessageBuf::expect_lent`]; a buffer of another length is returned.
+    /// Whether the message waits for its lent buffer ([`MessageBuf::expect_lent`]).
+    pub fn expecting(&self) -> bool {
+        self.expecting
+    }
+
+    /// Takes the lent buffer that holds this message's array, after [`MessageBuf::expect_lent`]: the message
+    /// is its first `layout.len()` bytes (a cloud's buffer was lent for more points than the frame has); a
+    /// shorter buffer is returned.
     pub fn adopt(&mut self, buf: Box<dyn LentBuf>) -> Result<(), Box<dyn LentBuf>> {
-        if buf.bytes().len() != self.layout.len() {
+        if buf.bytes().len() < self.layout.len() {
             return Err(buf);
         }
-        self.lent = Some(buf);
+        (self.lent, self.expecting) = (Some(buf), false);
         Ok(())
     }
 
     /// The message for a writer: the lent buffer itself (this one no longer has it), or the own one shared.
     pub fn payload(&mut self) -> Payload<'static> {
         match self.lent.take() {
-            Some(l) => Payload::Lent(l),
+            Some(l) => Payload::Lent(l, self.layout.len()),
             None => Payload::Shared(SharedMessage(Arc::clone(&self.own))),
         }
     }
 
     /// Gives a lent buffer that was not sent back to its pool.
     pub fn release(&mut self) {
-        self.lent = None;
+        (self.lent, self.expecting) = (None, false);
     }
 }
 
@@ -213,7 +222,7 @@ pub(crate) mod tests {
             t.copy_from_slice(&[5]);
             assert_eq!(b.array(), [1, 2, 3, 4]);
             let p = b.payload();
-            out.push((matches!(p, Payload::Lent(_)), p.bytes().to_vec()));
+            out.push((matches!(p, Payload::Lent(..)), p.bytes().to_vec()));
         }
         // the first from the pool, then (pool empty) the own buffer: the same bytes
         assert_eq!(out.iter().map(|o| o.0).collect::<Vec<_>>(), [true, false, false]);
@@ -222,19 +231,23 @@ pub(crate) mod tests {
     }
 
     #[test]
-    fn an_adopted_buffer_is_the_message_and_one_of_another_length_is_refused() {
+    fn an_adopted_buffer_is_the_message_and_a_short_one_is_refused() {
         let layout = Layout { head: 2, array: 4, tail: 1 };
         let mut b = MessageBuf::default();
         b.expect_lent(layout);
+        assert!(b.expecting());
         assert!(b.adopt(Box::new(vec![0u8; 6])).is_err());
-        // the array as the depth stage wrote it in the lent buffer, the fields written around it
-        b.adopt(Box::new(vec![0, 0, 1, 2, 3, 4, 0])).map_err(|_| ()).unwrap();
+        // the array as the depth stage wrote it in the lent buffer, the fields written around it; the buffer
+        // lent for a longer array (a cloud's, for every pixel) ends where the message does
+        b.adopt(Box::new(vec![0, 0, 1, 2, 3, 4, 0, 0xa5, 0xa5])).map_err(|_| ()).unwrap();
+        assert!(!b.expecting());
         let (h, t) = b.fields_mut();
         h.copy_from_slice(&[8, 9]);
         t.copy_from_slice(&[7]);
         assert_eq!(b.array(), [1, 2, 3, 4]);
+        assert_eq!(b.message(), [8, 9, 1, 2, 3, 4, 7]);
         let p = b.payload();
-        assert!(matches!(p, Payload::Lent(_)));
+        assert!(matches!(p, Payload::Lent(_, 7)));
         assert_eq!(p.bytes(), [8, 9, 1, 2, 3, 4, 7]);
     }
 

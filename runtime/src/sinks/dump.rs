@@ -59,7 +59,7 @@ fn top_view(img: &mut image::GrayImage, x0: u32, w: u32, h: u32, out: &Published
             img.put_pixel(x0 + x, y, image::Luma([24])); // 0.25 m rulers
         }
     }
-    for p in &out.depth.points[..out.depth.n_points] {
+    for p in &out.depth.cloud[..out.depth.n_points] {
         let u = ((p.x / TOP_HALF_WIDTH_M + 1.0) * 0.5 * w as f32) as i64;
         let v = ((1.0 - p.z / TOP_DEPTH_M) * h as f32) as i64;
         if (0..w as i64).contains(&u) && (0..h as i64).contains(&v) {

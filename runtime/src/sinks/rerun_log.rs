@@ -81,8 +81,9 @@ impl RerunSink {
         let n = out.depth.n_points;
         self.positions.clear();
         self.colors.clear();
-        self.positions.extend(out.depth.points[..n].iter().map(|p| [p.x, p.y, p.z]));
-        self.colors.extend(out.depth.intensity[..n].iter().map(|&g| [g, g, g]));
+        let cloud = &out.depth.cloud[..n];
+        self.positions.extend(cloud.iter().map(|p| [p.x, p.y, p.z]));
+        self.colors.extend(cloud.iter().map(|p| [p.gray(); 3]));
         rec.log(
             "world/cloud",
             &rerun::Points3D::new(self.positions.iter().copied())

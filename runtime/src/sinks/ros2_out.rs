@@ -4,9 +4,10 @@
 //! encodes the messages' fields around them ([`crate::ros2`]) and hands them to a [`Ros2Writer`] (the
 //! network, a file). The queue is bounded: when the
 //! writer falls behind, the oldest queued frame is dropped (counted) and the pipeline never waits on it,
-//! except in blocking mode (lossless runs: every frame is written). The main depth image is not copied
-//! when the writer's pool lends: the sink lends the frame's depth map its message's buffer before the depth
-//! stage runs ([`Sink::lend_depth`]) and queues the frame once every sink has read it ([`Sink::frame_done`]).
+//! except in blocking mode (lossless runs: every frame is written). The main depth image and cloud are not
+//! copied when the writer's pool lends: the sink lends the frame's depth map and cloud their messages'
+//! buffers before the depth stage runs ([`Sink::lend_depth`]) and queues the frame once every sink has read
+//! it ([`Sink::frame_done`]).
 use std::sync::atomic::{AtomicU32, AtomicUsize, Ordering};
 use std::sync::Arc;
 use std::thread::JoinHandle;
@@ -15,7 +16,7 @@ use std::time::{Duration, Instant};
 use crossbeam_channel::{bounded, Receiver, Sender, TrySendError};
 use serde::Serialize;
 
-use crate::ros2::{image_layout, BufferPool, EncodeError, Encoded, FrameSnapshot, Payload, Topic};
+use crate::ros2::{cloud_layout, image_layout, BufferPool, EncodeError, Encoded, FrameSnapshot, Payload, Topic};
 use abvs_runtime_core::error::{Result, RuntimeError};
 use abvs_runtime_core::messages::{DepthFrame, Published};
 use abvs_runtime_core::sink::Sink;
@@ -125,6 +126,8 @@ pub struct Ros2OutStats {
     /// Depth images whose array the depth stage wrote straight into the message's lent buffer (not copied:
     /// [`Sink::lend_depth`]).
     pub depth_in_place: u64,
+    /// Clouds likewise.
+    pub cloud_in_place: u64,
     /// The first error, when a frame failed.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub last_error: Option<String>,
@@ -149,11 +152,12 @@ pub struct Ros2OutSink {
     unwanted: Option<Arc<AtomicU32>>,
     /// The writer's [`Ros2Writer::pool`].
     pool: Option<Arc<dyn BufferPool>>,
-    /// What this sink's buffers lent to depth maps are known by ([`abvs_runtime_core::lent::F32Map::lend`]).
+    /// What this sink's buffers lent to depth maps and clouds are known by
+    /// ([`abvs_runtime_core::lent::LentMap::lend`]).
     lender: usize,
-    /// [`Ros2OutStats::depth_in_place`].
-    depth_in_place: u64,
-    /// The frame consumed whose depth image awaits the buffer lent to its depth map ([`Sink::frame_done`]).
+    /// [`Ros2OutStats::depth_in_place`], [`Ros2OutStats::cloud_in_place`].
+    in_place: [u64; 2],
+    /// The frame consumed whose depth image or cloud awaits the buffer lent to it ([`Sink::frame_done`]).
     pending: Option<Box<FrameSnapshot>>,
     worker: Option<JoinHandle<Ros2OutStats>>,
 }
@@ -194,7 +198,7 @@ impl Ros2OutSink {
             unwanted,
             pool,
             lender: LENDERS.fetch_add(1, Ordering::Relaxed),
-            depth_in_place: 0,
+            in_place: [0; 2],
             pending: None,
             worker: Some(worker),
         })
@@ -287,7 +291,7 @@ impl Sink for Ros2OutSink {
         self.reallocated += snap.fill(out, skip, self.pool.as_deref(), Some(self.lender)) as u64;
         self.copy_cpu_ns += abvs_runtime_core::cpu::thread_cpu_ns() - cpu0;
         if snap.awaits_depth {
-            // the depth map is in this sink's buffer: sent once every sink has read it (frame_done)
+            // the depth map or cloud is in this sink's buffer: sent once every sink has read it (frame_done)
             self.pending = Some(snap);
             return Ok(());
         }
@@ -296,37 +300,45 @@ impl Sink for Ros2OutSink {
 
     fn lend_depth(&mut self, depth: &mut DepthFrame) -> Result<bool> {
         let (Some(pool), Some(_)) = (&self.pool, &self.queue_tx) else { return Ok(false) };
-        // nobody receives the depth image: no message to write it into
-        if self.unwanted.as_ref().is_some_and(|u| u.load(Ordering::Relaxed) & 1 != 0) {
-            return Ok(false);
-        }
+        // a topic nobody receives has no message to write into
+        let unwanted = self.unwanted.as_ref().map_or(0, |u| u.load(Ordering::Relaxed));
         let cpu0 = abvs_runtime_core::cpu::thread_cpu_ns();
-        let layout = image_layout(depth.depth.len());
         // a buffer the map refuses (misaligned) goes back to the pool: the map is copied, the usual way
-        let lent = pool.lend(layout.len()).is_some_and(|b| depth.depth.lend(b, layout.head, self.lender).is_ok());
+        let mut lent = false;
+        if unwanted & 1 == 0 {
+            let layout = image_layout(depth.depth.len());
+            lent |= pool.lend(layout.len()).is_some_and(|b| depth.depth.lend(b, layout.head, self.lender).is_ok());
+        }
+        if unwanted & 1 << 2 == 0 {
+            // room for every pixel (the points are not counted yet): sent shortened to the frame's points
+            let layout = cloud_layout(depth.cloud.len());
+            lent |= pool.lend(layout.len()).is_some_and(|b| depth.cloud.lend(b, layout.head, self.lender).is_ok());
+        }
         self.copy_cpu_ns += abvs_runtime_core::cpu::thread_cpu_ns() - cpu0;
         Ok(lent)
     }
 
     fn frame_done(&mut self, depth: &mut DepthFrame) -> Result<()> {
-        // a buffer lent for a frame that was not consumed (failed, dropped, depth unwanted by then) is
+        // a buffer lent for a frame that was not consumed (failed, dropped, topic unwanted by then) is
         // dropped here: back to its pool
-        let buf = depth.depth.take_lent(self.lender);
+        let bufs = [depth.depth.take_lent(self.lender), depth.cloud.take_lent(self.lender)];
         let Some(mut snap) = self.pending.take() else { return Ok(()) };
         let cpu0 = abvs_runtime_core::cpu::thread_cpu_ns();
-        let adopted = match buf {
-            Some(b) => snap.adopt_depth(b).is_ok(),
-            None => false,
-        };
+        for (cloud, buf) in bufs.into_iter().enumerate() {
+            // (a buffer the snapshot does not wait for was lent for a topic unwanted by the time it consumed)
+            if let Some(b) = buf {
+                self.in_place[cloud] += snap.adopt(b, cloud == 1).is_ok() as u64;
+            }
+        }
         self.copy_cpu_ns += abvs_runtime_core::cpu::thread_cpu_ns() - cpu0;
-        if !adopted {
-            // cannot happen (the buffer is lent at the map's size and only this sink takes it): not sent
+        if snap.awaits_depth {
+            // cannot happen (the buffers are lent at the arrays' sizes and only this sink takes them): not sent
+            snap.release();
             snap.awaits_depth = false;
             let _ = self.free_tx.try_send(snap);
             self.dropped += 1;
-            return Err(RuntimeError::Invalid(format!("{}: the depth map's buffer did not come back", self.name)));
+            return Err(RuntimeError::Invalid(format!("{}: a lent buffer did not come back", self.name)));
         }
-        self.depth_in_place += 1;
         self.queue(snap)
     }
 
@@ -383,7 +395,7 @@ impl Ros2OutSink {
         st.frames_dropped = self.dropped;
         st.copy_cpu_ms_per_frame = self.copy_cpu_ns as f64 / 1e6 / self.frames_in.max(1) as f64;
         st.arrays_reallocated = self.reallocated;
-        st.depth_in_place = self.depth_in_place;
+        [st.depth_in_place, st.cloud_in_place] = self.in_place;
         stats.extra.insert(self.name.into(), serde_json::to_value(&st).unwrap_or_default());
     }
 }
@@ -393,7 +405,7 @@ mod tests {
     use super::*;
     use crate::ros2::buffers::LentBuf;
     use abvs_eye::Pose;
-    use abvs_runtime_core::messages::{FrameMotion, Rectification, RectifiedCamera, StereoPose};
+    use abvs_runtime_core::messages::{CloudPoint, FrameMotion, Rectification, RectifiedCamera, StereoPose};
     use std::sync::Mutex;
 
     /// (topic, whether in a lent buffer, bytes) of every message written.
@@ -440,7 +452,7 @@ mod tests {
             _: i64,
             msg: Payload<'_>,
         ) -> std::result::Result<(), OutputError> {
-            let lent = matches!(msg, Payload::Lent(_));
+            let lent = matches!(msg, Payload::Lent(..));
             self.written.lock().unwrap().push((t.topic, lent, msg.bytes().to_vec()));
             Ok(())
         }
@@ -453,7 +465,7 @@ mod tests {
     }
 
     #[test]
-    fn a_depth_map_written_in_the_lent_message_is_sent_as_the_copied_one_and_unsent_buffers_go_back() {
+    fn a_depth_map_and_cloud_written_in_the_lent_messages_are_sent_as_the_copied_ones_and_unsent_buffers_go_back() {
         let out = Arc::new(AtomicUsize::new(0));
         let unwanted = Arc::new(AtomicU32::new(0));
         let (lent_w, copied_w) = (Written::default(), Written::default());
@@ -474,16 +486,26 @@ mod tests {
         };
         let motion = FrameMotion::new();
         let mut depth = DepthFrame::new(5, 3);
-        // frame 0 sent; frame 1 fails before the sinks; frame 2's depth topic has no subscriber
-        for (seq, consumed, unwanted_bits) in [(0u64, true, 0u32), (1, false, 0), (2, true, 1)] {
-            unwanted.store(unwanted_bits, Ordering::Relaxed);
+        // frame 0 sent; frame 1 fails before the sinks; frame 2's depth topic has no subscriber; frame 3's
+        // cloud topic has none; frame 4's depth topic loses its subscriber between the lending and the sinks
+        let frames = [(0u64, true, 0u32, 0u32), (1, false, 0, 0), (2, true, 1, 1), (3, true, 4, 4), (4, true, 0, 1)];
+        for (seq, consumed, unwanted_lent, unwanted_consumed) in frames {
+            unwanted.store(unwanted_lent, Ordering::Relaxed);
             let lent = sinks.iter_mut().map(|s| s.lend_depth(&mut depth).unwrap()).collect::<Vec<_>>();
-            assert_eq!(lent, [unwanted_bits == 0, false], "frame {seq}");
-            assert_eq!(depth.depth.lent_by().is_some(), unwanted_bits == 0);
-            // the depth stage, in place
-            for (i, d) in depth.depth.iter_mut().enumerate() {
-                *d = if i % 4 == 0 { f32::NAN } else { seq as f32 + i as f32 * 0.125 };
+            assert_eq!(lent, [true, false], "frame {seq}");
+            assert_eq!(depth.depth.lent_by().is_some(), unwanted_lent & 1 == 0);
+            assert_eq!(depth.cloud.lent_by().is_some(), unwanted_lent & 4 == 0);
+            // the depth stage, in place: every fourth pixel invalid, the others points
+            depth.n_points = 0;
+            for i in 0..depth.depth.len() {
+                depth.depth[i] = if i % 4 == 0 { f32::NAN } else { seq as f32 + i as f32 * 0.125 };
+                if i % 4 != 0 {
+                    let n = depth.n_points;
+                    depth.cloud[n] = CloudPoint::new(glam::Vec3::new(i as f32, seq as f32, 0.5), i as u8);
+                    depth.n_points += 1;
+                }
             }
+            unwanted.store(unwanted_consumed, Ordering::Relaxed);
             if consumed {
                 let p = Published {
                     seq,
@@ -505,31 +527,38 @@ mod tests {
                 sinks.iter_mut().for_each(|s| s.consume(&p).unwrap());
             }
             sinks.iter_mut().for_each(|s| s.frame_done(&mut depth).unwrap());
-            assert_eq!(depth.depth.lent_by(), None);
+            assert_eq!((depth.depth.lent_by(), depth.cloud.lent_by()), (None, None));
         }
         let mut stats = RunStats::new(&[]);
         sinks.iter_mut().for_each(|s| s.finish(&mut stats));
-        // every buffer came back: the sent one from the writer, the failed frame's and the refused ones
+        // every buffer came back: the sent ones from the writer, the failed frame's and the refused ones
         assert_eq!(out.load(Ordering::Relaxed), 0);
         let (lent_w, copied_w) = (lent_w.lock().unwrap(), copied_w.lock().unwrap());
-        let depth_msgs = |w: &[(&'static str, bool, Vec<u8>)]| {
-            w.iter().filter(|m| m.0 == "/abvs/depth").cloned().collect::<Vec<_>>()
-        };
-        let (lent_d, copied_d) = (depth_msgs(&lent_w), depth_msgs(&copied_w));
-        // frame 0's depth image in the lent buffer, byte for byte the copied one's; frame 2's only in the file
-        assert_eq!((lent_d.len(), copied_d.len()), (1, 2));
-        assert!(lent_d[0].1 && lent_d[0].2 == copied_d[0].2);
+        let msgs =
+            |w: &[(&'static str, bool, Vec<u8>)], topic| w.iter().filter(|m| m.0 == topic).cloned().collect::<Vec<_>>();
+        // the depth images: frames 0 and 3 in lent buffers, byte for byte the copied ones; frames 2 and 4 only
+        // in the file
+        let (lent_d, copied_d) = (msgs(&lent_w, "/abvs/depth"), msgs(&copied_w, "/abvs/depth"));
+        assert_eq!((lent_d.len(), copied_d.len()), (2, 4));
+        assert!(lent_d.iter().all(|m| m.1) && lent_d[0].2 == copied_d[0].2 && lent_d[1].2 == copied_d[2].2);
         assert_eq!(lent_d[0].2.len(), image_layout(15).len());
+        // the clouds: frames 0, 2 and 4 in lent buffers shortened to their 11 points (frame 4's lent though its
+        // depth image was then copied); frame 3's only in the file
+        let (lent_c, copied_c) = (msgs(&lent_w, "/abvs/points"), msgs(&copied_w, "/abvs/points"));
+        assert_eq!((lent_c.len(), copied_c.len()), (3, 4));
+        assert!(lent_c.iter().all(|m| m.1 && m.2.len() == cloud_layout(11).len()));
+        assert!([(0, 0), (1, 1), (2, 3)].iter().all(|&(l, c)| lent_c[l].2 == copied_c[c].2));
         // every other message alike in both
         let rest = |w: &[(&'static str, bool, Vec<u8>)]| {
-            w.iter().filter(|m| m.0 != "/abvs/depth").map(|m| (m.0, m.2.clone())).collect::<Vec<_>>()
+            w.iter()
+                .filter(|m| !["/abvs/depth", "/abvs/points"].contains(&m.0))
+                .map(|m| (m.0, m.2.clone()))
+                .collect::<Vec<_>>()
         };
         assert_eq!(rest(&lent_w), rest(&copied_w));
         let zenoh = &stats.extra["zenoh"];
-        assert_eq!((zenoh["frames_written"].as_u64(), zenoh["frames_dropped"].as_u64()), (Some(2), Some(0)));
-        assert_eq!(
-            (zenoh["depth_in_place"].as_u64(), stats.extra["mcap"]["depth_in_place"].as_u64()),
-            (Some(1), Some(0))
-        );
+        assert_eq!((zenoh["frames_written"].as_u64(), zenoh["frames_dropped"].as_u64()), (Some(4), Some(0)));
+        assert_eq!((zenoh["depth_in_place"].as_u64(), zenoh["cloud_in_place"].as_u64()), (Some(2), Some(3)));
+        assert_eq!(stats.extra["mcap"]["depth_in_place"].as_u64(), Some(0));
     }
 }

@@ -22,7 +22,7 @@ use serde::Serialize;
 
 use abvs_runtime_core::error::{Result, RuntimeError};
 use abvs_runtime_core::messages::{
-    DepthFrame, FoveaFrame, FrameMotion, Published, Rectification, RectifiedCamera, StereoPose,
+    CloudPoint, DepthFrame, FoveaFrame, FrameMotion, Published, Rectification, RectifiedCamera, StereoPose,
 };
 use abvs_runtime_core::sink::Sink;
 use abvs_runtime_core::stats::RunStats;
@@ -73,10 +73,10 @@ fn resident<T: Copy + Default>(n: usize) -> Vec<T> {
 /// A fovea's buffers with every page written (non-zero: zeroed pages would map lazily, as `resident` says).
 fn resident_fovea(w: u32, h: u32) -> FoveaFrame {
     let mut f = FoveaFrame::new(w, h);
-    for b in [&mut f.left, &mut f.right, &mut f.valid, &mut f.depth.intensity] {
+    for b in [&mut f.left, &mut f.right, &mut f.valid] {
         b.fill(1);
     }
-    f.depth.points.fill(Vec3::ONE);
+    f.depth.cloud.fill(CloudPoint::new(Vec3::ONE, 1));
     f.depth.pixel.fill(1);
     f
 }
@@ -95,8 +95,7 @@ impl PublishedCopy {
             cam: *out.cam,
             depth: DepthFrame {
                 depth: resident(out.depth.depth.len()).into(),
-                points: resident(out.depth.points.len()),
-                intensity: resident(out.depth.intensity.len()),
+                cloud: resident(out.depth.cloud.len()).into(),
                 pixel: resident(out.depth.pixel.len()),
                 ..DepthFrame::empty()
             },
@@ -123,8 +122,7 @@ impl PublishedCopy {
         (d.width, d.height, d.n_points) = (out.depth.width, out.depth.height, n);
         copy_into(d.depth.vec_mut(), &out.depth.depth);
         // only the valid points: the rest of the source's buffers is stale
-        copy_into(&mut d.points, &out.depth.points[..n]);
-        copy_into(&mut d.intensity, &out.depth.intensity[..n]);
+        copy_into(d.cloud.vec_mut(), &out.depth.cloud[..n]);
         copy_into(&mut d.pixel, &out.depth.pixel[..n]);
         copy_into(&mut self.left_rect, out.left_rect);
         copy_into(&mut self.right_rect, out.right_rect);
@@ -165,8 +163,8 @@ impl PublishedCopy {
     }
 
     /// Points of the copied cloud (for tests).
-    pub fn points(&self) -> &[Vec3] {
-        &self.depth.points
+    pub fn points(&self) -> &[CloudPoint] {
+        &self.depth.cloud
     }
 }
 
@@ -382,8 +380,8 @@ mod tests {
         let cam = RectifiedCamera::with_hfov(8, 4, 90.0);
         let mut d = DepthFrame::new(8, 4);
         d.n_points = n;
-        for (i, p) in d.points.iter_mut().enumerate() {
-            *p = Vec3::splat(i as f32);
+        for (i, p) in d.cloud.iter_mut().enumerate() {
+            *p = CloudPoint::new(Vec3::splat(i as f32), i as u8);
         }
         (d, cam)
     }
@@ -444,7 +442,7 @@ mod tests {
         assert_eq!(lane.unused.len(), 2, "one copy handed to the worker, the other two made and waiting");
         for c in &lane.unused {
             let dep = &c.depth;
-            let room = [dep.depth.capacity(), dep.points.capacity(), dep.intensity.capacity(), dep.pixel.capacity()];
+            let room = [dep.depth.capacity(), dep.cloud.capacity(), dep.pixel.capacity()];
             assert!(room.iter().all(|&n| n >= 32), "{room:?}");
             assert!(c.left_rect.capacity() >= 32 && c.disparity.capacity() >= 32);
         }

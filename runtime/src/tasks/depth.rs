@@ -8,7 +8,7 @@ use abvs_eye::Pose;
 use glam::{Mat3, Vec3};
 
 use abvs_runtime_core::error::{Result, RuntimeError};
-use abvs_runtime_core::messages::DepthFrame;
+use abvs_runtime_core::messages::{CloudPoint, DepthFrame};
 use abvs_runtime_core::messages::{Rectification, RectifiedCamera, Work};
 use abvs_runtime_core::stage::{Stage, StageContext};
 
@@ -58,9 +58,9 @@ pub fn compute(
     let (w, h) = (out.width as usize, out.height as usize);
     let (inv_f, cx, cy) = (1.0 / cam.f as f32, cam.cx as f32, cam.cy as f32);
     let mut n = 0;
-    // the map's slice taken once: it may be in a message's lent buffer (`F32Map`)
-    let DepthFrame { depth, points, intensity, pixel, .. } = out;
-    let depth = &mut depth[..];
+    // the slices taken once: the map and the cloud may be in messages' lent buffers (`LentMap`)
+    let DepthFrame { depth, cloud, pixel, .. } = out;
+    let (depth, cloud) = (&mut depth[..], &mut cloud[..]);
     for v in 0..h {
         for u in 0..w {
             let i = v * w + u;
@@ -72,8 +72,7 @@ pub fn compute(
             }
             depth[i] = z;
             let p = Vec3::new((u as f32 - cx) * inv_f * z, (v as f32 - cy) * inv_f * z, z);
-            points[n] = rot * p + t;
-            intensity[n] = left_rect[i];
+            cloud[n] = CloudPoint::new(rot * p + t, left_rect[i]);
             pixel[n] = i as u32;
             n += 1;
         }
@@ -161,10 +160,11 @@ mod tests {
         compute(&mut f, &disp, |i| i != 5, &[7u8; 64 * 48], &cam, &rect, &rel, &DepthConfig::default());
         assert_eq!(f.n_points, 64 * 48 - 1);
         assert!(f.depth[5].is_nan());
-        for p in &f.points[..f.n_points] {
+        for p in &f.cloud[..f.n_points] {
             assert!((p.z - z).abs() < 1e-5);
         }
-        assert!((f.points[0].x - ((0.0 - cam.cx as f32) / cam.f as f32 * z + 0.001)).abs() < 1e-5);
+        assert!((f.cloud[0].x - ((0.0 - cam.cx as f32) / cam.f as f32 * z + 0.001)).abs() < 1e-5);
+        assert_eq!(f.cloud[0].gray(), 7);
         // out of range and invalid disparities are NaN, not zero
         let far = vec![0.5f32; 64 * 48];
         compute(&mut f, &far, |_| true, &[0u8; 64 * 48], &cam, &rect, &rel, &DepthConfig::default());
