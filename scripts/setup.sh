@@ -3,7 +3,9 @@
 #   - system libraries from Debian: OpenCV 4 (+ clang/libclang for the opencv and v4l bindings);
 #     opencv-doc ships the real test images (chessboard stereo set, Middlebury Aloe) the tests use; OpenBLAS
 #     as the system's BLAS and LAPACK (Debian's alternatives; OpenCV links the reference ones, on which
-#     `abvs calib stereo`'s fisheye adjustment of 75 pairs spent 90 of its 115 s in dgemm: 22 s with OpenBLAS)
+#     `abvs calib stereo`'s fisheye adjustment of 75 pairs spent 90 of its 115 s in dgemm: 28 s with OpenBLAS).
+#     Its serial flavour: the pthread one's parallel LU (dgetrf_parallel) overran a 2 MiB thread stack (Rust's
+#     test and spawned threads) inside OpenCV's fisheye calibration and crashed one run in two
 #   - the ONNX Runtime shared library, taken from the onnxruntime wheel on PyPI and unpacked into
 #     .deps/onnxruntime/ inside this checkout, where the built `abvs` finds it without any variable
 #   - a Python environment in .deps/python (pinned packages from PyPI) for the Python subscriber
@@ -15,7 +17,7 @@ ORT_VERSION=1.31.1
 SUDO=""
 if [ "$(id -u)" -ne 0 ]; then SUDO="sudo"; fi
 
-pkgs=(build-essential pkg-config clang libclang-dev libopencv-dev opencv-doc libopenblas0-pthread python3-pip python3-venv unzip curl fonts-dejavu-core)
+pkgs=(build-essential pkg-config clang libclang-dev libopencv-dev opencv-doc libopenblas0-serial python3-pip python3-venv unzip curl fonts-dejavu-core)
 missing=()
 for p in "${pkgs[@]}"; do
   dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
