@@ -8,6 +8,9 @@ set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
 ./scripts/setup.sh
 cargo fmt --all -- --check
+# every package of the lock file, for every platform: tests/tests/layers.rs runs `cargo metadata --offline`,
+# which reads them all (a fresh machine's build downloads only this platform's)
+cargo fetch --locked
 # Lints (the workspace's [workspace.lints] and clippy.toml) in the same build as the tests: clippy-driver
 # compiles the workspace's own crates and lints them, rustc the dependencies, once. A separate
 # `cargo clippy --workspace --all-targets -- -D warnings` type-checks the ~600 dependencies a second time:

@@ -18,7 +18,7 @@ const NO_EVIDENCE: u8 = BITS / 2;
 /// Radius of the aggregation box (7x7, the census search's window).
 const R: usize = 3;
 
-/// Buffers of the cost at one resolution, allocated once.
+/// Buffers of the cost at one resolution, allocated once (nothing per frame).
 pub struct MatchCost {
     w: usize,
     h: usize,
@@ -26,6 +26,8 @@ pub struct MatchCost {
     ham: Vec<u8>,
     /// Column sums of `ham` over the box's rows.
     col: Vec<u16>,
+    /// 1 / the box's columns inside the image, per column.
+    inv_cols: Vec<f32>,
     /// The box mean, in [0, 1].
     cost: Vec<f32>,
 }
@@ -33,7 +35,8 @@ pub struct MatchCost {
 impl MatchCost {
     /// Buffers for `w` x `h` maps.
     pub fn new(w: usize, h: usize) -> MatchCost {
-        MatchCost { w, h, ham: vec![0; w * h], col: vec![0; w], cost: vec![0.0; w * h] }
+        let inv_cols = (0..w).map(|x| 1.0 / (x.min(R) + 1 + (w - 1 - x).min(R)) as f32).collect();
+        MatchCost { w, h, ham: vec![0; w * h], col: vec![0; w], inv_cols, cost: vec![0.0; w * h] }
     }
 
     /// The last [`MatchCost::compute`]'s cost per pixel.
@@ -68,7 +71,6 @@ impl MatchCost {
         for row in self.ham.chunks_exact(w).take(R.min(h)) {
             self.col.iter_mut().zip(row).for_each(|(c, &v)| *c += v as u16);
         }
-        let inv_n: Vec<f32> = (0..w).map(|x| 1.0 / (x.min(R) + 1 + (w - 1 - x).min(R)) as f32).collect();
         for y in 0..h {
             if y + R < h {
                 let row = &self.ham[(y + R) * w..(y + R + 1) * w];
@@ -82,7 +84,7 @@ impl MatchCost {
                 if x + R < w {
                     s += self.col[x + R] as u32;
                 }
-                out[x] = s as f32 * inv_n[x] * scale;
+                out[x] = s as f32 * self.inv_cols[x] * scale;
                 if x >= R {
                     s -= self.col[x - R] as u32;
                 }
