@@ -20,7 +20,6 @@ use crate::census_confidence::{Scorer, AT_EDGE, MARGIN_ONE};
 use crate::confidence::reason;
 use crate::engine::{check_sizes, DisparityEngine};
 use crate::error::{DisparityError, Result};
-use crate::match_cost::MatchCost;
 use crate::onnx::OnnxEngine;
 use crate::resample::{nearest, resize_gray, upsample_disparity};
 use crate::sgbm::SgbmEngine;
@@ -78,10 +77,6 @@ pub struct CensusRefineEngine {
     /// The last frame's confidence and reasons at the engine's resolution.
     conf: Vec<f32>,
     why: Vec<u8>,
-    /// The answer's match cost at the engine's resolution (a feature of the confidence), and both images'
-    /// census codes there when no pass at that resolution computes them.
-    cost: MatchCost,
-    full_census: Option<[Vec<u32>; 2]>,
     /// Whether the confidence is computed (the paired benchmark's baseline turns it off).
     scoring: bool,
 }
@@ -370,8 +365,6 @@ impl CensusRefineEngine {
             why_pass: vec![0; if scored_here { scored.0 * scored.1 } else { 0 }],
             conf: vec![0.0; n],
             why: vec![0; n],
-            cost: MatchCost::new(width as usize, height as usize),
-            full_census: (!fine).then(|| [vec![0; n], vec![0; n]]),
             scoring: true,
         })
     }
@@ -385,13 +378,6 @@ impl CensusRefineEngine {
         let (pass, refined) = self.coarse.as_ref()?;
         let prior = self.prior.as_ref()?;
         Some((&self.net_left, &self.net_right, &pass.stat, refined, &self.net_raw, &prior.disp))
-    }
-
-    /// The last frame's match cost at the engine's resolution ([`crate::match_cost`]), for fitting the
-    /// confidence.
-    #[doc(hidden)]
-    pub fn match_cost(&self) -> &[f32] {
-        self.cost.cost()
     }
 
     /// The engine without its confidence ([`DisparityEngine::confidence`] gives none): the baseline of the
@@ -427,7 +413,6 @@ impl DisparityEngine for CensusRefineEngine {
             fine.refine(&self.helper, &self.guess, out)?;
             if self.scoring {
                 self.scorer.score(left, &fine.stat, out, &self.guess, None, &mut self.conf, &mut self.why);
-                self.scorer.finish(&mut self.conf, self.cost.compute(&fine.census_l, &fine.census_r, out));
             }
             return Ok(());
         }
@@ -449,11 +434,6 @@ impl DisparityEngine for CensusRefineEngine {
         if let (Ok(()), true, Some(f)) = (&net, fine_here, &mut self.fine) {
             census(left, w, h, &mut f.census_l);
             census(right, w, h, &mut f.census_r);
-        }
-        // the census for the confidence's match cost at this resolution, likewise while the helper is busy
-        if let (Ok(()), true, Some([cl, cr])) = (&net, self.scoring, &mut self.full_census) {
-            census(left, w, h, cl);
-            census(right, w, h, cr);
         }
         self.helper.wait()?;
         net?;
@@ -483,7 +463,6 @@ impl DisparityEngine for CensusRefineEngine {
                 // the network's own answer at this resolution is the guess only without a prior: with one,
                 // the agreement is the coarse answer's (the guess) with the refined one
                 self.scorer.score(left, &fine.stat, out, &self.guess, None, &mut self.conf, &mut self.why);
-                self.scorer.finish(&mut self.conf, self.cost.compute(&fine.census_l, &fine.census_r, out));
             }
             None => {
                 upsample_disparity(answer, (mw, mh), out, (w, h));
@@ -512,10 +491,6 @@ impl DisparityEngine for CensusRefineEngine {
                 );
                 nearest(&self.conf_pass, (mw, mh), &mut self.conf, (w, h));
                 nearest(&self.why_pass, (mw, mh), &mut self.why, (w, h));
-                let [cl, cr] = self.full_census.as_ref().ok_or_else(|| {
-                    DisparityError::Invalid("census-refine: no census at the engine's resolution".into())
-                })?;
-                self.scorer.finish(&mut self.conf, self.cost.compute(cl, cr, out));
             }
         }
         Ok(())

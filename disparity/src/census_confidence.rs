@@ -1,36 +1,28 @@
 //! The census-refine engine's per-pixel confidence, from what one run of it computes anyway (no second run,
 //! unlike the left-right check of [`crate::confidence`]): a logistic model of whether the pixel is right to
-//! 2 px, fitted on the development pair (Aloe at 640x480) over these features. Of the search's pass (at the
-//! network's resolution for the runtime's default, upsampled to the published one):
+//! 2 px, fitted on the development pair (Aloe at 640x480) over these features of the search's pass:
 //!
 //! - `acc`: whether SGBM's own checks (uniqueness, left-right, speckles) accepted the pixel as the search's
 //!   start (1), or the network filled it (0);
 //! - `m`: the census search's margin, how much better its winner is than the best offset beyond the winner's
 //!   neighbours, `(second - best) / second` in [0, 1];
+//! - `edge`: whether the winner is an end of the search window (the true match may lie beyond it);
 //! - `span`: how far the 4-neighbours' disparities spread (px): a depth edge, where the answer (upsampled
 //!   bilinearly) puts pixels between the two surfaces;
-//! - `agree`: |refined - network| (px, at most 20), the network's own answer against the refined one;
-//!
-//! and at the published resolution:
-//!
-//! - `cost`: the published answer's census match cost there ([`crate::match_cost`], in [0, 1]).
+//! - `agree`: |refined - network| (px, at most 20), the network's own answer against the refined one.
 //!
 //! ```text
-//! c = 1 / (1 + exp(-(B + W_ACC acc + W_MARGIN m + W_SPAN ln(1 + span) + W_AGREE ln(1 + agree) + W_COST cost)))
+//! c = 1 / (1 + exp(-(B + W_ACC acc + W_MARGIN m + W_EDGE edge + W_SPAN ln(1 + span) + W_AGREE ln(1 + agree))))
 //! 0 without a disparity or where the match falls outside the right image
 //! ```
 //!
 //! Fitted by Newton's method on every Aloe pixel with ground truth (bad-2 as the label;
 //! scripts/fit_census_confidence.py prints these weights and the mask's curve). The features were
-//! chosen by fitting on one half of the image and ranking the other (bad-2 among the 72.5 % most confident of
-//! the held-back upper / lower half, docs/depth.md): the search's features alone 3.01 / 0.90 %, with the
-//! match cost 2.17 / 0.47 %. The cost and the margin carry most of it; SGBM's acceptance adds little once the
-//! cost is in (it still separates what no match supports on the OAK-D pairs). Whether the winner is at the
-//! search window's end ranked the halves no better and took a positive weight with the cost: left out of the
-//! model, it still names a pixel's reason. Texture and the share of SGBM-accepted neighbours ranked Aloe a
-//! little better without the cost, but only with negative weights (a flat region more confident than a
-//! textured one), which would publish the streaks of textureless walls: left out. A flat region's ambiguity is
-//! in its margin and its cost (a uniform patch matches at chance: m = 0 and cost 0.5 score 0.29, below the
+//! chosen by fitting on one half of the image and ranking the other; the margin, SGBM's acceptance and the
+//! depth edge carry most of it. Texture and the share of SGBM-accepted neighbours ranked Aloe a little better
+//! (bad-2 at SGBM_3WAY's density on the lower half 2.4 against 3.0 %) but only with negative weights (a flat
+//! region more confident than a textured one), which would publish the streaks of textureless walls: left
+//! out. A flat region's ambiguity is in its margin (m = 0 scores 0.47 without SGBM's acceptance, below the
 //! default threshold). Without an SGBM prior (the engine at its network's resolution) every pixel scores as
 //! accepted (not calibrated there). Motorcycle is held out (cli/tests/disparity_real.rs). Each pixel also gets
 //! the reason its confidence is not higher ([`reason`]): low texture, ambiguous, out of range, occluded /
@@ -38,17 +30,17 @@
 use crate::confidence::reason;
 
 /// The logistic model's bias (see the module docs; fitted on Aloe at 640x480).
-pub const B: f32 = 4.0183;
+pub const B: f32 = -0.13;
 /// Weight of SGBM's acceptance.
-pub const W_ACC: f32 = 0.0947;
+pub const W_ACC: f32 = 0.5969;
 /// Weight of the census margin.
-pub const W_MARGIN: f32 = 3.0787;
+pub const W_MARGIN: f32 = 6.1314;
+/// Weight of a winner at the search window's end.
+pub const W_EDGE: f32 = -0.3952;
 /// Weight of ln(1 + the neighbours' span).
-pub const W_SPAN: f32 = -1.2762;
+pub const W_SPAN: f32 = -1.5108;
 /// Weight of ln(1 + |refined - network|).
-pub const W_AGREE: f32 = -0.1998;
-/// Weight of the match cost at the published resolution ([`crate::match_cost`], in [0, 1]).
-pub const W_COST: f32 = -9.7892;
+pub const W_AGREE: f32 = -0.1575;
 /// Below this texture (mean gray levels) a doubtful pixel's reason is low texture, not ambiguity.
 pub const TEXTURE_LOW: f32 = 4.0;
 /// Below this margin a pixel's reason is ambiguity (or low texture).
@@ -56,9 +48,6 @@ pub const MARGIN_LOW: f32 = 0.175;
 /// Steps of the tables of ln(1 + v) for the span and the agreement (per px) and their reach (px).
 const LN_STEPS: f32 = 32.0;
 const LN_REACH: f32 = 64.0;
-/// Steps (per unit) and reach of the logistic function's table: beyond 16 it is within 1.2e-7 of 0 or 1.
-const SIG_STEPS: f32 = 64.0;
-const SIG_REACH: f32 = 16.0;
 
 /// The margin of a search outcome byte that stands for 1 (the second best infinitely worse). The byte is
 /// what census-refine's search ([`crate::census`]) records per pixel and this scoring reads: the winner's
@@ -77,8 +66,6 @@ pub struct Scorer {
     /// the rest of the scoring).
     margin_term: [f32; 128],
     ln1p: Vec<f32>,
-    /// The logistic function over [-SIG_REACH, SIG_REACH] at 1 / SIG_STEPS.
-    sig: Vec<f32>,
 }
 
 impl Scorer {
@@ -90,31 +77,7 @@ impl Scorer {
             rows: vec![0; w * h],
             margin_term: std::array::from_fn(|m| W_MARGIN * m as f32 / MARGIN_ONE as f32),
             ln1p: (0..=(LN_STEPS * LN_REACH) as usize).map(|i| (i as f32 / LN_STEPS).ln_1p()).collect(),
-            sig: (0..=(2.0 * SIG_REACH * SIG_STEPS) as usize)
-                .map(|i| 1.0 / (1.0 + (SIG_REACH - i as f32 / SIG_STEPS).exp()))
-                .collect(),
         }
-    }
-
-    /// The confidence from the search's logit `z` (at the published resolution; -inf: 0) and the match cost
-    /// there ([`crate::match_cost`]), in place.
-    pub fn finish(&self, z: &mut [f32], cost: &[f32]) {
-        for (c, &m) in z.iter_mut().zip(cost) {
-            *c = self.sigmoid(*c + W_COST * m);
-        }
-    }
-
-    /// The logistic function from its table, linearly interpolated (within 1e-5 of it; an exp per pixel at
-    /// the published resolution cost more than the rest of the scoring).
-    #[inline(always)]
-    fn sigmoid(&self, z: f32) -> f32 {
-        if z.is_nan() || z == f32::NEG_INFINITY {
-            return 0.0; // no estimate, or its match outside the right image
-        }
-        let t = (z.clamp(-SIG_REACH, SIG_REACH) + SIG_REACH) * SIG_STEPS;
-        let i = (t as usize).min(self.sig.len() - 2);
-        let f = t - i as f32;
-        self.sig[i] + (self.sig[i + 1] - self.sig[i]) * f
     }
 
     /// ln(1 + v) for v >= 0 from the table (v beyond its reach: its end).
@@ -129,10 +92,9 @@ impl Scorer {
         ys.iter().map(|&yy| self.rows[yy * self.w + x] as usize).sum()
     }
 
-    /// The search's part of the confidence's logit (`z`, -inf where the confidence is 0) and the reason of
-    /// each pixel of `refined` (this scorer's size): `img` the left image searched, `stat` the search's
-    /// outcome bytes, `net` the network's own answer, `prior` SGBM's accepted matches (NaN where rejected)
-    /// when the engine has them. [`Scorer::finish`] adds the match cost at the published resolution.
+    /// Confidence and reason of each pixel of `refined` (this scorer's size): `img` the left image searched,
+    /// `stat` the search's outcome bytes, `net` the network's own answer, `prior` SGBM's accepted matches
+    /// (NaN where rejected) when the engine has them.
     #[allow(clippy::too_many_arguments)]
     pub fn score(
         &mut self,
@@ -141,10 +103,9 @@ impl Scorer {
         refined: &[f32],
         net: &[f32],
         prior: Option<&[f32]>,
-        z: &mut [f32],
+        conf: &mut [f32],
         why: &mut [u8],
     ) {
-        let conf = z;
         let (w, h) = (self.w, self.h);
         // horizontal box sums of the central gradient
         for (src, dst) in img.chunks_exact(w).zip(self.rows.chunks_exact_mut(w)).take(h) {
@@ -163,11 +124,11 @@ impl Scorer {
                 let i = y * w + x;
                 let d = refined[i];
                 if !d.is_finite() {
-                    (conf[i], why[i]) = (f32::NEG_INFINITY, reason::NO_ESTIMATE);
+                    (conf[i], why[i]) = (0.0, reason::NO_ESTIMATE);
                     continue;
                 }
                 if (x as f32) - d < 0.0 {
-                    (conf[i], why[i]) = (f32::NEG_INFINITY, reason::OUTSIDE_RIGHT);
+                    (conf[i], why[i]) = (0.0, reason::OUTSIDE_RIGHT);
                     continue;
                 }
                 let s = stat[i];
@@ -188,9 +149,10 @@ impl Scorer {
                 let z = B
                     + if accepted { W_ACC } else { 0.0 }
                     + self.margin_term[(s & !AT_EDGE) as usize]
+                    + if beyond { W_EDGE } else { 0.0 }
                     + W_SPAN * self.ln1p(hi - lo)
                     + W_AGREE * self.ln1p(agree);
-                conf[i] = z;
+                conf[i] = 1.0 / (1.0 + (-z).exp());
                 // the weakest evidence names the reason
                 let m = (s & !AT_EDGE) as f32 / MARGIN_ONE as f32;
                 why[i] = if beyond {
@@ -212,19 +174,6 @@ mod tests {
     use super::*;
     use abvs_runtime_core::params::DEFAULT_MIN_CONFIDENCE;
 
-    #[test]
-    fn the_logistic_table_is_the_function() {
-        let s = Scorer::new(4, 4);
-        for i in -2000..=2000 {
-            let z = i as f32 / 97.0;
-            let want = 1.0 / (1.0 + (-z).exp());
-            assert!((s.sigmoid(z) - want).abs() < 1e-5, "{z}: {} vs {want}", s.sigmoid(z));
-        }
-        assert_eq!(s.sigmoid(f32::NEG_INFINITY), 0.0);
-        assert_eq!(s.sigmoid(f32::NAN), 0.0);
-        assert!(s.sigmoid(f32::INFINITY) > 0.999_999);
-    }
-
     /// A textured row band whose search was unique, started from an accepted SGBM match: high confidence;
     /// the same where the network filled a flat area with an ambiguous search: below the default threshold, for
     /// low texture.
@@ -237,12 +186,7 @@ mod tests {
         let stat: Vec<u8> = (0..w * h).map(|i| if (i % w) < 8 { 60 } else { 5 }).collect();
         let prior: Vec<f32> = (0..w * h).map(|i| if (i % w) < 8 { 4.0 } else { f32::NAN }).collect();
         let (mut conf, mut why) = (vec![0f32; w * h], vec![0u8; w * h]);
-        let mut s = Scorer::new(w, h);
-        s.score(&img, &stat, &refined, &net, Some(&prior), &mut conf, &mut why);
-        // the match cost at the published resolution (here the same): the textured band matched, the uniform
-        // one at chance (crate::match_cost)
-        let cost: Vec<f32> = (0..w * h).map(|i| if (i % w) < 8 { 0.05 } else { 0.5 }).collect();
-        s.finish(&mut conf, &cost);
+        Scorer::new(w, h).score(&img, &stat, &refined, &net, Some(&prior), &mut conf, &mut why);
         let i = 3 * w + 6;
         assert!(conf[i] > 0.9, "{}", conf[i]);
         let j = 3 * w + 13;

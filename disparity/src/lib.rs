@@ -20,7 +20,7 @@
 //! `abvs run` all call this crate.
 //!
 //! Layers, each module importing only from those above it in this list (no circle): [`error`];
-//! [`engine`]; [`resample`], [`confidence`], [`census_confidence`], [`match_cost`], [`manifest`], [`pfm`]; [`onnx`], [`sgbm`];
+//! [`engine`]; [`resample`], [`confidence`], [`census_confidence`], [`manifest`], [`pfm`]; [`onnx`], [`sgbm`];
 //! [`census`], [`fused`], [`fovea`]; [`factory`]; [`estimate`], [`score`]; [`eval`], [`fovea_eval`].
 #![warn(missing_docs)]
 pub mod census;
@@ -35,7 +35,6 @@ pub mod fovea;
 pub mod fovea_eval;
 pub mod fused;
 pub mod manifest;
-pub mod match_cost;
 pub mod onnx;
 pub mod pfm;
 pub mod resample;

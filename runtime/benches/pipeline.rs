@@ -4,11 +4,10 @@
 use std::path::Path;
 
 use abvs_camera::Camera;
-use abvs_disparity::census::{census, CensusRefineEngine};
+use abvs_disparity::census::CensusRefineEngine;
 use abvs_disparity::census_confidence::Scorer;
 use abvs_disparity::confidence::mask;
 use abvs_disparity::engine::DisparityEngine;
-use abvs_disparity::match_cost::MatchCost;
 use abvs_disparity::onnx::OnnxEngine;
 use abvs_disparity::resample::nearest;
 use abvs_disparity::sgbm::SgbmEngine;
@@ -84,9 +83,8 @@ fn bench(c: &mut Criterion) {
                 })
             });
         }
-        // the confidence's scoring alone at the search's resolution (half the engine's), its nearest
-        // upsampling and the match cost at the engine's (both census images), on a noise answer: what it adds
-        // to the engine, beside the whole engine's pair above
+        // the confidence's scoring alone at the search's resolution (half the engine's) and its nearest
+        // upsampling, on a noise answer: what it adds to the engine, beside the whole engine's pair above
         {
             let (sw, sh) = (w as usize / 2, h as usize / 2);
             let n = sw * sh;
@@ -97,17 +95,11 @@ fn bench(c: &mut Criterion) {
             let mut scorer = Scorer::new(sw, sh);
             let (mut c, mut y) = (vec![0f32; n], vec![0u8; n]);
             let (mut cu, mut yu) = (vec![0f32; (w * h) as usize], vec![0u8; (w * h) as usize]);
-            let (wu, hu) = (w as usize, h as usize);
-            let (mut cl, mut cr, mut cost) = (vec![0u32; wu * hu], vec![0u32; wu * hu], MatchCost::new(wu, hu));
-            let answer: Vec<f32> = (0..wu * hu).map(|i| 16.0 + ((i * 7919) % 13) as f32).collect();
             g.bench_function("census_confidence_scoring_only", |b| {
                 b.iter(|| {
                     scorer.score(&l[..n], &stat, &refined, &net, Some(&prior), &mut c, &mut y);
-                    nearest(&c, (sw, sh), &mut cu, (wu, hu));
-                    nearest(&y, (sw, sh), &mut yu, (wu, hu));
-                    census(&l, wu, hu, &mut cl);
-                    census(&r, wu, hu, &mut cr);
-                    scorer.finish(&mut cu, cost.compute(&cl, &cr, &answer));
+                    nearest(&c, (sw, sh), &mut cu, (w as usize, h as usize));
+                    nearest(&y, (sw, sh), &mut yu, (w as usize, h as usize));
                 })
             });
         }
