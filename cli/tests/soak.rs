@@ -98,11 +98,11 @@ fn a_looped_replay_keeps_resident_memory_flat_and_latency_bounded() {
     eprintln!("resident memory over the judged windows: {lo:.3} .. {hi:.3} MB, steady slope {slope:.4} MB/min");
     // In 30 s a one-time step still reads as a slope: the release build at 320x240 takes on 0.63 MB once,
     // 7.5-10 s into the run, flat after (the default engine's, census-refine / ONNX Runtime: not with
-    // --engine sgbm), 1.3 MB/min over 30 s. So the CI run bounds what the
-    // windows after the first take on (before the fix: 3.4 and 12.7 MB in two debug runs; after: 0.66 MB),
-    // and a run of 10 minutes or more (ABVS_SOAK_SECONDS) the slope itself.
-    // from the end of the first part (two windows): on a fresh machine (2026-11-28) the debug build still took
-    // on about 1.5 MB of start-up in the second window, and main's code then read 2.19 MB from the first
+    // --engine sgbm), 1.3 MB/min over 30 s. So the CI run bounds what the windows after the first part (two
+    // windows) take on (before the fix: 3.4 and 12.7 MB from the first window in two debug runs; after:
+    // 0.66 MB), and a run of 10 minutes or more (ABVS_SOAK_SECONDS) the slope itself. The first part, not the
+    // first window: on a fresh machine (2026-11-28) the debug build still took on 1.37 MB of start-up in the
+    // second window (2.19 MB from the first, 0.82 MB over the judged windows).
     let first = windows[1]["rss_mb"].as_f64().unwrap();
     let grown = windows.iter().skip(1).map(|w| f(w, "rss_mb")).fold(f64::NEG_INFINITY, f64::max) - first;
     assert!(grown < 2.0, "resident memory grew {grown:.2} MB after the first part: {}", v["rss"]);
