@@ -21,7 +21,7 @@ from image_io import pfm, png_first_channel
 
 W, H = 640, 480
 w, h = 320, 240
-NAMES = ["acc", "m", "edge", "ln1p(span)", "ln1p(agree)", "ln1p(std3)"]  # the last with --std
+NAMES = ["acc", "m", "ln1p(span)", "ln1p(agree)", "cost", "ln1p(std3)"]  # the last with --std
 
 
 def ground_truth(path, scale):
@@ -60,8 +60,10 @@ def features(dump):
     net, prior = f("net.f32", np.float32, (h, w)), f("prior.f32", np.float32, (h, w))
     agree = np.abs(refined - net)
     agree = np.where(np.isfinite(agree), np.minimum(agree, 20), 20)
-    x = np.stack([np.isfinite(prior), (stat & 0x7F) / 127.0, (stat & 0x80) > 0,
-                  np.log1p(span4(refined)), np.log1p(agree), np.log1p(std3(refined))], -1).astype(np.float64)
+    x = np.stack([np.isfinite(prior), (stat & 0x7F) / 127.0,
+                  np.log1p(span4(refined)), np.log1p(agree),
+                  # the engine's own match cost, pooled onto this grid (disparity/src/match_cost.rs)
+                  f("cost.f32", np.float32, (h, w)), np.log1p(std3(refined))], -1).astype(np.float64)
     valid = np.isfinite(refined) & (np.arange(w)[None, :] - refined >= 0)
     up = lambda a: np.repeat(np.repeat(a, 2, 0), 2, 1)  # the engine's nearest upsampling
     return up(x), up(valid), f("out640.f32", np.float32, (H, W))

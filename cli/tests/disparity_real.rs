@@ -226,12 +226,12 @@ fn runtime_default_at_640x480(p: Pair) {
 /// Issue 41, counting only the pixels each publishes: the default validity mask (census-refine's own
 /// confidence at `[disparity] min_confidence`'s default) against SGBM_3WAY's own checks, in the same run.
 /// The issue's bars: bad-2 among the published at most SGBM_3WAY's at a density at least 5 points higher,
-/// and at SGBM_3WAY's density at most 0.8x its bad-2 (read from the confidence's density curve). Met on Aloe,
-/// the pair the confidence was fitted on (measured 0.783 / 3.41 % against 0.725 / 3.85 %; 0.49x at its
-/// density; its bad-2 at density 0.795). NOT met on the held-out Motorcycle (measured 0.870 / 6.39 % against
-/// 0.853 / 6.45 %: its bad-2 at 1.7 points more density, not 5; 0.89x at its density): what holds there is
-/// asserted (no more bad-2 than SGBM_3WAY's at a higher density, at most 0.95x at its density). A fit on
-/// rendered development pairs as well did worse there (0.877 / 6.94 %, 0.90x; docs/depth.md): not shipped.
+/// and at SGBM_3WAY's density at most 0.8x its bad-2 (read from the confidence's density curve). Both met on
+/// Aloe, the pair the confidence was fitted on (measured 0.791 / 2.86 % against 0.725 / 3.85 %; 1.24 % at its
+/// density, 0.32x; at its bad-2 density 0.810). On the held-out Motorcycle the second is met (5.11 % against
+/// 6.45 % at its density, 0.79x) and the first is not (0.868 / 5.79 % against 0.853 / 6.45 %: at its bad-2
+/// density 0.879, 2.6 points more, not 5): what holds there is asserted. Before the match cost at the
+/// published resolution (docs/depth.md): Aloe 0.49x, Motorcycle 0.88x and 1.7 points.
 fn published_against_sgbm_3way(p: &Pair, ours: &serde_json::Value, sgbm: &serde_json::Value) {
     let f = |v: &serde_json::Value| v.as_f64().unwrap_or_else(|| panic!("{}: not a number: {v}", p.name));
     let (od, ob) = (f(&ours["published"]["density"]), f(&ours["published"]["bad2_pct_of_valid"]));
@@ -253,12 +253,12 @@ fn published_against_sgbm_3way(p: &Pair, ours: &serde_json::Value, sgbm: &serde_
     assert!(ob <= 0.5 * f(&dense[2]), "{}: bad-2 among published {ob} % vs dense {}", p.name, dense[2]);
     // what a robot acts on: no more wrong pixels than SGBM_3WAY's among more published ones
     assert!(ob <= sb && od > sd, "{}: {od} / {ob} % vs SGBM_3WAY's {sd} / {sb} %", p.name);
+    assert!(at <= 0.8 * sb, "{}: at SGBM_3WAY's density {at} % vs its {sb} %", p.name);
     if p.name == "aloe" {
         assert!(od >= sd + 0.05, "{}: density {od} vs SGBM_3WAY's {sd}", p.name);
         assert!(dn_at >= sd + 0.05, "{}: at SGBM_3WAY's bad-2 density {dn_at} vs its {sd}", p.name);
-        assert!(at <= 0.8 * sb, "{}: at SGBM_3WAY's density {at} % vs its {sb} %", p.name);
     } else {
-        assert!(at <= 0.95 * sb, "{}: at SGBM_3WAY's density {at} % vs its {sb} %", p.name);
+        assert!(dn_at >= sd + 0.02, "{}: at SGBM_3WAY's bad-2 density {dn_at} vs its {sd}", p.name);
     }
 }
 

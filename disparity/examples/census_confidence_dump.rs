@@ -43,6 +43,7 @@ fn main() {
     put(out, "out640.f32", &d);
     put(out, "conf640.f32", c);
     put(out, "why640.u8", why);
+    put(out, "cost.f32", e.match_cost());
     let (nl, nr, st, re, net, pr) = e.internals().unwrap();
     put(out, "left.u8", nl);
     put(out, "right.u8", nr);

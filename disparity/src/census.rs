@@ -20,6 +20,7 @@ use crate::census_confidence::{Scorer, AT_EDGE, MARGIN_ONE};
 use crate::confidence::reason;
 use crate::engine::{check_sizes, DisparityEngine};
 use crate::error::{DisparityError, Result};
+use crate::match_cost::MatchCost;
 use crate::onnx::OnnxEngine;
 use crate::resample::{nearest, resize_gray, upsample_disparity};
 use crate::sgbm::SgbmEngine;
@@ -77,6 +78,10 @@ pub struct CensusRefineEngine {
     /// The last frame's confidence and reasons at the engine's resolution.
     conf: Vec<f32>,
     why: Vec<u8>,
+    /// The answer's match cost at the engine's resolution pooled onto the scored grid (a feature of the
+    /// confidence), and both images' census codes at the engine's resolution when no pass there computes them.
+    cost: MatchCost,
+    full_census: Option<[Vec<u32>; 2]>,
     /// Whether the confidence is computed (the paired benchmark's baseline turns it off).
     scoring: bool,
 }
@@ -176,6 +181,8 @@ enum Job {
         h: usize,
         y0: usize,
     },
+    /// A closure of the engine's, run here (the engine keeps it alive until `done`: see [`erase`]).
+    Call(*mut (dyn FnMut() + Send + 'static)),
 }
 
 /// Both images' census codes.
@@ -189,6 +196,15 @@ struct CensusJob {
 
 // SAFETY: the pointers are only dereferenced on the helper thread while the sending thread waits (see Job).
 unsafe impl Send for Job {}
+
+/// `f` as a [`Job::Call`], its borrows' lifetime erased.
+///
+/// # Safety
+/// The caller keeps `f` alive and waits for the job's `done` before it returns or uses anything `f` borrows.
+unsafe fn erase<'a>(f: &'a mut (dyn FnMut() + Send + 'a)) -> *mut (dyn FnMut() + Send + 'static) {
+    // SAFETY: only the lifetime changes (see the contract above)
+    unsafe { std::mem::transmute::<*mut (dyn FnMut() + Send + 'a), *mut (dyn FnMut() + Send + 'static)>(f) }
+}
 
 /// A persistent second thread (spawned once: spawning per frame would allocate) and its two channels,
 /// which allocate nothing per message once warmed up at construction.
@@ -232,6 +248,7 @@ impl Helper {
                                     );
                                 }
                             }
+                            Job::Call(f) => (*f)(),
                             Job::Refine { cl, cr, base, guess, out, stat, w, h, y0 } => {
                                 let n = w * h;
                                 let Some(win) = wins.iter_mut().find(|r| r.w == w) else {
@@ -365,6 +382,8 @@ impl CensusRefineEngine {
             why_pass: vec![0; if scored_here { scored.0 * scored.1 } else { 0 }],
             conf: vec![0.0; n],
             why: vec![0; n],
+            cost: MatchCost::new((width as usize, height as usize), scored),
+            full_census: (!fine).then(|| [vec![0; n], vec![0; n]]),
             scoring: true,
         })
     }
@@ -378,6 +397,12 @@ impl CensusRefineEngine {
         let (pass, refined) = self.coarse.as_ref()?;
         let prior = self.prior.as_ref()?;
         Some((&self.net_left, &self.net_right, &pass.stat, refined, &self.net_raw, &prior.disp))
+    }
+
+    /// The last frame's match cost on the scored grid ([`crate::match_cost`]), for fitting the confidence.
+    #[doc(hidden)]
+    pub fn match_cost(&self) -> &[f32] {
+        self.cost.cost()
     }
 
     /// The engine without its confidence ([`DisparityEngine::confidence`] gives none): the baseline of the
@@ -413,6 +438,7 @@ impl DisparityEngine for CensusRefineEngine {
             fine.refine(&self.helper, &self.guess, out)?;
             if self.scoring {
                 self.scorer.score(left, &fine.stat, out, &self.guess, None, &mut self.conf, &mut self.why);
+                Scorer::finish(&mut self.conf, self.cost.compute(&fine.census_l, &fine.census_r, out));
             }
             return Ok(());
         }
@@ -463,32 +489,49 @@ impl DisparityEngine for CensusRefineEngine {
                 // the network's own answer at this resolution is the guess only without a prior: with one,
                 // the agreement is the coarse answer's (the guess) with the refined one
                 self.scorer.score(left, &fine.stat, out, &self.guess, None, &mut self.conf, &mut self.why);
+                Scorer::finish(&mut self.conf, self.cost.compute(&fine.census_l, &fine.census_r, out));
             }
             None => {
-                upsample_disparity(answer, (mw, mh), out, (w, h));
-                if !self.scoring {
-                    return Ok(());
-                }
                 let stat: &[u8] = match &self.coarse {
                     Some((pass, _)) => &pass.stat[..],
                     None => &[],
                 };
-                if stat.is_empty() {
-                    // no search ran (the network alone, resized): no evidence beyond its answer
-                    self.conf.fill(0.0);
-                    self.why.fill(reason::AMBIGUOUS);
+                let (Some([cl, cr]), true, false) = (&mut self.full_census, self.scoring, stat.is_empty()) else {
+                    upsample_disparity(answer, (mw, mh), out, (w, h));
+                    if self.scoring {
+                        // no search ran (the network alone, resized): no evidence beyond its answer
+                        self.conf.fill(0.0);
+                        self.why.fill(reason::AMBIGUOUS);
+                    }
                     return Ok(());
-                }
+                };
+                // both census images at this resolution and the scoring on the helper (idle until the next
+                // frame) while the answer is upsampled here: about as long (4 ms on this project's 2-core VM)
                 let prior = self.prior.as_ref().map(|p| &p.disp[..]);
-                self.scorer.score(
-                    &self.net_left,
-                    stat,
-                    answer,
-                    net_raw,
-                    prior,
-                    &mut self.conf_pass,
-                    &mut self.why_pass,
-                );
+                let (scorer, net_left) = (&mut self.scorer, &self.net_left);
+                let (conf_pass, why_pass) = (&mut self.conf_pass, &mut self.why_pass);
+                let mut side = || {
+                    census(left, w, h, cl);
+                    census(right, w, h, cr);
+                    scorer.score(net_left, stat, answer, net_raw, prior, conf_pass, why_pass);
+                };
+                // SAFETY: `side` lives on this stack until `wait` below, before anything it borrows is used
+                self.helper.run(Job::Call(unsafe { erase(&mut side) }))?;
+                upsample_disparity(answer, (mw, mh), out, (w, h));
+                self.helper.wait()?;
+                // the match cost's first step in halves, the lower on the helper
+                let [top, bottom] = self.cost.halves(cl, cr, out);
+                let mut bottom = Some(bottom);
+                let mut lower = || {
+                    if let Some(part) = bottom.take() {
+                        part.run()
+                    }
+                };
+                // SAFETY: as for `side`
+                self.helper.run(Job::Call(unsafe { erase(&mut lower) }))?;
+                top.run();
+                self.helper.wait()?;
+                Scorer::finish(&mut self.conf_pass, self.cost.finish());
                 nearest(&self.conf_pass, (mw, mh), &mut self.conf, (w, h));
                 nearest(&self.why_pass, (mw, mh), &mut self.why, (w, h));
             }
@@ -629,30 +672,60 @@ unsafe fn census_avx2(img: &[u8], w: usize, h: usize, out: &mut [u32]) {
 #[inline(always)]
 fn census_generic(img: &[u8], w: usize, h: usize, out: &mut [u32]) {
     let r = CENSUS_R as isize;
-    // row by row, every neighbour of the row before the next: the row's codes stay in L1
+    // Pixels in chunks of CHUNK, each code built as three bytes (8 neighbours each) and packed at the end:
+    // the compares and ors run on bytes, four times as many per vector as on the u32 codes. Long chunks (1.5 kB
+    // of planes on the stack): with 64 the loop's setup per neighbour cost more than its compares.
+    const CHUNK: usize = 512;
+    let (lo, hi) = (CENSUS_R.min(w), w.saturating_sub(CENSUS_R).max(CENSUS_R.min(w)));
     for (y, code) in out.chunks_exact_mut(w).enumerate().take(h) {
-        code.fill(0);
         let centre = &img[y * w..(y + 1) * w];
-        let mut bit = 0u32;
-        for dy in -r..=r {
-            let yy = (y as isize + dy).clamp(0, h as isize - 1) as usize;
-            let nb = &img[yy * w..(yy + 1) * w];
-            for dx in -r..=r {
-                if dy == 0 && dx == 0 {
-                    continue;
+        let nbs: [&[u8]; 2 * CENSUS_R + 1] = std::array::from_fn(|k| {
+            let yy = (y as isize + k as isize - r).clamp(0, h as isize - 1) as usize;
+            &img[yy * w..(yy + 1) * w]
+        });
+        // the interior: contiguous slices the compiler vectorises
+        let mut x0 = lo;
+        while x0 < hi {
+            let n = CHUNK.min(hi - x0);
+            let mut planes = [[0u8; CHUNK]; 3];
+            let c = &centre[x0..x0 + n];
+            let mut bit = 0usize;
+            for (k, nb) in nbs.iter().enumerate() {
+                for dx in -r..=r {
+                    if k == CENSUS_R && dx == 0 {
+                        continue;
+                    }
+                    let s = (x0 as isize + dx) as usize;
+                    let q = &nb[s..s + n];
+                    let plane = &mut planes[bit / 8][..n];
+                    let one = 1u8 << (bit % 8);
+                    // a compare's all-ones byte masked to the bit (AVX2 has no per-byte shift)
+                    for ((o, &p), &v) in plane.iter_mut().zip(c).zip(q) {
+                        *o |= ((v < p) as u8).wrapping_neg() & one;
+                    }
+                    bit += 1;
                 }
-                // the interior: contiguous slices the compiler vectorises
-                let (lo, hi) = (CENSUS_R, w - CENSUS_R);
-                let shifted = &nb[(lo as isize + dx) as usize..(hi as isize + dx) as usize];
-                for ((c, &p), &q) in code[lo..hi].iter_mut().zip(&centre[lo..hi]).zip(shifted) {
-                    *c |= ((q < p) as u32) << bit;
-                }
-                for x in (0..lo).chain(hi..w) {
-                    let xx = (x as isize + dx).clamp(0, w as isize - 1) as usize;
-                    code[x] |= ((nb[xx] < centre[x]) as u32) << bit;
-                }
-                bit += 1;
             }
+            for (i, o) in code[x0..x0 + n].iter_mut().enumerate() {
+                *o = planes[0][i] as u32 | (planes[1][i] as u32) << 8 | (planes[2][i] as u32) << 16;
+            }
+            x0 += n;
+        }
+        // the border columns, their neighbours clamped into the image
+        for x in (0..lo).chain(hi..w) {
+            let mut v = 0u32;
+            let mut bit = 0u32;
+            for (k, nb) in nbs.iter().enumerate() {
+                for dx in -r..=r {
+                    if k == CENSUS_R && dx == 0 {
+                        continue;
+                    }
+                    let xx = (x as isize + dx).clamp(0, w as isize - 1) as usize;
+                    v |= ((nb[xx] < centre[x]) as u32) << bit;
+                    bit += 1;
+                }
+            }
+            code[x] = v;
         }
     }
 }
@@ -805,6 +878,34 @@ mod tests {
     /// the WINDOW x WINDOW box clipped at the border; the winner of those sums, with its uniqueness test and
     /// parabola, written out by brute force. Small, odd sizes and per-pixel guesses exercise the ring's
     /// wrap-around and the borders.
+    /// The chunked byte-plane census equals the definition: bit k set where the k-th neighbour of the 5x5
+    /// window (row-major, centre skipped) is darker than the centre, the border replicated; odd and tiny sizes.
+    #[test]
+    fn census_equals_the_definition() {
+        for (w, h) in [(1usize, 1usize), (3, 2), (5, 5), (7, 3), (70, 9), (133, 6), (1100, 3)] {
+            let img: Vec<u8> = (0..w * h).map(|i| ((i * 7919 + (i / 3) * 104_729) % 251) as u8).collect();
+            let mut got = vec![0u32; w * h];
+            census(&img, w, h, &mut got);
+            for y in 0..h {
+                for x in 0..w {
+                    let (mut want, mut bit) = (0u32, 0);
+                    for dy in -2isize..=2 {
+                        for dx in -2isize..=2 {
+                            if dy == 0 && dx == 0 {
+                                continue;
+                            }
+                            let yy = (y as isize + dy).clamp(0, h as isize - 1) as usize;
+                            let xx = (x as isize + dx).clamp(0, w as isize - 1) as usize;
+                            want |= ((img[yy * w + xx] < img[y * w + x]) as u32) << bit;
+                            bit += 1;
+                        }
+                    }
+                    assert_eq!(got[y * w + x], want, "{w}x{h} at ({x}, {y})");
+                }
+            }
+        }
+    }
+
     #[test]
     fn streamed_refinement_equals_the_brute_force_definition() {
         for (w, h) in [(23usize, 17usize), (9, 8), (40, 5)] {

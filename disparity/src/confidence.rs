@@ -121,16 +121,23 @@ pub fn lr_check_with_reasons(
 /// none is touched, the dense map bit for bit); the reason of each pixel kept with a disparity becomes
 /// `VALID`, the others keep theirs (`NO_ESTIMATE` where the engine had no disparity).
 pub fn mask(conf: &[f32], min: f32, disparity: &mut [f32], why: &mut [u8]) {
-    for ((d, c), r) in disparity.iter_mut().zip(conf).zip(why.iter_mut()) {
-        if !d.is_finite() {
+    // selects, not branches: the loop vectorises (it runs on every published pixel of every frame)
+    let drop = min > 0.0;
+    for ((d, &c), r) in disparity.iter_mut().zip(conf).zip(why.iter_mut()) {
+        let finite = d.is_finite();
+        let keep = c >= min;
+        *r = if !finite {
             if *r == reason::VALID {
-                *r = reason::NO_ESTIMATE;
+                reason::NO_ESTIMATE
+            } else {
+                *r
             }
-        } else if *c >= min {
-            *r = reason::VALID;
-        } else if min > 0.0 {
-            *d = f32::NAN;
-        }
+        } else if keep {
+            reason::VALID
+        } else {
+            *r
+        };
+        *d = if finite && !keep && drop { f32::NAN } else { *d };
     }
 }
 

@@ -35,6 +35,7 @@ pub mod fovea;
 pub mod fovea_eval;
 pub mod fused;
 pub mod manifest;
+pub mod match_cost;
 pub mod onnx;
 pub mod pfm;
 pub mod resample;
