@@ -138,6 +138,13 @@ fn ham_row(l: &[u32], r: &[u32], d: &[f32], ham: &mut [u32]) {
         // SAFETY: the CPU has AVX2 (checked just above); the slices have w elements each.
         x0 = unsafe { ham_row_avx2(l, r, d, ham) };
     }
+    ham_scalar(l, r, d, ham, x0)
+}
+
+/// [`ham_row`] from column `x0` on, one pixel at a time.
+#[inline(always)]
+fn ham_scalar(l: &[u32], r: &[u32], d: &[f32], ham: &mut [u32], x0: usize) {
+    let w = l.len();
     for x in x0..w {
         let xr = x as f32 - d[x] + 0.5;
         ham[x] = if xr >= 0.0 && xr < w as f32 {
@@ -313,6 +320,33 @@ mod tests {
                 assert!((g - e).abs() < 1e-6, "{w}x{h} onto {gw}x{gh}, cell {i}: {g} vs {e}");
             }
         }
+    }
+
+    /// The AVX2 row (where the CPU has it) gives what the scalar loop gives, NaN, negative and far disparities
+    /// and uniform codes included.
+    #[test]
+    fn the_vector_row_is_the_scalar_row() {
+        let w = 203usize;
+        let mut seed = 11u32;
+        let mut next = || {
+            seed = seed.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
+            seed >> 8
+        };
+        let l: Vec<u32> = (0..w).map(|i| if i % 6 == 0 { 0 } else { next() & 0xff_ffff }).collect();
+        let r: Vec<u32> = (0..w).map(|i| if i % 4 == 0 { 0 } else { next() & 0xff_ffff }).collect();
+        let d: Vec<f32> = (0..w)
+            .map(|i| match i % 9 {
+                0 => f32::NAN,
+                1 => -3.5,
+                2 => 400.0,
+                3 => i as f32 + 0.5, // exactly at the left border after rounding
+                _ => (next() % 640) as f32 / 8.0,
+            })
+            .collect();
+        let (mut fast, mut slow) = (vec![0u32; w], vec![0u32; w]);
+        ham_row(&l, &r, &d, &mut fast);
+        ham_scalar(&l, &r, &d, &mut slow, 0);
+        assert_eq!(fast, slow);
     }
 
     /// The same image both sides at its true shift costs only where the match leaves the image; a shift of one
