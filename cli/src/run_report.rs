@@ -24,6 +24,17 @@ pub fn print(c: &RuntimeConfig, r: &Report) {
     if let Some(o) = r.overload() {
         println!("{}", overload_hint(&o, &r.engine));
     }
+    if let Some(v) = stats.extra.get("fovea") {
+        let n = |f: &str| v[f].as_u64().unwrap_or(0);
+        println!(
+            "fovea {}x{}: on {} frames ({} gated), {} shed (its lane behind: published without a fovea)",
+            v["window"][0].as_u64().unwrap_or(0),
+            v["window"][1].as_u64().unwrap_or(0),
+            n("frames"),
+            n("gated"),
+            n("shed_behind")
+        );
+    }
     if let Some(v) = stats.extra.get("truth_side_lane") {
         let n = |f: &str| v[f].as_u64().unwrap_or(0);
         println!(

@@ -50,6 +50,13 @@ pub trait Stage: Send {
     fn bottleneck(&self) -> bool {
         false
     }
+    /// Lets a frame pass without the stage's work, when its lane is behind (a newer frame already waits for
+    /// it) and the run is not lossless; returns whether it did. For a stage whose product is an extra that a
+    /// frame may go without (the fovea): a late extra then costs that frame's extra, not the frame. The
+    /// default never sheds: the frame is processed.
+    fn shed(&mut self, _w: &mut Work) -> bool {
+        false
+    }
     /// Adds what the stage counted to the run's statistics.
     fn finish(&mut self, _stats: &mut RunStats) {}
 }

@@ -231,8 +231,10 @@ pub struct RunStats {
     pub depth_error: Option<DepthError>,
     /// Valid points over every published frame.
     pub points_total: u64,
-    /// FNV-1a over every published depth map: equal across runs of the same input in lossless mode.
-    pub output_digest: u64,
+    /// FNV-1a over every published depth map of a lossless run (`None` otherwise): equal across runs of the
+    /// same input. A lossy run's frames depend on timing (which ones drop), so it is not digested: hashing a
+    /// 640x480 map a byte at a time took 1.7 ms of the output thread's every frame (runtime/BENCHMARKS.md).
+    pub output_digest: Option<u64>,
     /// Length of a statistics window (s) and the run's windows, in order (the last one may be shorter).
     pub window_s: f64,
     /// The windows, in order.
@@ -259,7 +261,7 @@ impl RunStats {
             latency_measured: true,
             depth_error: None,
             points_total: 0,
-            output_digest: 0xcbf29ce484222325,
+            output_digest: None,
             window_s: 60.0,
             windows: Vec::new(),
             extra: BTreeMap::new(),
@@ -277,16 +279,16 @@ impl RunStats {
         *self.frames_failed.entry(reason.to_string()).or_default() += 1;
     }
 
-    /// Adds a depth map to [`RunStats::output_digest`].
+    /// Adds a depth map to [`RunStats::output_digest`] (the first one starts it).
     pub fn digest(&mut self, data: &[f32]) {
-        let mut h = self.output_digest;
+        let mut h = self.output_digest.unwrap_or(0xcbf29ce484222325);
         for v in data {
             for b in v.to_bits().to_le_bytes() {
                 h ^= b as u64;
                 h = h.wrapping_mul(0x100000001b3);
             }
         }
-        self.output_digest = h;
+        self.output_digest = Some(h);
     }
 
     /// Everything as JSON, rates over `elapsed_s` (what the stats JSON file holds).
@@ -307,7 +309,7 @@ impl RunStats {
             "latency_ms": if self.latency_measured { self.end_to_end.json() } else { Value::Null },
             "stages": stages,
             "points_mean": self.points_total as f64 / self.frames_published.max(1) as f64,
-            "output_digest": format!("{:016x}", self.output_digest),
+            "output_digest": self.output_digest.map(|h| format!("{h:016x}")),
         });
         if let Some(e) = &self.depth_error {
             v["depth_error"] = e.json();

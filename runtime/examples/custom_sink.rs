@@ -86,6 +86,10 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         mine["valid_pixels"],
         mine["digest"].as_str().unwrap_or("?")
     );
-    println!("runtime frames_published {} output_digest {:016x}", s.frames_published, s.output_digest);
+    println!(
+        "runtime frames_published {} output_digest {:016x}",
+        s.frames_published,
+        s.output_digest.expect("a lossless run is digested")
+    );
     Ok(())
 }

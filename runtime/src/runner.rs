@@ -291,12 +291,27 @@ impl LaneCpu {
 
 /// Runs a lane's stages on one frame; the first failure names its counter.
 fn process(stages: &mut [Box<dyn Stage>], w: &mut Work) -> std::result::Result<(), &'static str> {
+    process_or_shed(stages, w, false).map(|_| ())
+}
+
+/// [`process`], where a stage may let the frame pass when its lane is `behind` ([`Stage::shed`]); returns
+/// whether every stage did its work.
+fn process_or_shed(
+    stages: &mut [Box<dyn Stage>],
+    w: &mut Work,
+    behind: bool,
+) -> std::result::Result<bool, &'static str> {
+    let mut whole = true;
     for s in stages.iter_mut() {
+        if behind && s.shed(w) {
+            whole = false;
+            continue;
+        }
         if let Err(e) = s.process(w) {
             return Err(s.failure(&e));
         }
     }
-    Ok(())
+    Ok(whole)
 }
 
 /// Runs a graph to the end of its source (or its duration, or the stop flag) and returns its statistics.
@@ -423,9 +438,14 @@ pub fn run<S: PairSource>(graph: Graph<S>, cfg: &RunConfig) -> Result<RunStats> 
                 let mut failed = Vec::new();
                 for mut w in rx.iter() {
                     let t0 = monotonic_ns();
-                    match process(&mut lane.stages, &mut w) {
-                        Ok(()) => {
-                            lat.record_ns(monotonic_ns() - t0);
+                    // behind: a newer frame already waits (a lossless run never sheds)
+                    let behind = !cfg.lossless && !rx.is_empty();
+                    match process_or_shed(&mut lane.stages, &mut w, behind) {
+                        Ok(whole) => {
+                            // the lane's latency is its work's: a shed frame's pass-through is not
+                            if whole {
+                                lat.record_ns(monotonic_ns() - t0);
+                            }
                             push(&q_tx, &q_rx, &free_tx, w, cfg.lossless, &progress.frames_dropped);
                         }
                         Err(reason) => {
@@ -487,7 +507,9 @@ pub fn run<S: PairSource>(graph: Graph<S>, cfg: &RunConfig) -> Result<RunStats> 
                 let ready = m.t_start_ns[0] + m.readout_ns + m.exposure_ns;
                 stats.end_to_end.record_ns(t1 - ready);
                 win.latency.record_ns(t1 - ready);
-                stats.digest(&w.depth.depth);
+                if cfg.lossless {
+                    stats.digest(&w.depth.depth);
+                }
             }
             for sink in sinks.iter_mut() {
                 if let Err(e) = sink.frame_done(&mut w.depth) {

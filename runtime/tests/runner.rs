@@ -256,3 +256,72 @@ fn cpu_time_is_counted_per_lane_and_per_named_thread() {
         "{table}"
     );
 }
+
+/// A stage that takes `ms` of wall time per frame (sleeping: the test does not depend on the machine's
+/// speed) and, if `sheds`, lets a frame pass when its lane is behind ([`Stage::shed`]).
+struct Slow {
+    ms: u64,
+    sheds: bool,
+    done: Arc<Mutex<(u64, u64)>>,
+}
+
+impl Stage for Slow {
+    fn name(&self) -> &'static str {
+        "slow"
+    }
+    fn process(&mut self, _: &mut Work) -> abvs_runtime_core::error::Result<()> {
+        std::thread::sleep(std::time::Duration::from_millis(self.ms));
+        self.done.lock().unwrap().0 += 1;
+        Ok(())
+    }
+    fn shed(&mut self, _: &mut Work) -> bool {
+        self.done.lock().unwrap().1 += self.sheds as u64;
+        self.sheds
+    }
+}
+
+/// The frames that reach the output lane, by seq.
+struct Last(Arc<Mutex<Vec<u64>>>);
+
+impl Stage for Last {
+    fn name(&self) -> &'static str {
+        "last"
+    }
+    fn process(&mut self, w: &mut Work) -> abvs_runtime_core::error::Result<()> {
+        self.0.lock().unwrap().push(w.seq);
+        Ok(())
+    }
+}
+
+/// A paced replay (25 fps, frames dropped under overload) through a lane that needs 55 ms a frame: without
+/// shedding the lane's queue drops whole frames; a stage that sheds lets the frames it cannot do pass
+/// without its work, and every frame reaches the output, in order. A lossless run never sheds.
+#[test]
+fn a_lane_behind_sheds_its_extra_instead_of_dropping_frames() {
+    const N: u64 = 40;
+    let run = |sheds: bool, lossless: bool| {
+        let done = Arc::new(Mutex::new((0, 0)));
+        let seen = Arc::new(Mutex::new(Vec::new()));
+        let slow: Box<dyn Stage> = Box::new(Slow { ms: 55, sheds, done: done.clone() });
+        let last: Box<dyn Stage> = Box::new(Last(seen.clone()));
+        let source = ReplaySource::open(Session::open(&fixture()).unwrap()).unwrap();
+        let g = Graph::from_description(source, cfg().out, "extra = slow; output = last", vec![slow, last], vec![])
+            .unwrap();
+        let c = PipelineConfig { lossless, paced: !lossless, frames: Some(N), ..Default::default() };
+        let stats = runner::run(g, &c.run_config()).unwrap();
+        let (done, seen) = (*done.lock().unwrap(), seen.lock().unwrap().clone());
+        (stats.frames_dropped, done, seen)
+    };
+    let (dropped, (processed, shed), seen) = run(true, false);
+    assert_eq!(dropped, 0, "processed {processed}, shed {shed}");
+    assert_eq!(processed + shed, N);
+    assert!(shed >= 5 && processed >= 10, "processed {processed}, shed {shed}");
+    assert_eq!(seen, (0..N).collect::<Vec<_>>(), "every frame published, in order");
+    // the same lane without shedding loses whole frames
+    let (dropped, (processed, _), seen) = run(false, false);
+    assert!(dropped >= 5, "dropped {dropped}, processed {processed}");
+    assert_eq!(seen.len() as u64 + dropped, N);
+    // lossless: every frame gets the work
+    let (dropped, (processed, shed), _) = run(true, true);
+    assert_eq!((dropped, processed, shed), (0, N, 0));
+}

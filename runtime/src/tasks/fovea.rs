@@ -68,6 +68,8 @@ struct Counts {
     measured: u64,
     from_main: u64,
     gated: u64,
+    /// Frames passed on without a fovea because the lane was behind ([`Stage::shed`]).
+    shed: u64,
     points: u64,
     /// Window pixels the narrow search left without an answer, given the main map's.
     filled_from_main: u64,
@@ -270,6 +272,15 @@ impl Stage for FoveaStage {
         abvs_runtime_core::stage::timing_failure(e).unwrap_or("fovea failed")
     }
 
+    /// Behind (a newer frame waits), the frame goes on without its fovea (`ready` stays false: no fovea is
+    /// published for it) rather than holding up the lanes after it, whose queue would drop whole frames.
+    /// On this 2-core VM the default run dropped 2-11 of the fixture's 50 frames with the fovea on and
+    /// 0-1 with it off (runtime/BENCHMARKS.md, "The fovea under load").
+    fn shed(&mut self, _w: &mut Work) -> bool {
+        self.counts.shed += 1;
+        true
+    }
+
     fn finish(&mut self, stats: &mut abvs_runtime_core::stats::RunStats) {
         let c = &self.counts;
         let matched = (c.frames - c.gated).max(1) as f64;
@@ -283,6 +294,7 @@ impl Stage for FoveaStage {
                 "measured_fixation": c.measured,
                 "range_from_main": c.from_main,
                 "gated": c.gated,
+                "shed_behind": c.shed,
                 "mean_range_px": c.range_sum / matched,
                 "mean_points": c.points as f64 / matched,
                 "filled_from_main_fraction": c.filled_from_main as f64 / (matched * (self.cfg.width * self.cfg.height) as f64),
