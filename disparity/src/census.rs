@@ -530,15 +530,15 @@ impl DisparityEngine for CensusRefineEngine {
                     }
                     return Ok(());
                 };
-                // both census images at this resolution, the scoring and its reasons on the helper (idle until
-                // the next frame) while the answer is upsampled here, which takes longer (2.5 against 3.5 ms on
-                // this project's 2-core VM)
+                // the left census image at this resolution, the scoring and its reasons on the helper (idle
+                // until the next frame) while the answer is upsampled here and the right census image made:
+                // about 1.9 against 1.4 ms on this project's 2-core VM (the upsampling alone, 0.7 ms since it
+                // vectorises, left the helper's share the frame's longest: the paired cost rose from 1.07 to 1.21)
                 let prior = self.prior.as_ref().map(|p| &p.disp[..]);
                 let (scorer, net_left) = (&mut self.scorer, &self.net_left);
                 let (conf_pass, why_pass, why) = (&mut self.conf_pass, &mut self.why_pass, &mut self.why);
                 let mut side = || {
                     census(left, w, h, cl);
-                    census(right, w, h, cr);
                     scorer.score(net_left, stat, answer, net_raw, prior, conf_pass, why_pass);
                     // the reasons need no match cost
                     nearest(why_pass, (mw, mh), why, (w, h));
@@ -547,6 +547,7 @@ impl DisparityEngine for CensusRefineEngine {
                 // before anything it borrows is used here
                 let pending = self.helper.start(Job::Call(unsafe { erase(&mut side) }))?;
                 upsample_disparity(answer, (mw, mh), out, (w, h));
+                census(right, w, h, cr);
                 pending.wait()?;
                 // the match cost's first step in halves, the lower on the helper
                 let [top, bottom] = self.cost.halves(cl, cr, out);

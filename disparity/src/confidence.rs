@@ -121,23 +121,37 @@ pub fn lr_check_with_reasons(
 /// none is touched, the dense map bit for bit); the reason of each pixel kept with a disparity becomes
 /// `VALID`, the others keep theirs (`NO_ESTIMATE` where the engine had no disparity).
 pub fn mask(conf: &[f32], min: f32, disparity: &mut [f32], why: &mut [u8]) {
-    // selects, not branches: the loop vectorises (it runs on every published pixel of every frame)
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx2") {
+        // SAFETY: the CPU has the instruction set the function is compiled for (checked just above).
+        unsafe { mask_avx2(conf, min, disparity, why) };
+        return;
+    }
+    mask_generic(conf, min, disparity, why)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn mask_avx2(conf: &[f32], min: f32, disparity: &mut [f32], why: &mut [u8]) {
+    mask_generic(conf, min, disparity, why)
+}
+
+/// [`mask`]'s loop: selects, not branches, over slices cut to one length, so that it vectorises (it runs on
+/// every published pixel of every frame: 0.66 ms a 640x480 frame on this project's VM as a baseline-x86-64
+/// loop, about a tenth of the confidence's cost in the paired benchmark).
+#[inline(always)]
+fn mask_generic(conf: &[f32], min: f32, disparity: &mut [f32], why: &mut [u8]) {
     let drop = min > 0.0;
-    for ((d, &c), r) in disparity.iter_mut().zip(conf).zip(why.iter_mut()) {
+    let n = disparity.len().min(conf.len()).min(why.len());
+    let (disparity, conf, why) = (&mut disparity[..n], &conf[..n], &mut why[..n]);
+    for i in 0..n {
+        let (d, c, r) = (disparity[i], conf[i], why[i]);
         let finite = d.is_finite();
         let keep = c >= min;
-        *r = if !finite {
-            if *r == reason::VALID {
-                reason::NO_ESTIMATE
-            } else {
-                *r
-            }
-        } else if keep {
-            reason::VALID
-        } else {
-            *r
-        };
-        *d = if finite && !keep && drop { f32::NAN } else { *d };
+        let kept = if keep { reason::VALID } else { r };
+        let none = if r == reason::VALID { reason::NO_ESTIMATE } else { r };
+        why[i] = if finite { kept } else { none };
+        disparity[i] = if finite & !keep & drop { f32::NAN } else { d };
     }
 }
 
@@ -259,6 +273,54 @@ mod tests {
     use super::*;
 
     const NAN: f32 = f32::NAN;
+
+    /// The vectorised mask is its definition, pixel for pixel: random disparities (NaN, infinite, negative
+    /// zero), confidences (NaN, at the threshold) and reasons, at the default threshold and at 0, over lengths
+    /// that leave every vector remainder, and slices of unequal length (the shortest bounds it).
+    #[test]
+    fn the_mask_is_its_definition() {
+        let mut s = 0x9e3779b9u32;
+        let mut next = || {
+            s ^= s << 13;
+            s ^= s >> 17;
+            s ^= s << 5;
+            s
+        };
+        for n in [0usize, 1, 7, 31, 33, 64, 1000] {
+            for min in [0.7f32, 0.0] {
+                let d: Vec<f32> = (0..n)
+                    .map(|_| match next() % 8 {
+                        0 => NAN,
+                        1 => f32::INFINITY,
+                        2 => -0.0,
+                        _ => (next() % 1000) as f32 / 7.0,
+                    })
+                    .collect();
+                let c: Vec<f32> = (0..n + 3)
+                    .map(|_| match next() % 6 {
+                        0 => NAN,
+                        1 => 0.7,
+                        _ => (next() % 1001) as f32 / 1000.0,
+                    })
+                    .collect();
+                let y: Vec<u8> = (0..n).map(|_| (next() % 8) as u8).collect();
+                let (mut dm, mut ym) = (d.clone(), y.clone());
+                mask(&c, min, &mut dm, &mut ym);
+                for i in 0..n {
+                    let (finite, keep) = (d[i].is_finite(), c[i] >= min);
+                    let want_y = match (finite, keep) {
+                        (false, _) if y[i] == reason::VALID => reason::NO_ESTIMATE,
+                        (false, _) => y[i],
+                        (true, true) => reason::VALID,
+                        (true, false) => y[i],
+                    };
+                    let want_d = if finite && !keep && min > 0.0 { NAN } else { d[i] };
+                    assert_eq!(ym[i], want_y, "n {n} min {min} at {i}");
+                    assert_eq!(dm[i].to_bits(), want_d.to_bits(), "n {n} min {min} at {i}");
+                }
+            }
+        }
+    }
 
     #[test]
     fn a_consistent_pair_has_confidence_one() {
