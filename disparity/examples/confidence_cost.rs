@@ -1,8 +1,8 @@
 //! What census-refine's confidence and validity mask add to the disparity stage (issue 41: at most +10 %),
 //! paired on a loaded machine: two engines of the runtime's default at 640x480 (hitnet-m's refine base,
 //! hitnet-s with the SGBM prior at 320x240), one scoring its pixels and masking at the default threshold as the
-//! runtime's disparity stage does (`own_mask`: the confidence and reasons copied into the frame, then
-//! `mask`), one without its confidence (`without_confidence`, the baseline). Each round runs the two arms
+//! runtime's disparity stage does (`own_mask`: the confidence and reasons copied into the frame and the
+//! disparity masked in one pass, `mask_into`), one without its confidence (`without_confidence`, the baseline). Each round runs the two arms
 //! alternately frame by frame (which goes first alternates), REPS frames each, and takes the ratio of the
 //! arms' median frame times; prints every round and the median of the ratios. Also times, interleaved with
 //! the arms, the added work alone on one thread (the scoring at the search's 320x240 on the engine's own
@@ -16,7 +16,7 @@ use std::time::Instant;
 
 use abvs_disparity::census::{census, CensusRefineEngine};
 use abvs_disparity::census_confidence::Scorer;
-use abvs_disparity::confidence::mask;
+use abvs_disparity::confidence::{mask, mask_into};
 use abvs_disparity::engine::{set_opencv_threads, DisparityEngine};
 use abvs_disparity::match_cost::MatchCost;
 use abvs_disparity::onnx::OnnxEngine;
@@ -59,6 +59,8 @@ fn main() {
     let n = (w * h) as usize;
     let (mut d_on, mut d_off) = (vec![0f32; n], vec![0f32; n]);
     let (mut conf, mut why) = (vec![0f32; n], vec![0u8; n]);
+    // the rectified frame's pixels that see the raw image (all, on a pair that is rectified already)
+    let seen = vec![1u8; n];
     // the added work alone, on the scored engine's internals at the search's resolution
     on.compute(&l, &r, &mut d_on).unwrap();
     let (nl, _, stat, refined, net, prior) = on.internals().unwrap();
@@ -86,9 +88,7 @@ fn main() {
         if scored {
             on.compute(&l, &r, &mut d_on).unwrap();
             let (c, y) = on.confidence().unwrap();
-            conf.copy_from_slice(c);
-            why.copy_from_slice(y);
-            mask(&conf, DEFAULT_MIN_CONFIDENCE, &mut d_on, &mut why);
+            mask_into(c, y, &seen, DEFAULT_MIN_CONFIDENCE, &mut d_on, &mut conf, &mut why);
         } else {
             off.compute(&l, &r, &mut d_off).unwrap();
         }

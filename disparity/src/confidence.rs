@@ -136,6 +136,73 @@ unsafe fn mask_avx2(conf: &[f32], min: f32, disparity: &mut [f32], why: &mut [u8
     mask_generic(conf, min, disparity, why)
 }
 
+/// [`mask`] of a copy: the engine's confidence `conf` and reasons `why` into `out_conf` and `out_why` (0 and
+/// `NO_ESTIMATE` where `seen` is 0: a rectified pixel that does not see the raw image), masking `disparity`
+/// at `min` in the same pass. The runtime's disparity stage: one pass over the frame's maps (0.2 ms a 640x480
+/// frame on this project's VM) instead of a copy loop and a mask (0.6 and 0.66 ms before they vectorised).
+pub fn mask_into(
+    conf: &[f32],
+    why: &[u8],
+    seen: &[u8],
+    min: f32,
+    disparity: &mut [f32],
+    out_conf: &mut [f32],
+    out_why: &mut [u8],
+) {
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx2") {
+        // SAFETY: the CPU has the instruction set the function is compiled for (checked just above).
+        unsafe { mask_into_avx2(conf, why, seen, min, disparity, out_conf, out_why) };
+        return;
+    }
+    mask_into_generic(conf, why, seen, min, disparity, out_conf, out_why)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn mask_into_avx2(
+    conf: &[f32],
+    why: &[u8],
+    seen: &[u8],
+    min: f32,
+    disparity: &mut [f32],
+    out_conf: &mut [f32],
+    out_why: &mut [u8],
+) {
+    mask_into_generic(conf, why, seen, min, disparity, out_conf, out_why)
+}
+
+#[inline(always)]
+fn mask_into_generic(
+    conf: &[f32],
+    why: &[u8],
+    seen: &[u8],
+    min: f32,
+    disparity: &mut [f32],
+    out_conf: &mut [f32],
+    out_why: &mut [u8],
+) {
+    let drop = min > 0.0;
+    let n = disparity.len().min(conf.len()).min(why.len()).min(seen.len()).min(out_conf.len()).min(out_why.len());
+    let (conf, why, seen) = (&conf[..n], &why[..n], &seen[..n]);
+    let (disparity, out_conf, out_why) = (&mut disparity[..n], &mut out_conf[..n], &mut out_why[..n]);
+    for i in 0..n {
+        // "seen or not" as a bit mask, not a select on a byte's truth: with selects the loop did not vectorise
+        // (2.2 against 0.2 ms a 640x480 frame); the AND gives +0.0 where not seen, as the select would
+        let m8 = 0u8.wrapping_sub((seen[i] != 0) as u8);
+        let c = f32::from_bits(conf[i].to_bits() & (m8 as i8 as i32 as u32));
+        let r = (why[i] & m8) | (reason::NO_ESTIMATE & !m8);
+        let d = disparity[i];
+        let finite = d.is_finite();
+        let keep = c >= min;
+        let kept = if keep { reason::VALID } else { r };
+        let none = if r == reason::VALID { reason::NO_ESTIMATE } else { r };
+        out_conf[i] = c;
+        out_why[i] = if finite { kept } else { none };
+        disparity[i] = if finite & !keep & drop { f32::NAN } else { d };
+    }
+}
+
 /// [`mask`]'s loop: selects, not branches, over slices cut to one length, so that it vectorises (it runs on
 /// every published pixel of every frame: 0.66 ms a 640x480 frame on this project's VM as a baseline-x86-64
 /// loop, about a tenth of the confidence's cost in the paired benchmark).
@@ -318,6 +385,40 @@ mod tests {
                     assert_eq!(ym[i], want_y, "n {n} min {min} at {i}");
                     assert_eq!(dm[i].to_bits(), want_d.to_bits(), "n {n} min {min} at {i}");
                 }
+            }
+        }
+    }
+
+    /// The fused copy and mask is the copy, then [`mask`]: random inputs, some pixels not seen, both thresholds.
+    #[test]
+    fn mask_into_is_a_copy_then_the_mask() {
+        let mut s = 0x1234567u32;
+        let mut next = || {
+            s ^= s << 13;
+            s ^= s >> 17;
+            s ^= s << 5;
+            s
+        };
+        for n in [0usize, 5, 32, 100, 1001] {
+            for min in [0.7f32, 0.0] {
+                let d: Vec<f32> =
+                    (0..n).map(|_| if next() % 5 == 0 { NAN } else { (next() % 1000) as f32 / 9.0 }).collect();
+                let c: Vec<f32> =
+                    (0..n).map(|_| if next() % 7 == 0 { NAN } else { (next() % 1001) as f32 / 1000.0 }).collect();
+                let y: Vec<u8> = (0..n).map(|_| (next() % 8) as u8).collect();
+                let seen: Vec<u8> = (0..n).map(|_| (next() % 4 != 0) as u8).collect();
+                // the definition: the copy (0 and NO_ESTIMATE where not seen), then the mask
+                let (mut wd, mut wc, mut wy) = (d.clone(), vec![0f32; n], vec![0u8; n]);
+                for i in 0..n {
+                    (wc[i], wy[i]) = if seen[i] == 0 { (0.0, reason::NO_ESTIMATE) } else { (c[i], y[i]) };
+                }
+                mask(&wc.clone(), min, &mut wd, &mut wy);
+                let (mut gd, mut gc, mut gy) = (d.clone(), vec![9f32; n], vec![99u8; n]);
+                mask_into(&c, &y, &seen, min, &mut gd, &mut gc, &mut gy);
+                let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+                assert_eq!(bits(&gd), bits(&wd), "n {n} min {min}");
+                assert_eq!(bits(&gc), bits(&wc), "n {n} min {min}");
+                assert_eq!(gy, wy, "n {n} min {min}");
             }
         }
     }

@@ -1,7 +1,7 @@
 //! The disparity stage: the runtime's wrapper of an `abvs_disparity` engine (the engines, their confidence,
 //! the left-right check and the validity mask live in that crate; this module only moves a frame's buffers
 //! through them and turns their errors into the runtime's).
-use abvs_disparity::confidence::{mask, reason, LrCheck};
+use abvs_disparity::confidence::{mask_into, reason, LrCheck};
 use abvs_disparity::engine::DisparityEngine;
 use abvs_disparity::DisparityError;
 use abvs_runtime_core::params::CheckConfig;
@@ -162,9 +162,6 @@ fn own_mask(
     if conf.len() != n || why.len() != n || valid.len() != n || out_conf.len() != n || out_why.len() != n {
         return Err(RuntimeError::Invalid("validity mask: buffers not sized (not started?)".into()));
     }
-    for i in 0..n {
-        (out_conf[i], out_why[i]) = if valid[i] == 0 { (0.0, reason::NO_ESTIMATE) } else { (conf[i], why[i]) };
-    }
-    mask(out_conf, min, disparity, out_why);
+    mask_into(conf, why, valid, min, disparity, out_conf, out_why);
     Ok(())
 }
