@@ -16,7 +16,7 @@ trap 'rm -rf "$tmp"' EXIT
 for r in $(seq 1 "$rounds"); do
   for arm in A B; do
     bin=$a; [ $arm = B ] && bin=$b
-    "$bin" run --frames "$frames" --stats-json "$tmp/s.json" "$@" >/dev/null
+    "$bin" run --frames "$frames" --stats-json "$tmp/s.json" "$@" >/dev/null 2>"$tmp/err" || { cat "$tmp/err" >&2; exit 1; }
     python3 - "$tmp/s.json" "$arm" "$r" >>"$tmp/rows" <<'PY'
 import json, sys
 j = json.load(open(sys.argv[1])); f = j.get("fovea") or {}
