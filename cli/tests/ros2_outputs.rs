@@ -3,7 +3,7 @@
 //! and the iceoryx2 services (python/abvs_iceoryx2.py). The Python environment comes from
 //! scripts/setup.sh (.deps/python, or the interpreter in ABVS_PYTHON); without it these tests fail.
 use std::io::{BufRead, BufReader};
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::process::{Child, ChildStdout, Command, Stdio};
 
 use serde_json::Value;
@@ -45,8 +45,21 @@ fn finish_check(mut child: Child, mut out: BufReader<ChildStdout>) -> Value {
 }
 
 /// `abvs run` on the fixture (paced at 25 fps) with `extra`; returns its stats JSON.
+/// The default configuration, `edit`ed, with `[fovea] shed_when_behind = false`: these checks count one fovea
+/// message per published frame, and a debug build's fovea lane, often behind, would let frames go without one
+/// (runtime/tests/runner.rs tests the shedding).
+fn config(dir: &Path, edit: impl Fn(String) -> String) -> PathBuf {
+    let printed = Command::new(env!("CARGO_BIN_EXE_abvs")).args(["run", "--print-config"]).output().unwrap();
+    let printed = String::from_utf8(printed.stdout).unwrap();
+    assert!(printed.contains("\nshed_when_behind = true\n"), "{printed}");
+    let f = dir.join("no_shedding.toml");
+    std::fs::write(&f, edit(printed.replace("\nshed_when_behind = true\n", "\nshed_when_behind = false\n"))).unwrap();
+    f
+}
+
 fn run(dir: &Path, prefix: &str, extra: &[&str]) -> Value {
     let stats = dir.join("stats.json");
+    let own = if extra.contains(&"--config") { None } else { Some(config(dir, |s| s)) };
     let o = Command::new(env!("CARGO_BIN_EXE_abvs"))
         .args([
             "run",
@@ -59,6 +72,7 @@ fn run(dir: &Path, prefix: &str, extra: &[&str]) -> Value {
             stats.to_str().unwrap(),
         ])
         .args(extra)
+        .args(own.iter().flat_map(|f| ["--config".as_ref(), f.as_os_str()]))
         .output()
         .unwrap();
     assert!(o.status.success(), "abvs run: {}", String::from_utf8_lossy(&o.stderr));
@@ -250,11 +264,10 @@ fn rmw_zenoh_node_is_seen_by_a_python_client() {
     let endpoint = free_endpoint();
     // the runtime's shared memory off here (on in the bridge keys' test): the large messages go out of the
     // snapshot's own buffers, and decode all the same
-    let printed = Command::new(env!("CARGO_BIN_EXE_abvs")).args(["run", "--print-config"]).output().unwrap();
-    let printed = String::from_utf8(printed.stdout).unwrap();
-    assert!(printed.contains("\nshared_memory = true\n"), "{printed}");
-    let cfg = d.path().join("shm_off.toml");
-    std::fs::write(&cfg, printed.replace("\nshared_memory = true\n", "\nshared_memory = false\n")).unwrap();
+    let cfg = config(d.path(), |printed| {
+        assert!(printed.contains("\nshared_memory = true\n"), "{printed}");
+        printed.replace("\nshared_memory = true\n", "\nshared_memory = false\n")
+    });
     let (child, out) = start_check(&["rmw", &endpoint]);
     let args = ["--zenoh-connect", &endpoint, "--ros2-keys", "rmw-zenoh", "--ros-distro", "jazzy"];
     let more = ["--frames", "24", "--truth-stride", "0", "--no-self-check", "--config", cfg.to_str().unwrap()];

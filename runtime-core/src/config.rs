@@ -213,6 +213,9 @@ pub struct FoveaSettings {
     pub max_distance_m: f64,
     /// Distance along the image centre's ray without a usable fixation (m).
     pub default_distance_m: f64,
+    /// When the fovea's lane is behind, a frame goes on without its fovea rather than frames being dropped
+    /// whole; false: every frame's fovea is computed, and an overloaded machine drops frames instead.
+    pub shed_when_behind: bool,
 }
 
 impl Default for FoveaSettings {
@@ -226,6 +229,7 @@ impl Default for FoveaSettings {
             min_distance_m: f.min_distance_m,
             max_distance_m: f.max_distance_m,
             default_distance_m: f.default_distance_m,
+            shed_when_behind: f.shed_when_behind,
         }
     }
 }
@@ -240,6 +244,7 @@ impl FoveaSettings {
             min_distance_m: self.min_distance_m,
             max_distance_m: self.max_distance_m,
             default_distance_m: self.default_distance_m,
+            shed_when_behind: self.shed_when_behind,
         })
     }
 

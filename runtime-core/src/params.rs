@@ -107,6 +107,9 @@ pub struct FoveaConfig {
     pub max_distance_m: f64,
     /// Distance along the image centre's ray used without a usable fixation (m).
     pub default_distance_m: f64,
+    /// Behind (a newer frame already waits for the fovea's lane), let the frame go on without its fovea
+    /// instead of holding up the frames behind it, which the queue would drop whole (`Stage::shed`).
+    pub shed_when_behind: bool,
 }
 
 impl Default for FoveaConfig {
@@ -118,6 +121,7 @@ impl Default for FoveaConfig {
             min_distance_m: 0.15,
             max_distance_m: 3.0,
             default_distance_m: 1.0,
+            shed_when_behind: true,
         }
     }
 }

@@ -277,8 +277,8 @@ impl Stage for FoveaStage {
     /// On this 2-core VM the default run dropped 2-11 of the fixture's 50 frames with the fovea on and
     /// 0-1 with it off (runtime/BENCHMARKS.md, "The fovea under load").
     fn shed(&mut self, _w: &mut Work) -> bool {
-        self.counts.shed += 1;
-        true
+        self.counts.shed += self.cfg.shed_when_behind as u64;
+        self.cfg.shed_when_behind
     }
 
     fn finish(&mut self, stats: &mut abvs_runtime_core::stats::RunStats) {
