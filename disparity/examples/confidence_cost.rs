@@ -6,7 +6,7 @@
 //! alternately frame by frame (which goes first alternates), REPS frames each, and takes the ratio of the
 //! arms' median frame times; prints every round and the median of the ratios. Also times, interleaved with
 //! the arms, the added work alone on one thread (the scoring at the search's 320x240 on the engine's own
-//! internals, the census of both images at 640x480 and the match cost, the logistic, the nearest upsampling
+//! internals, the census of both images at 640x480 on the rows the match cost uses and the cost, the logistic, the nearest upsampling
 //! and the mask): its CPU time. The engine runs the scoring and the census on its second thread while the
 //! answer is upsampled, and the cost in halves on both, so the arms' ratio, not this, is what it adds to the
 //! frame. Not in either: the census search's second-best tracking (the margin byte), which both arms compute.
@@ -14,11 +14,11 @@
 //! (scripts/bench_confidence_cost.sh).
 use std::time::Instant;
 
-use abvs_disparity::census::{census, CensusRefineEngine};
+use abvs_disparity::census::{census_rows, CensusRefineEngine};
 use abvs_disparity::census_confidence::Scorer;
 use abvs_disparity::confidence::{mask, mask_into};
 use abvs_disparity::engine::{set_opencv_threads, DisparityEngine};
-use abvs_disparity::match_cost::MatchCost;
+use abvs_disparity::match_cost::{Codes, MatchCost};
 use abvs_disparity::onnx::OnnxEngine;
 use abvs_disparity::resample::nearest;
 use abvs_runtime_core::params::DEFAULT_MIN_CONFIDENCE;
@@ -69,14 +69,15 @@ fn main() {
     let mut scorer = Scorer::new(sw, sh);
     let (mut cs, mut ys) = (vec![0f32; sw * sh], vec![0u8; sw * sh]);
     let (mut cu, mut yu, mut dm) = (vec![0f32; n], vec![0u8; n], d_on.clone());
-    let (mut cl, mut cr, answer) = (vec![0u32; n], vec![0u32; n], d_on.clone());
+    // the census codes of the rows the match cost uses (one per grid row), as the engine computes them
+    let (mut cl, mut cr, answer) = (vec![0u32; w as usize * sh], vec![0u32; w as usize * sh], d_on.clone());
     let mut cost = MatchCost::new((w as usize, h as usize), (sw, sh));
     let mut added = || -> f64 {
         let t = Instant::now();
         scorer.score(&nl, &stat, &refined, &net, Some(&prior), &mut cs, &mut ys);
-        census(&l, w as usize, h as usize, &mut cl);
-        census(&r, w as usize, h as usize, &mut cr);
-        Scorer::finish(&mut cs, cost.compute(&cl, &cr, &answer));
+        census_rows(&l, w as usize, h as usize, cost.rows(), &mut cl);
+        census_rows(&r, w as usize, h as usize, cost.rows(), &mut cr);
+        Scorer::finish(&mut cs, cost.compute(Codes::Rows(&cl, &cr), &answer));
         nearest(&cs, (sw, sh), &mut cu, (w as usize, h as usize));
         nearest(&ys, (sw, sh), &mut yu, (w as usize, h as usize));
         mask(&cu, DEFAULT_MIN_CONFIDENCE, &mut dm, &mut yu);

@@ -20,7 +20,7 @@ use crate::census_confidence::{Scorer, AT_EDGE, MARGIN_ONE};
 use crate::confidence::reason;
 use crate::engine::{check_sizes, DisparityEngine};
 use crate::error::{DisparityError, Result};
-use crate::match_cost::MatchCost;
+use crate::match_cost::{Codes, MatchCost};
 use crate::onnx::OnnxEngine;
 use crate::resample::{nearest, resize_gray, upsample_disparity};
 use crate::sgbm::SgbmEngine;
@@ -79,7 +79,8 @@ pub struct CensusRefineEngine {
     conf: Vec<f32>,
     why: Vec<u8>,
     /// The answer's match cost at the engine's resolution pooled onto the scored grid (a feature of the
-    /// confidence), and both images' census codes at the engine's resolution when no pass there computes them.
+    /// confidence), and both images' census codes at the engine's resolution on the rows it matches
+    /// ([`MatchCost::rows`]) when no pass there computes them.
     cost: MatchCost,
     full_census: Option<[Vec<u32>; 2]>,
     /// Whether the confidence is computed (the paired benchmark's baseline turns it off).
@@ -408,7 +409,8 @@ impl CensusRefineEngine {
             conf: vec![0.0; n],
             why: vec![0; n],
             cost: MatchCost::new((width as usize, height as usize), scored),
-            full_census: (!fine).then(|| [vec![0; n], vec![0; n]]),
+            // the matched rows' codes only (one per row of the scored grid)
+            full_census: (!fine).then(|| [vec![0; width as usize * scored.1], vec![0; width as usize * scored.1]]),
             scoring: true,
         })
     }
@@ -463,7 +465,7 @@ impl DisparityEngine for CensusRefineEngine {
             fine.refine(&self.helper, &self.guess, out)?;
             if self.scoring {
                 self.scorer.score(left, &fine.stat, out, &self.guess, None, &mut self.conf, &mut self.why);
-                Scorer::finish(&mut self.conf, self.cost.compute(&fine.census_l, &fine.census_r, out));
+                Scorer::finish(&mut self.conf, self.cost.compute(Codes::Full(&fine.census_l, &fine.census_r), out));
             }
             return Ok(());
         }
@@ -514,7 +516,7 @@ impl DisparityEngine for CensusRefineEngine {
                 // the network's own answer at this resolution is the guess only without a prior: with one,
                 // the agreement is the coarse answer's (the guess) with the refined one
                 self.scorer.score(left, &fine.stat, out, &self.guess, None, &mut self.conf, &mut self.why);
-                Scorer::finish(&mut self.conf, self.cost.compute(&fine.census_l, &fine.census_r, out));
+                Scorer::finish(&mut self.conf, self.cost.compute(Codes::Full(&fine.census_l, &fine.census_r), out));
             }
             None => {
                 let stat: &[u8] = match &self.coarse {
@@ -530,15 +532,18 @@ impl DisparityEngine for CensusRefineEngine {
                     }
                     return Ok(());
                 };
-                // the left census image at this resolution, the scoring and its reasons on the helper (idle
-                // until the next frame) while the answer is upsampled here and the right census image made:
-                // about 1.9 against 1.4 ms on this project's 2-core VM (the upsampling alone, 0.7 ms since it
-                // vectorises, left the helper's share the frame's longest: the paired cost rose from 1.07 to 1.21)
+                // the scoring, its reasons and the left census image's lower half (on the rows the cost uses) on
+                // the helper (idle until the next frame) while the answer is upsampled here and the right census
+                // image and the left one's upper half made: the two shares about even (the scoring is the
+                // larger part; with the whole left image on the helper, its share was the frame's longest)
                 let prior = self.prior.as_ref().map(|p| &p.disp[..]);
-                let (scorer, net_left) = (&mut self.scorer, &self.net_left);
+                let (scorer, net_left, cost) = (&mut self.scorer, &self.net_left, &self.cost);
                 let (conf_pass, why_pass, why) = (&mut self.conf_pass, &mut self.why_pass, &mut self.why);
+                let mid = cl.len() / w / 2;
+                let (cl_top, cl_bottom) = cl.split_at_mut(mid * w);
                 let mut side = || {
-                    census(left, w, h, cl);
+                    let lower = cost.rows().filter(|&(gy, _)| gy >= mid).map(|(gy, y)| (gy - mid, y));
+                    census_rows(left, w, h, lower, cl_bottom);
                     scorer.score(net_left, stat, answer, net_raw, prior, conf_pass, why_pass);
                     // the reasons need no match cost
                     nearest(why_pass, (mw, mh), why, (w, h));
@@ -547,10 +552,11 @@ impl DisparityEngine for CensusRefineEngine {
                 // before anything it borrows is used here
                 let pending = self.helper.start(Job::Call(unsafe { erase(&mut side) }))?;
                 upsample_disparity(answer, (mw, mh), out, (w, h));
-                census(right, w, h, cr);
+                census_rows(right, w, h, self.cost.rows(), cr);
+                census_rows(left, w, h, self.cost.rows().filter(|&(gy, _)| gy < mid), cl_top);
                 pending.wait()?;
                 // the match cost's first step in halves, the lower on the helper
-                let [top, bottom] = self.cost.halves(cl, cr, out);
+                let [top, bottom] = self.cost.halves(Codes::Rows(cl, cr), out);
                 let mut bottom = Some(bottom);
                 let mut lower = || {
                     if let Some(part) = bottom.take() {
@@ -683,30 +689,36 @@ fn search_stat(best: i16, second: i16, arg: i16) -> u8 {
 /// 5x5 census code of every pixel (bit set where the neighbour is darker than the centre), the image's
 /// border replicated.
 pub fn census(img: &[u8], w: usize, h: usize, out: &mut [u32]) {
+    census_rows(img, w, h, (0..h).map(|y| (y, y)), out)
+}
+
+/// [`census`] of some rows only: for each `(k, y)`, image row `y`'s codes into row `k` of `out` (`w` wide).
+pub fn census_rows(img: &[u8], w: usize, h: usize, rows: impl Iterator<Item = (usize, usize)>, out: &mut [u32]) {
     #[cfg(target_arch = "x86_64")]
     if std::arch::is_x86_feature_detected!("avx2") {
         // SAFETY: the CPU has the instruction set the function is compiled for (checked just above).
-        unsafe { census_avx2(img, w, h, out) };
+        unsafe { census_avx2(img, w, h, rows, out) };
         return;
     }
-    census_generic(img, w, h, out)
+    census_generic(img, w, h, rows, out)
 }
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
-unsafe fn census_avx2(img: &[u8], w: usize, h: usize, out: &mut [u32]) {
-    census_generic(img, w, h, out)
+unsafe fn census_avx2(img: &[u8], w: usize, h: usize, rows: impl Iterator<Item = (usize, usize)>, out: &mut [u32]) {
+    census_generic(img, w, h, rows, out)
 }
 
 #[inline(always)]
-fn census_generic(img: &[u8], w: usize, h: usize, out: &mut [u32]) {
+fn census_generic(img: &[u8], w: usize, h: usize, rows: impl Iterator<Item = (usize, usize)>, out: &mut [u32]) {
     let r = CENSUS_R as isize;
     // Pixels in chunks of CHUNK, each code built as three bytes (8 neighbours each) and packed at the end:
     // the compares and ors run on bytes, four times as many per vector as on the u32 codes. Long chunks (1.5 kB
     // of planes on the stack): with 64 the loop's setup per neighbour cost more than its compares.
     const CHUNK: usize = 512;
     let (lo, hi) = (CENSUS_R.min(w), w.saturating_sub(CENSUS_R).max(CENSUS_R.min(w)));
-    for (y, code) in out.chunks_exact_mut(w).enumerate().take(h) {
+    for (k, y) in rows {
+        let code = &mut out[k * w..(k + 1) * w];
         let centre = &img[y * w..(y + 1) * w];
         let nbs: [&[u8]; 2 * CENSUS_R + 1] = std::array::from_fn(|k| {
             let yy = (y as isize + k as isize - r).clamp(0, h as isize - 1) as usize;

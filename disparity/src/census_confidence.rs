@@ -24,7 +24,7 @@
 //! scripts/fit_census_confidence.py prints these weights and the mask's curve). The features were chosen by
 //! fitting on one half of the image and ranking the other (bad-2 among the 72.5 % most confident of the
 //! held-back upper / lower half, docs/depth.md): the search's features alone 3.01 / 0.90 %, with the match
-//! cost 2.20 / 0.55 %. The cost and the margin carry most of it. Whether the winner is at the search window's
+//! cost 2.20 / 0.55 % (2.23 / 0.55 % with the cost on one row of each grid cell, as shipped and refitted). The cost and the margin carry most of it. Whether the winner is at the search window's
 //! end took a weight of +0.03 once the cost was in: left out of the model, it still names a pixel's reason.
 //! Texture and the share of SGBM-accepted neighbours ranked Aloe a little better without the cost, but only
 //! with negative weights (a flat region more confident than a textured one), which would publish the streaks
@@ -39,17 +39,17 @@
 use crate::confidence::reason;
 
 /// The logistic model's bias (see the module docs; fitted on Aloe at 640x480).
-pub const B: f32 = 3.578;
+pub const B: f32 = 3.3666;
 /// Weight of SGBM's acceptance.
-pub const W_ACC: f32 = 0.1508;
+pub const W_ACC: f32 = 0.2037;
 /// Weight of the census margin.
-pub const W_MARGIN: f32 = 3.4254;
+pub const W_MARGIN: f32 = 3.5875;
 /// Weight of ln(1 + the neighbours' span).
-pub const W_SPAN: f32 = -1.2348;
+pub const W_SPAN: f32 = -1.2746;
 /// Weight of ln(1 + |refined - network|).
-pub const W_AGREE: f32 = -0.2254;
+pub const W_AGREE: f32 = -0.2358;
 /// Weight of the match cost at the published resolution ([`crate::match_cost`], in [0, 1]).
-pub const W_COST: f32 = -8.8755;
+pub const W_COST: f32 = -8.3495;
 /// Below this texture (mean gray levels) a doubtful pixel's reason is low texture, not ambiguity.
 pub const TEXTURE_LOW: f32 = 4.0;
 /// Below this margin a pixel's reason is ambiguity (or low texture).

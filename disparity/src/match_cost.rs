@@ -1,14 +1,20 @@
 //! How well the published answer matches at the published resolution, pooled onto the grid the confidence is
 //! scored on: each published pixel's Hamming distance between the two images' 5x5 census codes at its rounded
 //! disparity, summed over the published pixels of each grid cell (those the cell's confidence is upsampled
-//! onto), then the mean over the cell's 3x3 neighbourhood of cells, in [0, 1] (1: every bit differs). A
-//! feature of census-refine's confidence ([`crate::census_confidence`]).
+//! onto) on one of the cell's rows, then the mean over the cell's 3x3 neighbourhood of cells, in [0, 1] (1:
+//! every bit differs). A feature of census-refine's confidence ([`crate::census_confidence`]).
 //!
 //! Why at the published resolution: the search runs at half of it and its answer is upsampled, so what the
 //! coarse search cannot see (thin structures, a depth edge placed a pixel off, a surface the upsampling bent)
 //! costs nothing there; matched again here it does (docs/depth.md). Why pooled: scored per published pixel
 //! (a 7x7 box there) it ranked Aloe and Motorcycle no better, and a logistic per published pixel cost four
 //! times the scoring on the grid. Census compares signs, so the two cameras' gain and offset do not enter it.
+//! Why one row of each cell (the last of its rows, [`MatchCost::rows`]): the census images are then needed on
+//! those rows only, half of them at the runtime's default (the network at half the published size), which
+//! halves the largest part of the confidence's cost (issue 41: at most +10 % to the disparity stage). The
+//! pool's 3x3 cells still hold 18 pixels there. On the development pair's halves (Aloe, fitted on one and
+//! ranked on the other, docs/depth.md) the ranking was 2.23 / 0.55 % bad-2 against 2.20 / 0.55 with every
+//! row, and 2.38 / 0.56 with the first row of each cell.
 
 /// Bits of a 5x5 census code: the cost of a match outside the right image or of a pixel without an answer.
 const BITS: u32 = 24;
@@ -22,10 +28,12 @@ pub struct MatchCost {
     /// The published size and the grid's.
     full: (usize, usize),
     grid: (usize, usize),
-    /// The published columns of each grid column: `cols[gx]..cols[gx + 1]` (likewise `rows`), the inverse of
-    /// the nearest upsampling ([`crate::resample::nearest`]).
+    /// The published columns of each grid column: `cols[gx]..cols[gx + 1]`, the inverse of the nearest
+    /// upsampling ([`crate::resample::nearest`]).
     cols: Vec<usize>,
-    rows: Vec<usize>,
+    /// The published row each grid row is matched on: the last of those its confidence is upsampled onto (none
+    /// where no published row maps to it, a grid taller than the published size).
+    sel: Vec<Option<usize>>,
     /// One published row's Hamming distances, for each of the two halves [`MatchCost::halves`] gives.
     ham: [Vec<u32>; 2],
     /// Per grid cell, the sum of its pixels' distances, and that of the cell and its two horizontal neighbours.
@@ -33,7 +41,7 @@ pub struct MatchCost {
     hsums: Vec<u32>,
     /// A grid row of zeros (beyond the grid's top and bottom).
     zeros: Vec<u32>,
-    /// Per grid cell, 1 / (BITS x the published pixels of its 3x3 neighbourhood).
+    /// Per grid cell, 1 / (BITS x the matched pixels of its 3x3 neighbourhood).
     inv: Vec<f32>,
     /// The pooled cost per grid cell.
     cost: Vec<f32>,
@@ -53,15 +61,25 @@ fn starts(src: usize, dst: usize) -> Vec<usize> {
     s
 }
 
+/// Both images' census codes ([`crate::census`]) the cost is computed from.
+#[derive(Clone, Copy)]
+pub enum Codes<'a> {
+    /// Of every published row (left, right).
+    Full(&'a [u32], &'a [u32]),
+    /// Of the matched rows only ([`MatchCost::rows`]): row `gy` of each holds published row `rows()[gy]`'s codes.
+    Rows(&'a [u32], &'a [u32]),
+}
+
 impl MatchCost {
     /// Buffers for answers of `full` (w, h) pooled onto a `grid`.
     pub fn new(full: (usize, usize), grid: (usize, usize)) -> MatchCost {
         let (cols, rows) = (starts(grid.0, full.0), starts(grid.1, full.1));
         let (gw, gh) = grid;
+        let sel: Vec<Option<usize>> = (0..gh).map(|gy| (rows[gy + 1] > rows[gy]).then(|| rows[gy + 1] - 1)).collect();
         let n = |v: &[usize], i: usize| v[i + 1] - v[i];
         let mut inv = vec![0.0; gw * gh];
         for gy in 0..gh {
-            let ny: usize = (gy.saturating_sub(1)..(gy + 2).min(gh)).map(|k| n(&rows, k)).sum();
+            let ny = (gy.saturating_sub(1)..(gy + 2).min(gh)).filter(|&k| sel[k].is_some()).count();
             for gx in 0..gw {
                 let nx: usize = (gx.saturating_sub(1)..(gx + 2).min(gw)).map(|k| n(&cols, k)).sum();
                 inv[gy * gw + gx] = 1.0 / (BITS as f32 * (nx * ny).max(1) as f32);
@@ -71,7 +89,7 @@ impl MatchCost {
             full,
             grid,
             cols,
-            rows,
+            sel,
             ham: [vec![0; full.0], vec![0; full.0]],
             sums: vec![0; gw * gh],
             hsums: vec![0; gw * gh],
@@ -81,11 +99,16 @@ impl MatchCost {
         }
     }
 
+    /// The published rows the cost matches, with the grid row of each: `(gy, y)`. Only these rows' census codes
+    /// are needed ([`Codes::Rows`], [`crate::census::census_rows`]).
+    pub fn rows(&self) -> impl Iterator<Item = (usize, usize)> + '_ {
+        self.sel.iter().enumerate().filter_map(|(gy, y)| y.map(|y| (gy, y)))
+    }
+
     /// The cost on the grid of answer `d` (left-view disparity at the published size, NaN unknown) between
-    /// census codes `cl` and `cr` (published size). A pixel without an answer, or whose match leaves the right
-    /// image, costs every bit.
-    pub fn compute(&mut self, cl: &[u32], cr: &[u32], d: &[f32]) -> &[f32] {
-        for part in self.halves(cl, cr, d) {
+    /// the census `codes`. A pixel without an answer, or whose match leaves the right image, costs every bit.
+    pub fn compute(&mut self, codes: Codes<'_>, d: &[f32]) -> &[f32] {
+        for part in self.halves(codes, d) {
             part.run();
         }
         self.finish()
@@ -93,15 +116,23 @@ impl MatchCost {
 
     /// The cost's first step (each cell's sum and the horizontal sums of three) as two parts, the grid's upper
     /// and lower rows, that two threads can run at once; [`MatchCost::finish`] then gives the cost.
-    pub fn halves<'a>(&'a mut self, cl: &'a [u32], cr: &'a [u32], d: &'a [f32]) -> [Pool<'a>; 2] {
+    pub fn halves<'a>(&'a mut self, codes: Codes<'a>, d: &'a [f32]) -> [Pool<'a>; 2] {
         let ((w, h), (gw, gh)) = (self.full, self.grid);
-        assert!(cl.len() >= w * h && cr.len() >= w * h && d.len() >= w * h, "match cost: maps smaller than {w}x{h}");
+        let (cl, cr, rows) = match codes {
+            Codes::Full(l, r) => (l, r, h),
+            Codes::Rows(l, r) => (l, r, gh),
+        };
+        assert!(
+            cl.len() >= w * rows && cr.len() >= w * rows && d.len() >= w * h,
+            "match cost: maps smaller than {w}x{h} (census codes of {rows} rows)"
+        );
+        let compact = matches!(codes, Codes::Rows(..));
         let mid = gh / 2;
         let (s0, s1) = self.sums.split_at_mut(mid * gw);
         let (h0, h1) = self.hsums.split_at_mut(mid * gw);
         let [a0, a1] = &mut self.ham;
-        let (cols, rows) = (&self.cols[..], &self.rows[..]);
-        let part = |ham, sums, hsums, gy0| Pool { w, gw, cols, rows, cl, cr, d, ham, sums, hsums, gy0 };
+        let (cols, sel) = (&self.cols[..], &self.sel[..]);
+        let part = |ham, sums, hsums, gy0| Pool { w, gw, cols, sel, cl, cr, compact, d, ham, sums, hsums, gy0 };
         [part(&mut a0[..], s0, h0, 0), part(&mut a1[..], s1, h1, mid)]
     }
 
@@ -205,9 +236,11 @@ pub struct Pool<'a> {
     w: usize,
     gw: usize,
     cols: &'a [usize],
-    rows: &'a [usize],
+    sel: &'a [Option<usize>],
     cl: &'a [u32],
     cr: &'a [u32],
+    /// Whether the codes are of the matched rows only ([`Codes::Rows`]).
+    compact: bool,
     d: &'a [f32],
     ham: &'a mut [u32],
     /// This part's rows of the sums.
@@ -237,14 +270,15 @@ unsafe fn pool_avx2(p: Pool<'_>) {
 
 #[inline(always)]
 fn pool_generic(p: Pool<'_>) {
-    let Pool { w, gw, cols, rows, cl, cr, d, ham, sums, hsums, gy0 } = p;
+    let Pool { w, gw, cols, sel, cl, cr, compact, d, ham, sums, hsums, gy0 } = p;
     // twice the grid's width: each cell's columns are a pair (the runtime's default), summed in one straight loop
     let pairs = w == 2 * gw;
     for (k, (sums, hs)) in sums.chunks_exact_mut(gw).zip(hsums.chunks_exact_mut(gw)).enumerate() {
         let gy = gy0 + k;
         sums.fill(0);
-        for y in rows[gy]..rows[gy + 1] {
-            let (l, r, ds) = (&cl[y * w..(y + 1) * w], &cr[y * w..(y + 1) * w], &d[y * w..(y + 1) * w]);
+        if let Some(y) = sel[gy] {
+            let c = if compact { gy * w } else { y * w };
+            let (l, r, ds) = (&cl[c..c + w], &cr[c..c + w], &d[y * w..(y + 1) * w]);
             ham_row(l, r, ds, ham);
             if pairs {
                 for (s, p) in sums.iter_mut().zip(ham.chunks_exact(2)) {
@@ -267,9 +301,9 @@ fn pool_generic(p: Pool<'_>) {
 mod tests {
     use super::*;
 
-    /// The definition, cell by cell: the nearest upsampling's pixels of each cell's 3x3 neighbourhood, their
-    /// Hamming distances at each rounded disparity (outside the right image or unknown: 24; two codes without
-    /// a set bit: 12), summed and divided by 24 x their count.
+    /// The definition, cell by cell: the nearest upsampling's pixels of each cell's 3x3 neighbourhood on each
+    /// cell's last row, their Hamming distances at each rounded disparity (outside the right image or unknown:
+    /// 24; two codes without a set bit: 12), summed and divided by 24 x their count.
     fn brute(cl: &[u32], cr: &[u32], d: &[f32], (w, h): (usize, usize), (gw, gh): (usize, usize)) -> Vec<f32> {
         let ham = |x: usize, y: usize| -> u32 {
             let dv = d[y * w + x];
@@ -289,7 +323,8 @@ mod tests {
                 for y in 0..h {
                     for x in 0..w {
                         let (cx, cy) = ((x * gw / w) as isize, (y * gh / h) as isize);
-                        if (cx - gx as isize).abs() <= 1 && (cy - gy as isize).abs() <= 1 {
+                        let last = y + 1 == h || ((y + 1) * gh / h) as isize != cy;
+                        if last && (cx - gx as isize).abs() <= 1 && (cy - gy as isize).abs() <= 1 {
                             s += ham(x, y);
                             n += 1;
                         }
@@ -301,9 +336,12 @@ mod tests {
         out
     }
 
+    /// Both layouts of the codes (every row, the matched rows only) at sizes that divide, that do not, at the
+    /// grid's own size and onto a grid taller than the published size (rows without a match).
     #[test]
     fn pooled_cost_equals_the_definition() {
-        for ((w, h), (gw, gh)) in [((24, 12), (12, 6)), ((23, 11), (11, 5)), ((13, 7), (13, 7)), ((9, 6), (4, 4))] {
+        let sizes = [((24, 12), (12, 6)), ((23, 11), (11, 5)), ((13, 7), (13, 7)), ((9, 6), (4, 4)), ((8, 5), (4, 7))];
+        for ((w, h), (gw, gh)) in sizes {
             let mut seed = 7u32;
             let mut next = || {
                 seed = seed.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
@@ -314,10 +352,17 @@ mod tests {
             let d: Vec<f32> =
                 (0..w * h).map(|i| if i % 11 == 3 { f32::NAN } else { (next() % 80) as f32 / 8.0 - 1.0 }).collect();
             let mut mc = MatchCost::new((w, h), (gw, gh));
-            let got = mc.compute(&cl, &cr, &d).to_vec();
             let want = brute(&cl, &cr, &d, (w, h), (gw, gh));
-            for (i, (g, e)) in got.iter().zip(&want).enumerate() {
+            let got = mc.compute(Codes::Full(&cl, &cr), &d).to_vec();
+            let (mut rl, mut rr) = (vec![u32::MAX; w * gh], vec![u32::MAX; w * gh]);
+            for (gy, y) in mc.rows() {
+                rl[gy * w..(gy + 1) * w].copy_from_slice(&cl[y * w..(y + 1) * w]);
+                rr[gy * w..(gy + 1) * w].copy_from_slice(&cr[y * w..(y + 1) * w]);
+            }
+            let rows = mc.compute(Codes::Rows(&rl, &rr), &d).to_vec();
+            for (i, ((g, r), e)) in got.iter().zip(&rows).zip(&want).enumerate() {
                 assert!((g - e).abs() < 1e-6, "{w}x{h} onto {gw}x{gh}, cell {i}: {g} vs {e}");
+                assert_eq!(g, r, "{w}x{h} onto {gw}x{gh}, cell {i}: the matched rows' codes");
             }
         }
     }
@@ -380,7 +425,7 @@ mod tests {
         census(&img, &mut cl);
         census(&right, &mut cr);
         let mut mc = MatchCost::new((w, h), (w / 2, h / 2));
-        let at = |mc: &mut MatchCost, d: f32| mc.compute(&cl, &cr, &vec![d; w * h])[5 * (w / 2) + 10];
+        let at = |mc: &mut MatchCost, d: f32| mc.compute(Codes::Full(&cl, &cr), &vec![d; w * h])[5 * (w / 2) + 10];
         let (right_shift, off) = (at(&mut mc, shift as f32), at(&mut mc, shift as f32 + 1.0));
         assert!(right_shift < 0.05 && off > 0.2, "{right_shift} vs {off}");
     }

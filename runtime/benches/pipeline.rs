@@ -4,11 +4,11 @@
 use std::path::Path;
 
 use abvs_camera::Camera;
-use abvs_disparity::census::{census as census_codes, CensusRefineEngine};
+use abvs_disparity::census::{census_rows, CensusRefineEngine};
 use abvs_disparity::census_confidence::Scorer;
 use abvs_disparity::confidence::mask;
 use abvs_disparity::engine::DisparityEngine;
-use abvs_disparity::match_cost::MatchCost;
+use abvs_disparity::match_cost::{Codes, MatchCost};
 use abvs_disparity::onnx::OnnxEngine;
 use abvs_disparity::resample::nearest;
 use abvs_disparity::sgbm::SgbmEngine;
@@ -85,7 +85,7 @@ fn bench(c: &mut Criterion) {
             });
         }
         // the confidence's work alone on one thread, on a noise answer: the scoring at the search's resolution
-        // (half the engine's), the match cost's census of both images at the engine's and the cost, the
+        // (half the engine's), the match cost's census of both images at the engine's (on the rows it uses) and the cost, the
         // logistic and the nearest upsampling (in the engine the scoring and the census run on its second
         // thread while the answer is upsampled: the whole engine's pair above is what it adds to the frame)
         {
@@ -100,14 +100,14 @@ fn bench(c: &mut Criterion) {
             let (mut cu, mut yu) = (vec![0f32; (w * h) as usize], vec![0u8; (w * h) as usize]);
             let (wu, hu) = (w as usize, h as usize);
             let (mut cl, mut cr, mut cost) =
-                (vec![0u32; wu * hu], vec![0u32; wu * hu], MatchCost::new((wu, hu), (sw, sh)));
+                (vec![0u32; wu * sh], vec![0u32; wu * sh], MatchCost::new((wu, hu), (sw, sh)));
             let answer: Vec<f32> = (0..wu * hu).map(|i| 16.0 + ((i * 7919) % 13) as f32).collect();
             g.bench_function("census_confidence_scoring_only", |b| {
                 b.iter(|| {
                     scorer.score(&l[..n], &stat, &refined, &net, Some(&prior), &mut c, &mut y);
-                    census_codes(&l, wu, hu, &mut cl);
-                    census_codes(&r, wu, hu, &mut cr);
-                    Scorer::finish(&mut c, cost.compute(&cl, &cr, &answer));
+                    census_rows(&l, wu, hu, cost.rows(), &mut cl);
+                    census_rows(&r, wu, hu, cost.rows(), &mut cr);
+                    Scorer::finish(&mut c, cost.compute(Codes::Rows(&cl, &cr), &answer));
                     nearest(&c, (sw, sh), &mut cu, (w as usize, h as usize));
                     nearest(&y, (sw, sh), &mut yu, (w as usize, h as usize));
                 })
