@@ -85,9 +85,10 @@ fn bench(c: &mut Criterion) {
             });
         }
         // the confidence's work alone on one thread, on a noise answer: the scoring at the search's resolution
-        // (half the engine's), the match cost's census of both images at the engine's (on the rows it uses) and the cost, the
-        // logistic and the nearest upsampling (in the engine the scoring and the census run on its second
-        // thread while the answer is upsampled: the whole engine's pair above is what it adds to the frame)
+        // (half the engine's), the match cost's census of both images at the engine's (on the rows it uses)
+        // and the cost, the logistic and the nearest upsampling (in the engine the scoring and the census run
+        // on its second thread while the answer is upsampled: the whole engine's pair above is what it adds to
+        // the frame)
         {
             let (sw, sh) = (w as usize / 2, h as usize / 2);
             let n = sw * sh;
