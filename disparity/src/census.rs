@@ -947,6 +947,26 @@ mod tests {
         }
     }
 
+    /// Some rows into a compact buffer (output row k from image row y != k, as the match cost uses it): each
+    /// written row equals the full image's row, and nothing else of the buffer is touched.
+    #[test]
+    fn census_rows_into_a_compact_buffer_equals_the_full_image() {
+        for (w, h) in [(1usize, 1usize), (5, 5), (70, 9), (133, 6), (1100, 4)] {
+            let img: Vec<u8> = (0..w * h).map(|i| ((i * 7919 + (i / 3) * 104_729) % 251) as u8).collect();
+            let mut full = vec![0u32; w * h];
+            census(&img, w, h, &mut full);
+            // the last row of each pair of rows, and the first and last image rows out of order
+            let rows: Vec<(usize, usize)> = (1..h).step_by(2).chain([0, h - 1]).enumerate().collect();
+            let sentinel = 0xDEAD_BEEFu32;
+            let mut got = vec![sentinel; w * (rows.len() + 1)];
+            census_rows(&img, w, h, rows.iter().copied(), &mut got);
+            for &(k, y) in &rows {
+                assert_eq!(&got[k * w..(k + 1) * w], &full[y * w..(y + 1) * w], "{w}x{h}: row {y} into {k}");
+            }
+            assert!(got[rows.len() * w..].iter().all(|&v| v == sentinel), "{w}x{h}: wrote past its rows");
+        }
+    }
+
     #[test]
     fn streamed_refinement_equals_the_brute_force_definition() {
         for (w, h) in [(23usize, 17usize), (9, 8), (40, 5)] {
