@@ -1,15 +1,15 @@
-//! What census-refine's confidence and validity mask add to the disparity stage (issue 41: at most +10 %),
-//! paired on a loaded machine: two engines of the runtime's default at 640x480 (hitnet-m's refine base,
-//! hitnet-s with the SGBM prior at 320x240), one scoring its pixels and masking at the default threshold as the
-//! runtime's disparity stage does (`own_mask`: the confidence and reasons copied into the frame and the
-//! disparity masked in one pass, `mask_into`), one without its confidence (`without_confidence`, the baseline). Each round runs the two arms
-//! alternately frame by frame (which goes first alternates), REPS frames each, and takes the ratio of the
-//! arms' median frame times; prints every round and the median of the ratios. Also times, interleaved with
-//! the arms, the added work alone on one thread (the scoring at the search's 320x240 on the engine's own
-//! internals, the census of both images at 640x480 on the rows the match cost uses and the cost, the logistic, the nearest upsampling
-//! and the mask): its CPU time. The engine runs the scoring and the census on its second thread while the
-//! answer is upsampled, and the cost in halves on both, so the arms' ratio, not this, is what it adds to the
-//! frame. Not in either: the census search's second-best tracking (the margin byte), which both arms compute.
+//! What census-refine's confidence and validity mask add to the disparity stage (issue 41: at most +10 %), paired on a
+//! loaded machine: two engines of the runtime's default at 640x480 (hitnet-m's refine base, hitnet-s with the SGBM
+//! prior at 320x240), one scoring its pixels and masking at the default threshold as the runtime's disparity stage does
+//! (`own_mask`: the confidence and reasons copied into the frame and the disparity masked in one pass, `mask_into`),
+//! one without its confidence (`without_confidence`, the baseline). Each round runs the two arms alternately frame by
+//! frame (which goes first alternates), REPS frames each, and takes the ratio of the arms' median frame times; prints
+//! every round and the median of the ratios. Also times, interleaved with the arms, the added work alone on one thread
+//! (the scoring at the search's 320x240 on the engine's own internals, the census of both images at 640x480 on the rows
+//! the match cost uses and the cost, the logistic, the nearest upsampling and the mask): its CPU time. The engine runs
+//! the scoring and the census on its second thread while the answer is upsampled, and the cost in halves on both, so
+//! the arms' ratio, not this, is what it adds to the frame. Not in either: the census search's second-best tracking
+//! (the margin byte), which both arms compute.
 //! `cargo run --release -p abvs-disparity --example confidence_cost -- LEFT RIGHT [ROUNDS] [REPS]`
 //! (scripts/bench_confidence_cost.sh).
 use std::time::Instant;

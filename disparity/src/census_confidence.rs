@@ -24,8 +24,9 @@
 //! scripts/fit_census_confidence.py prints these weights and the mask's curve). The features were chosen by
 //! fitting on one half of the image and ranking the other (bad-2 among the 72.5 % most confident of the
 //! held-back upper / lower half, docs/depth.md): the search's features alone 3.01 / 0.90 %, with the match
-//! cost 2.20 / 0.55 % (2.23 / 0.55 % with the cost on one row of each grid cell, as shipped and refitted). The cost and the margin carry most of it. Whether the winner is at the search window's
-//! end took a weight of +0.03 once the cost was in: left out of the model, it still names a pixel's reason.
+//! cost 2.20 / 0.55 % (2.23 / 0.55 % with the cost on one row of each grid cell, as shipped and refitted). The
+//! cost and the margin carry most of it. Whether the winner is at the search window's end took a weight of +0.03
+//! once the cost was in: left out of the model, it still names a pixel's reason.
 //! Texture and the share of SGBM-accepted neighbours ranked Aloe a little better without the cost, but only
 //! with negative weights (a flat region more confident than a textured one), which would publish the streaks
 //! of textureless walls: left out. A flat region's ambiguity is in its margin and its cost (a uniform patch
