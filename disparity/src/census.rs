@@ -703,10 +703,116 @@ pub fn census_rows(img: &[u8], w: usize, h: usize, rows: impl Iterator<Item = (u
     census_generic(img, w, h, rows, out)
 }
 
+/// [`census_generic`] with the interior 32 pixels at a time, the three bytes of their codes kept in registers
+/// across the 24 neighbours (one load, compare, and and or each) and widened to the codes once: 3.5x faster
+/// than the byte planes in memory (the confidence's census, issue 41). AVX2 compares bytes as signed numbers
+/// only: both sides are offset by 128, which orders them as unsigned. The same codes, bit for bit.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
 unsafe fn census_avx2(img: &[u8], w: usize, h: usize, rows: impl Iterator<Item = (usize, usize)>, out: &mut [u32]) {
-    census_generic(img, w, h, rows, out)
+    use std::arch::x86_64::*;
+    const V: usize = 32;
+    let r = CENSUS_R;
+    // the interior: columns whose whole window lies in the image
+    let (lo, hi) = (r, w.saturating_sub(r));
+    if hi < lo + V {
+        return census_generic(img, w, h, rows, out);
+    }
+    // the neighbours below are written out for the 5x5 window
+    const { assert!(CENSUS_R == 2) };
+    let flip = _mm256_set1_epi8(i8::MIN);
+    for (k, y) in rows {
+        let code = &mut out[k * w..(k + 1) * w];
+        let nbs: [*const u8; 2 * CENSUS_R + 1] = std::array::from_fn(|i| {
+            let yy = (y + i).saturating_sub(r).min(h - 1);
+            img[yy * w..(yy + 1) * w].as_ptr()
+        });
+        let mut x = lo;
+        loop {
+            // the last block overlaps the one before (the same codes again) rather than leaving a tail
+            let x0 = x.min(hi - V);
+            let c = _mm256_xor_si256(_mm256_loadu_si256(nbs[r].add(x0) as *const __m256i), flip);
+            // neighbour (row, column) of the window into bit `bit` of `plane`, written out so that the planes stay
+            // in registers (as loops the compiler kept them on the stack)
+            let (mut p0, mut p1, mut p2) = (_mm256_setzero_si256(), _mm256_setzero_si256(), _mm256_setzero_si256());
+            macro_rules! nb {
+                ($plane:ident, $row:literal, $dx:literal, $bit:literal) => {
+                    // SAFETY: x0 - r + dx + V <= hi - r + 2r = w (x0 >= lo = r): inside the row
+                    let q = _mm256_loadu_si256(nbs[$row].add(x0 + $dx - r) as *const __m256i);
+                    let m = _mm256_cmpgt_epi8(c, _mm256_xor_si256(q, flip));
+                    $plane = _mm256_or_si256($plane, _mm256_and_si256(m, _mm256_set1_epi8((1u8 << $bit) as i8)));
+                };
+            }
+            nb!(p0, 0, 0, 0);
+            nb!(p0, 0, 1, 1);
+            nb!(p0, 0, 2, 2);
+            nb!(p0, 0, 3, 3);
+            nb!(p0, 0, 4, 4);
+            nb!(p0, 1, 0, 5);
+            nb!(p0, 1, 1, 6);
+            nb!(p0, 1, 2, 7);
+            nb!(p1, 1, 3, 0);
+            nb!(p1, 1, 4, 1);
+            nb!(p1, 2, 0, 2);
+            nb!(p1, 2, 1, 3);
+            nb!(p1, 2, 3, 4);
+            nb!(p1, 2, 4, 5);
+            nb!(p1, 3, 0, 6);
+            nb!(p1, 3, 1, 7);
+            nb!(p2, 3, 2, 0);
+            nb!(p2, 3, 3, 1);
+            nb!(p2, 3, 4, 2);
+            nb!(p2, 4, 0, 3);
+            nb!(p2, 4, 1, 4);
+            nb!(p2, 4, 2, 5);
+            nb!(p2, 4, 3, 6);
+            nb!(p2, 4, 4, 7);
+            let planes = [p0, p1, p2];
+            // widen: each 8 bytes of the three planes into 8 codes
+            let halves = |p: __m256i| [_mm256_castsi256_si128(p), _mm256_extracti128_si256::<1>(p)];
+            let [p0, p1, p2] = [halves(planes[0]), halves(planes[1]), halves(planes[2])];
+            for j in 0..4 {
+                let part = |p: [__m128i; 2]| {
+                    let q = p[j / 2];
+                    _mm256_cvtepu8_epi32(if j % 2 == 0 { q } else { _mm_srli_si128::<8>(q) })
+                };
+                let v = _mm256_or_si256(
+                    part(p0),
+                    _mm256_or_si256(_mm256_slli_epi32::<8>(part(p1)), _mm256_slli_epi32::<16>(part(p2))),
+                );
+                _mm256_storeu_si256(code.as_mut_ptr().add(x0 + 8 * j) as *mut __m256i, v);
+            }
+            x += V;
+            if x >= hi {
+                break;
+            }
+        }
+        // the border columns, their neighbours clamped into the image
+        let centre = std::slice::from_raw_parts(nbs[r], w);
+        let nbs: [&[u8]; 2 * CENSUS_R + 1] = nbs.map(|p| std::slice::from_raw_parts(p, w));
+        for x in (0..lo).chain(hi..w) {
+            code[x] = census_at(&nbs, centre, x, w);
+        }
+    }
+}
+
+/// The census code of column `x` from its window's rows `nbs`, the neighbours clamped into the row.
+#[inline(always)]
+fn census_at(nbs: &[&[u8]; 2 * CENSUS_R + 1], centre: &[u8], x: usize, w: usize) -> u32 {
+    let r = CENSUS_R as isize;
+    let mut v = 0u32;
+    let mut bit = 0u32;
+    for (k, nb) in nbs.iter().enumerate() {
+        for dx in -r..=r {
+            if k == CENSUS_R && dx == 0 {
+                continue;
+            }
+            let xx = (x as isize + dx).clamp(0, w as isize - 1) as usize;
+            v |= ((nb[xx] < centre[x]) as u32) << bit;
+            bit += 1;
+        }
+    }
+    v
 }
 
 #[inline(always)]
@@ -754,19 +860,7 @@ fn census_generic(img: &[u8], w: usize, h: usize, rows: impl Iterator<Item = (us
         }
         // the border columns, their neighbours clamped into the image
         for x in (0..lo).chain(hi..w) {
-            let mut v = 0u32;
-            let mut bit = 0u32;
-            for (k, nb) in nbs.iter().enumerate() {
-                for dx in -r..=r {
-                    if k == CENSUS_R && dx == 0 {
-                        continue;
-                    }
-                    let xx = (x as isize + dx).clamp(0, w as isize - 1) as usize;
-                    v |= ((nb[xx] < centre[x]) as u32) << bit;
-                    bit += 1;
-                }
-            }
-            code[x] = v;
+            code[x] = census_at(&nbs, centre, x, w);
         }
     }
 }
@@ -943,6 +1037,28 @@ mod tests {
                     }
                     assert_eq!(got[y * w + x], want, "{w}x{h} at ({x}, {y})");
                 }
+            }
+        }
+    }
+
+    /// The AVX2 census (where the CPU has it) gives the portable loop's codes: ties, the bytes either side of
+    /// the signed compare's offset (127, 128) and the extremes, at widths around its 32-pixel blocks.
+    #[test]
+    fn the_vector_census_is_the_portable_one() {
+        let mut seed = 5u32;
+        let mut next = || {
+            seed = seed.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
+            (seed >> 24) as u8
+        };
+        for (w, h) in [(36usize, 5usize), (37, 6), (67, 4), (68, 7), (640, 9)] {
+            for palette in [&[0u8, 127, 128, 255][..], &[126, 127, 128, 129], &[]] {
+                let img: Vec<u8> = (0..w * h)
+                    .map(|_| if palette.is_empty() { next() } else { palette[next() as usize % palette.len()] })
+                    .collect();
+                let (mut fast, mut slow) = (vec![0u32; w * h], vec![0u32; w * h]);
+                census(&img, w, h, &mut fast);
+                census_generic(&img, w, h, (0..h).map(|y| (y, y)), &mut slow);
+                assert_eq!(fast, slow, "{w}x{h}, palette {palette:?}");
             }
         }
     }

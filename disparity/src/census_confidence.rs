@@ -71,6 +71,8 @@ pub struct Scorer {
     h: usize,
     /// Horizontal 5-box sums of |I(x+1) - I(x-1)| per row.
     rows: Vec<u16>,
+    /// One row's |I(x+1) - I(x-1)|, two clamped values either side.
+    grad: Vec<u16>,
 }
 
 /// ln(1 + v) for 0 <= v (at most [`LN_REACH`]): the exponent of 1 + v and 2 atanh(s) of its mantissa's
@@ -144,7 +146,7 @@ fn pixel(d: f32, nb: [f32; 4], x: f32, s: u8, net: f32, accepted: bool, tex: u32
 impl Scorer {
     /// A scorer for `w` x `h` maps.
     pub fn new(w: usize, h: usize) -> Scorer {
-        Scorer { w, h, rows: vec![0; w * h] }
+        Scorer { w, h, rows: vec![0; w * h], grad: vec![0; w + 4] }
     }
 
     /// The search's part of the confidence's logit (`z`, -inf where the confidence is 0) and the reason of
@@ -213,13 +215,23 @@ fn score_generic(
     why: &mut [u8],
 ) {
     let (w, h) = (s.w, s.h);
-    // horizontal box sums of the central gradient
+    // horizontal 5-box sums of the central gradient, the window clamped at the row's ends: the gradient into a
+    // row padded by two clamped values each side, then five shifted slices summed (straight loops that vectorise;
+    // a running sum, one pixel after the other, took 40 % of the scoring)
+    let gp = &mut s.grad;
     for (src, dst) in img.chunks_exact(w).zip(s.rows.chunks_exact_mut(w)).take(h) {
         let g = |x: usize| src[(x + 1).min(w - 1)].abs_diff(src[x.saturating_sub(1)]) as u16;
-        let mut sum: u16 = (0..3.min(w)).map(g).sum::<u16>() + g(0) * 2;
-        for (x, d) in dst.iter_mut().enumerate() {
-            *d = sum;
-            sum = sum + g((x + 3).min(w - 1)) - g(x.saturating_sub(2));
+        gp[2] = g(0);
+        if w > 2 {
+            for ((o, a), b) in gp[3..w + 1].iter_mut().zip(&src[2..w]).zip(&src[..w - 2]) {
+                *o = a.abs_diff(*b) as u16;
+            }
+        }
+        gp[w + 1] = g(w - 1);
+        (gp[0], gp[1], gp[w + 2], gp[w + 3]) = (gp[2], gp[2], gp[w + 1], gp[w + 1]);
+        let (g0, g1, g2, g3, g4) = (&gp[..w], &gp[1..w + 1], &gp[2..w + 2], &gp[3..w + 3], &gp[4..w + 4]);
+        for x in 0..w {
+            dst[x] = g0[x] + g1[x] + g2[x] + g3[x] + g4[x];
         }
     }
     for y in 0..h {
@@ -301,6 +313,30 @@ mod tests {
         let mut z = [f32::NEG_INFINITY, 0.0];
         Scorer::finish(&mut z, &[0.0, 0.0]);
         assert_eq!(z[0], 0.0);
+    }
+
+    /// The texture rows (horizontal 5-box sums of |I(x+1) - I(x-1)|, both clamped at the row's ends) are their
+    /// definition, at widths from one pixel up.
+    #[test]
+    fn texture_sums_are_the_definition() {
+        for (w, h) in [(1usize, 2usize), (2, 1), (3, 3), (5, 2), (17, 4), (320, 3)] {
+            let img: Vec<u8> = (0..w * h).map(|i| ((i * 7919 + (i / 5) * 104_729) % 256) as u8).collect();
+            let mut s = Scorer::new(w, h);
+            let n = w * h;
+            let (mut z, mut why) = (vec![0f32; n], vec![0u8; n]);
+            s.score(&img, &vec![0; n], &vec![1.0; n], &vec![1.0; n], None, &mut z, &mut why);
+            for y in 0..h {
+                let row = &img[y * w..(y + 1) * w];
+                let g = |x: isize| {
+                    let x = x.clamp(0, w as isize - 1) as usize;
+                    row[(x + 1).min(w - 1)].abs_diff(row[x.saturating_sub(1)]) as u16
+                };
+                for x in 0..w {
+                    let want: u16 = (-2..=2).map(|k| g(x as isize + k)).sum();
+                    assert_eq!(s.rows[y * w + x], want, "{w}x{h} at ({x}, {y})");
+                }
+            }
+        }
     }
 
     /// A textured row band whose search was unique, started from an accepted SGBM match: high confidence;
