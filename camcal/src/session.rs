@@ -9,7 +9,7 @@
 //! DIR/truth.csv      (simulated sessions only) the true poses, a dataset file
 //! ```
 //! Home images are the rows whose counts equal `home_counts`.
-use crate::detect::{detect, load_gray, AprilDetector};
+use crate::detect::{detect_files, AprilDetector};
 use crate::error::{CamcalError, Result};
 use crate::measure::{solve, Failure, SolveOptions, Solved};
 use crate::target::Target;
@@ -195,30 +195,26 @@ impl MeasureReport {
     }
 }
 
-/// Measures a session: detects the corners in every image, solves every camera pose relative to
-/// home, and returns the dataset (rows in index order; failed images absent) and the report.
+/// Measures a session: detects the corners in every image (on every core: [`detect_files`]), solves every
+/// camera pose relative to home, and returns the dataset (rows in index order; failed images absent) and the
+/// report. `progress(k, n)`: k of the n images detected, called from the detecting threads.
 pub fn measure_session(
     s: &Session,
     detector: AprilDetector,
     opts: &SolveOptions,
-    mut progress: impl FnMut(usize, usize),
+    progress: impl Fn(usize, usize) + Sync,
 ) -> Result<(Dataset, MeasureReport, Solved)> {
     let target = s.target()?;
     let cam = s.camera()?;
     let n = s.rows.len();
-    let mut dets = Vec::with_capacity(n);
-    for (k, r) in s.rows.iter().enumerate() {
-        progress(k, n);
-        let p = s.dir.join(&r.image);
-        dets.push(
-            match load_gray(&p) {
-                Ok(g) => detect(&g, &target, detector),
-                Err(e) => Err(e),
-            }
-            .map_err(|e| Failure::Unreadable(e.to_string())),
-        );
-    }
-    progress(n, n);
+    let files: Vec<PathBuf> = s.rows.iter().map(|r| s.dir.join(&r.image)).collect();
+    let finished = std::sync::atomic::AtomicUsize::new(0);
+    progress(0, n);
+    let done = || progress(finished.fetch_add(1, std::sync::atomic::Ordering::Relaxed) + 1, n);
+    let dets: Vec<_> = detect_files(&files, &target, detector, &done)
+        .into_iter()
+        .map(|d| d.map_err(|e| Failure::Unreadable(e.to_string())))
+        .collect();
     let home: Vec<bool> = s.rows.iter().map(|r| s.is_home(r)).collect();
     let solved = solve(&cam, &target, &dets, &home, opts)?;
     let mut samples = Vec::new();

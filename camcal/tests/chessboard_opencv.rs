@@ -230,3 +230,28 @@ fn outlier_image_is_dropped_and_reported() {
     assert!(c.rms_px < 0.5);
     assert!(!c.per_image.iter().any(|p| p.0 == bad));
 }
+
+/// The detection of many files at once (spread over the cores, as `abvs calib` runs it) gives each file what
+/// one detection of it alone gives, in the files' order, a missing file's error in its own place, and one
+/// progress call per file.
+#[test]
+fn detecting_files_in_parallel_keeps_each_files_result_in_its_place() {
+    let mut f = files("left");
+    f.insert(3, PathBuf::from(format!("{DATA}/no_such_image.jpg")));
+    let calls = std::sync::atomic::AtomicUsize::new(0);
+    let done = || {
+        calls.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+    };
+    let all = abvs_camcal::detect::detect_files(&f, &target(), AprilDetector::OpenCv, &done);
+    assert_eq!((all.len(), calls.into_inner()), (f.len(), f.len()));
+    for (i, (got, file)) in all.iter().zip(&f).enumerate() {
+        if i == 3 {
+            let e = got.as_ref().expect_err("a missing file").to_string();
+            assert!(e.contains("no_such_image.jpg"), "{e}");
+            continue;
+        }
+        let one = detect(&load_gray(file).unwrap(), &target(), AprilDetector::OpenCv).unwrap();
+        assert_eq!(got.as_ref().unwrap(), &one, "{}", file.display());
+        assert!(!one.corners.is_empty(), "{}", file.display());
+    }
+}

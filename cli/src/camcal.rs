@@ -1,6 +1,6 @@
 //! `abvs calib intrinsics | measure | stereo` and `abvs sim aprilgrid-session`: calibration
 //! from images, thin shells over abvs-camcal.
-use abvs_camcal::detect::{detect, load_gray, AprilDetector, Detection};
+use abvs_camcal::detect::{detect_files, AprilDetector, Detection};
 use abvs_camcal::intrinsics::{calibrate, views, CalibOptions, Model};
 use abvs_camcal::measure::SolveOptions;
 use abvs_camcal::render_grid::{write_sim_session, SimSessionSpec};
@@ -53,21 +53,18 @@ fn expand(pattern: &str) -> anyhow::Result<Vec<PathBuf>> {
 
 fn detect_all(files: &[PathBuf], target: &Target, det: AprilDetector) -> Vec<Option<Detection>> {
     let pb = crate::progress_bar(files.len() as u64, "detecting");
-    let out = files
-        .iter()
-        .map(|f| {
-            pb.inc(1);
-            let r = load_gray(f).and_then(|g| detect(&g, target, det));
-            match r {
-                Ok(d) if !d.corners.is_empty() => Some(d),
-                Ok(_) => {
-                    eprintln!("{}: no board found", f.display());
-                    None
-                }
-                Err(e) => {
-                    eprintln!("{e}");
-                    None
-                }
+    let out = detect_files(files, target, det, &|| pb.inc(1))
+        .into_iter()
+        .zip(files)
+        .map(|(r, f)| match r {
+            Ok(d) if !d.corners.is_empty() => Some(d),
+            Ok(_) => {
+                eprintln!("{}: no board found", f.display());
+                None
+            }
+            Err(e) => {
+                eprintln!("{e}");
+                None
             }
         })
         .collect();
