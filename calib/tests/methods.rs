@@ -63,18 +63,41 @@ fn every_method_beats_hand_eye_on_a_small_set() {
         save_model(&dir.path().join(name), &parts).unwrap();
         dir.path().join(name)
     };
-    let mh_a = rot_error(&save("mh_a", fit(Method::Mh, &train_a, None, &cfg, &mut quiet()).unwrap()), &test_a);
-    for m in [Method::M1, Method::M2, Method::Hybrid] {
-        let e = rot_error(&save(m.name(), fit(m, &train_a, None, &cfg, &mut quiet()).unwrap()), &test_a);
-        assert!(e < mh_a, "{} {e} vs mh {mh_a}", m.name());
+    // The fits are independent (each deterministic from its seed): run on every core, one thread each.
+    let on_cores = |jobs: Vec<Box<dyn FnOnce() -> f64 + Send + '_>>| -> Vec<f64> {
+        std::thread::scope(|s| {
+            let hs: Vec<_> = jobs.into_iter().map(|j| s.spawn(j)).collect();
+            hs.into_iter().map(|h| h.join().unwrap()).collect()
+        })
+    };
+    let (train_a, test_a, save, cfg) = (&train_a, &test_a, &save, &cfg);
+    let fit_a = |name: &'static str, m: Method| -> Box<dyn FnOnce() -> f64 + Send + '_> {
+        Box::new(move || rot_error(&save(name, fit(m, train_a, None, cfg, &mut quiet()).unwrap()), test_a))
+    };
+    let methods = [Method::M1, Method::M2, Method::Hybrid];
+    let mut jobs = vec![fit_a("mh_a", Method::Mh)];
+    jobs.extend(methods.map(|m| fit_a(m.name(), m)));
+    let e = on_cores(jobs);
+    let mh_a = e[0];
+    for (m, e) in methods.iter().zip(&e[1..]) {
+        assert!(*e < mh_a, "{} {e} vs mh {mh_a}", m.name());
     }
     // Fine-tuning unit B from unit A's models, against M_h fitted on B's own 343 samples.
-    let mh_b = rot_error(&save("mh_b", fit(Method::Mh, &train_b, None, &cfg, &mut quiet()).unwrap()), &test_b);
-    for (m, base) in [(Method::M1f, "m1"), (Method::M2f, "m2"), (Method::M4f, "m2"), (Method::Hybrid, "hybrid")] {
+    let (train_b, test_b) = (&train_b, &test_b);
+    let tunes = [(Method::M1f, "m1"), (Method::M2f, "m2"), (Method::M4f, "m2"), (Method::Hybrid, "hybrid")];
+    let mut jobs: Vec<Box<dyn FnOnce() -> f64 + Send + '_>> =
+        vec![Box::new(|| rot_error(&save("mh_b", fit(Method::Mh, train_b, None, cfg, &mut quiet()).unwrap()), test_b))];
+    for (m, base) in tunes {
         let base = FkModel::load(&dir.path().join(base)).unwrap();
-        let parts = finetune(m, &base, &train_b, None, &cfg, &mut quiet()).unwrap();
-        let e = rot_error(&save(&format!("{}_b", m.name()), parts), &test_b);
-        assert!(e < mh_b, "{} {e} vs mh {mh_b}", m.name());
+        jobs.push(Box::new(move || {
+            let parts = finetune(m, &base, train_b, None, cfg, &mut quiet()).unwrap();
+            rot_error(&save(&format!("{}_b", m.name()), parts), test_b)
+        }));
+    }
+    let e = on_cores(jobs);
+    let mh_b = e[0];
+    for ((m, _), e) in tunes.iter().zip(&e[1..]) {
+        assert!(*e < mh_b, "{} {e} vs mh {mh_b}", m.name());
     }
     // m4f picks its branch by the exact PSC even where the fast first-order S is used.
     let m4 = FkModel::load(&dir.path().join("m4f_b")).unwrap();
