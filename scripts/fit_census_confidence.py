@@ -9,7 +9,8 @@ GT: a pair's ground truth (PFM, or an 8-bit PNG divided by S; 0 / inf unknown), 
 from each; 0, the default, every pixel of a single pair). Prints the weights (the constants B, W_*), then for
 each pair the curve of the mask (threshold, density, bad-2 among kept) and bad-2 at a given density. The
 shipped weights: Aloe (opencv-doc) alone, the five features. --std adds a sixth (the 3x3 window's standard
-deviation of the refined disparity; not shipped, docs/depth.md). --halves ranks the first pair's lower half
+deviation of the refined disparity; not shipped, docs/depth.md). --no-curv leaves out the match cost's
+curvature (the model before 2026-11-28's last change). --halves ranks the first pair's lower half
 by a fit on its upper half (and the other pairs), and the other way round: how the fit generalises within
 the real pair. Rendered pairs with ground truth: `cargo run -p abvs-sim --example rendered_pairs -- /tmp/pairs
 1 12` (their gt.pfm). Never fit on the held-out Motorcycle."""
@@ -21,7 +22,7 @@ from image_io import pfm, png_first_channel
 
 W, H = 640, 480
 w, h = 320, 240
-NAMES = ["acc", "m", "ln1p(span)", "ln1p(agree)", "cost", "ln1p(std3)"]  # the last with --std
+NAMES = ["acc", "m", "ln1p(span)", "ln1p(agree)", "cost", "curv", "ln1p(std3)"]  # the last with --std
 
 
 def ground_truth(path, scale):
@@ -63,7 +64,8 @@ def features(dump):
     x = np.stack([np.isfinite(prior), (stat & 0x7F) / 127.0,
                   np.log1p(span4(refined)), np.log1p(agree),
                   # the engine's own match cost, pooled onto this grid (disparity/src/match_cost.rs)
-                  f("cost.f32", np.float32, (h, w)), np.log1p(std3(refined))], -1).astype(np.float64)
+                  f("cost.f32", np.float32, (h, w)), f("curv.f32", np.float32, (h, w)),
+                  np.log1p(std3(refined))], -1).astype(np.float64)
     valid = np.isfinite(refined) & (np.arange(w)[None, :] - refined >= 0)
     up = lambda a: np.repeat(np.repeat(a, 2, 0), 2, 1)  # the engine's nearest upsampling
     return up(x), up(valid), f("out640.f32", np.float32, (H, W))
@@ -92,18 +94,21 @@ def main():
     a.add_argument("pairs", nargs="+", help="DUMP GT, repeated")
     a.add_argument("--gt-scale", type=float, default=1.0)
     a.add_argument("--per", type=int, default=0, help="training pixels drawn from each pair (0: all)")
-    a.add_argument("--std", action="store_true", help="the sixth feature")
+    a.add_argument("--std", action="store_true", help="the seventh feature")
+    a.add_argument("--no-curv", action="store_true", help="without the cost's curvature")
     a.add_argument("--halves", action="store_true", help="the first pair's held-back halves")
     a.add_argument("--density", type=float, default=0.725, help="report bad-2 at this density (SGBM_3WAY's)")
     o = a.parse_args()
     assert len(o.pairs) % 2 == 0, "DUMP GT pairs"
-    nf = 6 if o.std else 5
+    cols = [0, 1, 2, 3, 4] + ([] if o.no_curv else [5]) + ([6] if o.std else [])
+    nf = len(cols)
+    names = [NAMES[c] for c in cols]
     data = []
     for dump, gtp in zip(o.pairs[::2], o.pairs[1::2]):
         x, valid, out = features(dump)
         gt = ground_truth(gtp, o.gt_scale)
         known = np.isfinite(gt)
-        data.append((dump, x[..., :nf], valid, out, known, np.abs(out - gt) <= 2))
+        data.append((dump, x[..., cols], valid, out, known, np.abs(out - gt) <= 2))
 
     def fit_on(masks):
         rng = np.random.default_rng(1)
@@ -118,7 +123,7 @@ def main():
 
     everywhere = [np.ones((H, W), bool)] * len(data)
     wts, bias = fit_on(everywhere)
-    print(f"B = {bias:.4f}; " + "; ".join(f"W[{n}] = {v:.4f}" for n, v in zip(NAMES, wts)))
+    print(f"B = {bias:.4f}; " + "; ".join(f"W[{n}] = {v:.4f}" for n, v in zip(names, wts)))
     for dump, x, valid, out, known, good in data:
         print(dump)
         conf = np.where(valid, 1 / (1 + np.exp(-(x @ wts + bias))), 0)

@@ -103,7 +103,7 @@ pub struct RunArgs {
     pub lr_check: bool,
     /// The validity mask: depth and cloud points dropped where the engine's own confidence (census-refine's,
     /// computed as it matches: no second run) is below C, in [0, 1]; 0 publishes every pixel (the dense map,
-    /// bit for bit). Default: [disparity] min_confidence, 0.7.
+    /// bit for bit). Default: [disparity] min_confidence, 0.65.
     #[arg(long, value_name = "C", value_parser = crate::args::finite_in(0.0, 1.0))]
     pub min_confidence: Option<f64>,
     /// Score depth against the session's ground truth every N-th point (synthetic sessions; 0: off).

@@ -227,11 +227,12 @@ fn runtime_default_at_640x480(p: Pair) {
 /// confidence at `[disparity] min_confidence`'s default) against SGBM_3WAY's own checks, in the same run.
 /// The bars: bad-2 among the published at most SGBM_3WAY's at a density at least 5 points higher,
 /// and at SGBM_3WAY's density at most 0.8x its bad-2 (read from the confidence's density curve). Both met on
-/// Aloe, the pair the confidence was fitted on (measured 0.790 / 2.86 % against 0.725 / 3.85 %; 1.26 % at its
-/// density, 0.33x; at its bad-2 density 0.810). On the held-out Motorcycle the second is met (5.12 % against
-/// 6.45 % at its density, 0.79x) and the first is not (0.867 / 5.81 % against 0.853 / 6.45 %: at its bad-2
-/// density 0.879, 2.6 points more, not 5): what holds there is asserted. Before the match cost at the
-/// published resolution (docs/depth.md): Aloe 0.49x, Motorcycle 0.88x and 1.7 points.
+/// Aloe, the pair the confidence was fitted on (measured 0.794 / 2.76 % against 0.725 / 3.85 %; 0.88 % at its
+/// density, 0.23x; at its bad-2 density 0.810). On the held-out Motorcycle the second is met (4.83 % against
+/// 6.45 % at its density, 0.75x) and the first is not (0.868 / 5.65 % against 0.853 / 6.45 %: at its bad-2
+/// density 0.879, 2.6 points more, not 5): what holds there is asserted. Before the match cost's curvature
+/// (docs/depth.md; the threshold 0.7 then): Aloe 0.33x, Motorcycle 0.79x and 2.6 points; before the match cost: Aloe 0.49x,
+/// Motorcycle 0.88x and 1.7 points.
 fn published_against_sgbm_3way(p: &Pair, ours: &serde_json::Value, sgbm: &serde_json::Value) {
     let f = |v: &serde_json::Value| v.as_f64().unwrap_or_else(|| panic!("{}: not a number: {v}", p.name));
     let (od, ob) = (f(&ours["published"]["density"]), f(&ours["published"]["bad2_pct_of_valid"]));

@@ -44,6 +44,7 @@ fn main() {
     put(out, "conf640.f32", c);
     put(out, "why640.u8", why);
     put(out, "cost.f32", e.match_cost());
+    put(out, "curv.f32", e.match_curvature());
     let (nl, nr, st, re, net, pr) = e.internals().unwrap();
     put(out, "left.u8", nl);
     put(out, "right.u8", nr);

@@ -432,6 +432,13 @@ impl CensusRefineEngine {
         self.cost.cost()
     }
 
+    /// The last frame's match cost's curvature on the scored grid ([`crate::match_cost::Pooled::curv`]), for
+    /// fitting the confidence.
+    #[doc(hidden)]
+    pub fn match_curvature(&self) -> &[f32] {
+        self.cost.curvature()
+    }
+
     /// The engine without its confidence ([`DisparityEngine::confidence`] gives none): the baseline of the
     /// confidence's cost (runtime/benches/pipeline.rs).
     pub fn without_confidence(mut self) -> Self {

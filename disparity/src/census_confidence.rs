@@ -13,10 +13,14 @@
 //!
 //! and of the published answer at the published resolution, pooled onto that grid:
 //!
-//! - `cost`: its census match cost ([`crate::match_cost`], in [0, 1]).
+//! - `cost`: its census match cost ([`crate::match_cost`], in [0, 1]);
+//! - `curv`: that cost's curvature about the answer, `(S2 - S1) / S2` of the pooled costs one and two pixels
+//!   either side ([`crate::match_cost::Pooled::curv`], in [-1, 1]): a right answer sits in a basin of the
+//!   cost, a wrong one (flat or repetitive texture, a surface the upsampling bent) does not.
 //!
 //! ```text
-//! c = 1 / (1 + exp(-(B + W_ACC acc + W_MARGIN m + W_SPAN ln(1 + span) + W_AGREE ln(1 + agree) + W_COST cost)))
+//! c = 1 / (1 + exp(-(B + W_ACC acc + W_MARGIN m + W_SPAN ln(1 + span) + W_AGREE ln(1 + agree) + W_COST cost
+//!                    + W_CURV curv)))
 //! 0 without a disparity or where the match falls outside the right image
 //! ```
 //!
@@ -24,33 +28,38 @@
 //! scripts/fit_census_confidence.py prints these weights and the mask's curve). The features were chosen by
 //! fitting on one half of the image and ranking the other (bad-2 among the 72.5 % most confident of the
 //! held-back upper / lower half, docs/depth.md): the search's features alone 3.01 / 0.90 %, with the match
-//! cost 2.20 / 0.55 % (2.23 / 0.55 % with the cost on one row of each grid cell, as shipped and refitted). The
-//! cost and the margin carry most of it. Whether the winner is at the search window's end took a weight of +0.03
-//! once the cost was in: left out of the model, it still names a pixel's reason.
+//! cost 2.20 / 0.55 % (2.23 / 0.55 % with the cost on one row of each grid cell, as shipped), with its
+//! curvature too 1.73 / 0.24 %. The cost, its curvature and the margin carry most of it. Whether the winner
+//! is at the search window's end took a weight of +0.03 once the cost was in: left out of the model, it still
+//! names a pixel's reason.
 //! Texture and the share of SGBM-accepted neighbours ranked Aloe a little better without the cost, but only
 //! with negative weights (a flat region more confident than a textured one), which would publish the streaks
 //! of textureless walls: left out. A flat region's ambiguity is in its margin and its cost (a uniform patch
-//! matches at chance: m = 0 and cost 0.5 score 0.30, below the default threshold). Without an SGBM prior (the
-//! engine at its network's resolution) every pixel scores as accepted (not calibrated there). Motorcycle is
+//! matches at chance at every offset: m = 0, cost 0.5 and curvature 0 score 0.34, below the default
+//! threshold). Without an SGBM prior (the engine at its network's resolution) every pixel scores as accepted
+//! (not calibrated there). Motorcycle is
 //! held out (cli/tests/disparity_real.rs). Each pixel also gets the reason its confidence is not higher
 //! ([`reason`]): low texture, ambiguous, out of range, occluded / depth edge.
 //!
 //! Cost: the scoring and the match cost's census run on the engine's second thread while the answer is
 //! upsampled (disparity/examples/confidence_cost.rs measures what they add to the frame).
 use crate::confidence::reason;
+use crate::match_cost::Pooled;
 
 /// The logistic model's bias (see the module docs; fitted on Aloe at 640x480).
-pub const B: f32 = 3.3666;
+pub const B: f32 = 2.5337;
 /// Weight of SGBM's acceptance.
-pub const W_ACC: f32 = 0.2037;
+pub const W_ACC: f32 = 0.1474;
 /// Weight of the census margin.
-pub const W_MARGIN: f32 = 3.5875;
+pub const W_MARGIN: f32 = 1.9847;
 /// Weight of ln(1 + the neighbours' span).
-pub const W_SPAN: f32 = -1.2746;
+pub const W_SPAN: f32 = -1.0778;
 /// Weight of ln(1 + |refined - network|).
-pub const W_AGREE: f32 = -0.2358;
+pub const W_AGREE: f32 = -0.1132;
 /// Weight of the match cost at the published resolution ([`crate::match_cost`], in [0, 1]).
-pub const W_COST: f32 = -8.3495;
+pub const W_COST: f32 = -6.3966;
+/// Weight of the match cost's curvature about the answer ([`crate::match_cost::Pooled::curv`], in [-1, 1]).
+pub const W_CURV: f32 = 3.6942;
 /// Below this texture (mean gray levels) a doubtful pixel's reason is low texture, not ambiguity.
 pub const TEXTURE_LOW: f32 = 4.0;
 /// Below this margin a pixel's reason is ambiguity (or low texture).
@@ -173,16 +182,16 @@ impl Scorer {
         score_generic(self, img, stat, refined, net, prior, z, why)
     }
 
-    /// The confidence of each pixel from its logit `z` (from [`Scorer::score`]) and its match cost `cost`
-    /// ([`crate::match_cost`], in [0, 1]), in place.
-    pub fn finish(z: &mut [f32], cost: &[f32]) {
+    /// The confidence of each pixel from its logit `z` (from [`Scorer::score`]), its match cost and the cost's
+    /// curvature (`m`, [`crate::match_cost`]), in place.
+    pub fn finish(z: &mut [f32], m: Pooled<'_>) {
         #[cfg(target_arch = "x86_64")]
         if std::arch::is_x86_feature_detected!("avx2") {
             // SAFETY: as in `score`.
-            unsafe { finish_avx2(z, cost) };
+            unsafe { finish_avx2(z, m) };
             return;
         }
-        finish_generic(z, cost)
+        finish_generic(z, m)
     }
 }
 
@@ -277,14 +286,14 @@ fn score_generic(
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma")]
-unsafe fn finish_avx2(z: &mut [f32], cost: &[f32]) {
-    finish_generic(z, cost)
+unsafe fn finish_avx2(z: &mut [f32], m: Pooled<'_>) {
+    finish_generic(z, m)
 }
 
 #[inline(always)]
-fn finish_generic(z: &mut [f32], cost: &[f32]) {
-    for (c, &m) in z.iter_mut().zip(cost) {
-        let v = logistic(*c + W_COST * m);
+fn finish_generic(z: &mut [f32], m: Pooled<'_>) {
+    for (c, (&m, &k)) in z.iter_mut().zip(m.cost.iter().zip(m.curv)) {
+        let v = logistic(*c + W_COST * m + W_CURV * k);
         *c = if *c == f32::NEG_INFINITY { 0.0 } else { v };
     }
 }
@@ -311,7 +320,7 @@ mod tests {
         }
         // -inf is no estimate: confidence 0 whatever the cost
         let mut z = [f32::NEG_INFINITY, 0.0];
-        Scorer::finish(&mut z, &[0.0, 0.0]);
+        Scorer::finish(&mut z, Pooled { cost: &[0.0, 0.0], curv: &[1.0, 1.0] });
         assert_eq!(z[0], 0.0);
     }
 
@@ -354,7 +363,9 @@ mod tests {
         Scorer::new(w, h).score(&img, &stat, &refined, &net, Some(&prior), &mut conf, &mut why);
         // the match cost (crate::match_cost): the textured band matched, the uniform one at chance
         let cost: Vec<f32> = (0..w * h).map(|i| if (i % w) < 8 { 0.05 } else { 0.5 }).collect();
-        Scorer::finish(&mut conf, &cost);
+        // a basin about the textured band's answer, none on the uniform band (the same cost at every offset)
+        let curv: Vec<f32> = (0..w * h).map(|i| if (i % w) < 8 { 0.3 } else { 0.0 }).collect();
+        Scorer::finish(&mut conf, Pooled { cost: &cost, curv: &curv });
         let i = 3 * w + 6;
         assert!(conf[i] > 0.9, "{}", conf[i]);
         let j = 3 * w + 13;
