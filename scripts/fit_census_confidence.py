@@ -10,7 +10,7 @@ from each; 0, the default, every pixel of a single pair). Prints the weights (th
 each pair the curve of the mask (threshold, density, bad-2 among kept) and bad-2 at a given density. The
 shipped weights: Aloe (opencv-doc) alone, the five features. --std adds a sixth (the 3x3 window's standard
 deviation of the refined disparity; not shipped, docs/depth.md). --no-curv leaves out the match cost's
-curvature (the model before 2026-11-28's last change). --halves ranks the first pair's lower half
+curvature (the six-feature model shipped before session 28). --halves ranks the first pair's lower half
 by a fit on its upper half (and the other pairs), and the other way round: how the fit generalises within
 the real pair. Rendered pairs with ground truth: `cargo run -p abvs-sim --example rendered_pairs -- /tmp/pairs
 1 12` (their gt.pfm). Never fit on the held-out Motorcycle."""
