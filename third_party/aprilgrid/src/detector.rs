@@ -8,7 +8,6 @@ use std::{
 use crate::image_util::GrayImagef32;
 use crate::saddle::Saddle;
 use crate::{image_util, math_util, tag_families};
-use faer::linalg::solvers::SolveLstsqCore;
 use image::{DynamicImage, GenericImageView, GrayImage, ImageBuffer, Luma};
 use itertools::Itertools;
 use kdtree::KdTree;
@@ -61,9 +60,8 @@ pub fn decode_positions(
             .flat_map(|x| {
                 (border_bits..border_bits + edge_bits)
                     .map(|y| {
-                        let tp = faer::mat![[x as f32], [y as f32], [1.0]];
-                        let tt = affine_mat.clone() * tp;
-                        (tt[(0, 0)], tt[(1, 0)])
+                        let tt = affine_mat * nalgebra::Vector3::new(x as f32, y as f32, 1.0);
+                        (tt[0], tt[1])
                     })
                     .collect::<Vec<_>>()
             })
@@ -206,12 +204,13 @@ where
     let num_pixels = kernel_size * kernel_size;
 
     let p_mat = {
-        let mut mat_a: faer::Mat<f32> = faer::Mat::ones(num_pixels, 6);
+        // in f64: the least-squares operator (the pseudo-inverse, 6 x num_pixels) of the quadric fit
+        let mut mat_a = nalgebra::DMatrix::<f64>::from_element(num_pixels, 6, 1.0);
         let mut count = 0;
         for r in 0..kernel_size {
             for c in 0..kernel_size {
-                let x = c as f32 - half_size_patch as f32;
-                let y = r as f32 - half_size_patch as f32;
+                let x = c as f64 - half_size_patch as f64;
+                let y = r as f64 - half_size_patch as f64;
                 mat_a[(count, 0)] = x * x;
                 mat_a[(count, 1)] = x * y;
                 mat_a[(count, 2)] = y * y;
@@ -220,20 +219,9 @@ where
                 count += 1;
             }
         }
-
-        let qr = mat_a.qr();
-        let mut p_mat_tmp: faer::Mat<f32> = faer::Mat::zeros(6, num_pixels);
-        let mut rhs: faer::Mat<f32> = faer::Mat::zeros(num_pixels, 1);
-        for i in 0..num_pixels {
-            rhs.fill(0.0);
-            rhs[(i, 0)] = 1.0;
-            qr.solve_lstsq_in_place_with_conj(faer::Conj::No, rhs.as_mut());
-            for j in 0..6 {
-                p_mat_tmp[(j, i)] = rhs[(j, 0)];
-            }
-        }
-        // Now transpose it to num_pixels x 6 so that each column (fixed parameter j) is contiguous
-        p_mat_tmp.transpose().to_owned()
+        let pinv = mat_a.pseudo_inverse(1e-12).expect("saddle fit: pseudo-inverse failed");
+        // num_pixels x 6, so that each column (fixed parameter j) is contiguous
+        pinv.transpose().map(|v| v as f32)
     };
 
     // kernel computation
@@ -319,7 +307,7 @@ where
 
         // Parameter estimation using scalar raw pointers
         let mut params = [0.0f32; 6];
-        for (col_j, param) in p_mat.col_iter().zip(params.iter_mut()) {
+        for (col_j, param) in p_mat.column_iter().zip(params.iter_mut()) {
             let mut sum = 0.0;
             for i in 0..num_pixels {
                 sum += col_j[i] * smooth_sub_image[i];

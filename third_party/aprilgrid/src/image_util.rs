@@ -1,8 +1,7 @@
-use faer::linalg::solvers::SolveLstsqCore;
 use image::{GenericImage, GenericImageView};
 pub type GrayImagef32 = image::ImageBuffer<image::Luma<f32>, Vec<f32>>;
 
-pub fn tag_homography(corners: &[(f32, f32)], side_bits: u8, margin: f32) -> faer::Mat<f32> {
+pub fn tag_homography(corners: &[(f32, f32)], side_bits: u8, margin: f32) -> nalgebra::Matrix3<f32> {
     let source = [
         (-margin, -margin),
         (-margin, side_bits as f32 - 1.0 + margin),
@@ -12,31 +11,33 @@ pub fn tag_homography(corners: &[(f32, f32)], side_bits: u8, margin: f32) -> fae
         ),
         (side_bits as f32 - 1.0 + margin, -margin),
     ];
-    let mut mat_a = faer::Mat::<f32>::zeros(8, 9);
+    // 9x9: the ninth row zero, so that the SVD gives all nine right singular vectors
+    let mut mat_a = nalgebra::SMatrix::<f32, 9, 9>::zeros();
     for p in 0..4 {
         unsafe {
-            *mat_a.get_mut_unchecked(p * 2, 0) = source[p].0;
-            *mat_a.get_mut_unchecked(p * 2, 1) = source[p].1;
-            *mat_a.get_mut_unchecked(p * 2, 2) = 1.0;
-            *mat_a.get_mut_unchecked(p * 2, 6) = -corners[p].0 * source[p].0;
-            *mat_a.get_mut_unchecked(p * 2, 7) = -corners[p].0 * source[p].1;
-            *mat_a.get_mut_unchecked(p * 2, 8) = -corners[p].0;
-            *mat_a.get_mut_unchecked(p * 2 + 1, 3) = source[p].0;
-            *mat_a.get_mut_unchecked(p * 2 + 1, 4) = source[p].1;
-            *mat_a.get_mut_unchecked(p * 2 + 1, 5) = 1.0;
-            *mat_a.get_mut_unchecked(p * 2 + 1, 6) = -corners[p].1 * source[p].0;
-            *mat_a.get_mut_unchecked(p * 2 + 1, 7) = -corners[p].1 * source[p].1;
-            *mat_a.get_mut_unchecked(p * 2 + 1, 8) = -corners[p].1;
+            *mat_a.get_unchecked_mut((p * 2, 0)) = source[p].0;
+            *mat_a.get_unchecked_mut((p * 2, 1)) = source[p].1;
+            *mat_a.get_unchecked_mut((p * 2, 2)) = 1.0;
+            *mat_a.get_unchecked_mut((p * 2, 6)) = -corners[p].0 * source[p].0;
+            *mat_a.get_unchecked_mut((p * 2, 7)) = -corners[p].0 * source[p].1;
+            *mat_a.get_unchecked_mut((p * 2, 8)) = -corners[p].0;
+            *mat_a.get_unchecked_mut((p * 2 + 1, 3)) = source[p].0;
+            *mat_a.get_unchecked_mut((p * 2 + 1, 4)) = source[p].1;
+            *mat_a.get_unchecked_mut((p * 2 + 1, 5)) = 1.0;
+            *mat_a.get_unchecked_mut((p * 2 + 1, 6)) = -corners[p].1 * source[p].0;
+            *mat_a.get_unchecked_mut((p * 2 + 1, 7)) = -corners[p].1 * source[p].1;
+            *mat_a.get_unchecked_mut((p * 2 + 1, 8)) = -corners[p].1;
         }
     }
-    // let svd = (mat_a.transpose()*mat_a.clone()).svd();
-    let svd = mat_a.clone().svd().expect("tag svd failed");
-    // println!("faer v {:?}", svd.v());
-    let h = svd.V().col(8);
-    faer::mat![[h[0], h[1], h[2]], [h[3], h[4], h[5]], [h[6], h[7], h[8]],]
+    // the null vector: the right singular vector of the smallest singular value
+    let svd = mat_a.svd(false, true);
+    let v_t = svd.v_t.expect("tag svd failed");
+    let k = svd.singular_values.imin();
+    let h = v_t.row(k);
+    nalgebra::Matrix3::new(h[0], h[1], h[2], h[3], h[4], h[5], h[6], h[7], h[8])
 }
 
-pub fn tag_affine(corners: &[(f32, f32)], side_bits: u8, margin: f32) -> faer::Mat<f32> {
+pub fn tag_affine(corners: &[(f32, f32)], side_bits: u8, margin: f32) -> nalgebra::Matrix3<f32> {
     let source = [
         (-margin, -margin),
         (-margin, side_bits as f32 - 1.0 + margin),
@@ -47,26 +48,27 @@ pub fn tag_affine(corners: &[(f32, f32)], side_bits: u8, margin: f32) -> faer::M
         (side_bits as f32 - 1.0 + margin, -margin),
     ];
 
-    let mut mat_a: faer::Mat<f32> = faer::Mat::zeros(8, 6);
-    let mut mat_b: faer::Mat<f32> = faer::Mat::zeros(8, 1);
+    let mut mat_a = nalgebra::SMatrix::<f32, 8, 6>::zeros();
+    let mut mat_b = nalgebra::SVector::<f32, 8>::zeros();
 
     for p in 0..4 {
         unsafe {
-            *mat_a.get_mut_unchecked(p * 2, 0) = source[p].0;
-            *mat_a.get_mut_unchecked(p * 2, 1) = source[p].1;
-            *mat_a.get_mut_unchecked(p * 2, 2) = 1.0;
-            *mat_a.get_mut_unchecked(p * 2 + 1, 3) = source[p].0;
-            *mat_a.get_mut_unchecked(p * 2 + 1, 4) = source[p].1;
-            *mat_a.get_mut_unchecked(p * 2 + 1, 5) = 1.0;
-            *mat_b.get_mut_unchecked(p * 2, 0) = corners[p].0;
-            *mat_b.get_mut_unchecked(p * 2 + 1, 0) = corners[p].1;
+            *mat_a.get_unchecked_mut((p * 2, 0)) = source[p].0;
+            *mat_a.get_unchecked_mut((p * 2, 1)) = source[p].1;
+            *mat_a.get_unchecked_mut((p * 2, 2)) = 1.0;
+            *mat_a.get_unchecked_mut((p * 2 + 1, 3)) = source[p].0;
+            *mat_a.get_unchecked_mut((p * 2 + 1, 4)) = source[p].1;
+            *mat_a.get_unchecked_mut((p * 2 + 1, 5)) = 1.0;
+            *mat_b.get_unchecked_mut(p * 2) = corners[p].0;
+            *mat_b.get_unchecked_mut(p * 2 + 1) = corners[p].1;
         }
     }
-    mat_a
-        .qr()
-        .solve_lstsq_in_place_with_conj(faer::Conj::No, mat_b.as_mut());
-    let h = mat_b.col(0);
-    faer::mat![[h[0], h[1], h[2]], [h[3], h[4], h[5]], [0.0, 0.0, 1.0],]
+    // least squares (the four corners over-determine the six parameters)
+    let h = mat_a
+        .svd(true, true)
+        .solve(&mat_b, f32::EPSILON)
+        .expect("tag affine solve failed");
+    nalgebra::Matrix3::new(h[0], h[1], h[2], h[3], h[4], h[5], 0.0, 0.0, 1.0)
 }
 
 pub fn hessian_response(img: &GrayImagef32) -> GrayImagef32 {
@@ -251,8 +253,7 @@ mod tests {
         // corners are roughly same as source but scaled by 10/9.
         let corners = [(0.0, 0.0), (0.0, 10.0), (10.0, 10.0), (10.0, 0.0)];
         let h = tag_homography(&corners, 10, 0.0);
-        assert!(h.nrows() == 3);
-        assert!(h.ncols() == 3);
+        assert!(h.nrows() == 3 && h.ncols() == 3);
         // We don't easily check values without applying it, but it shouldn't panic.
     }
 
@@ -260,8 +261,7 @@ mod tests {
     fn test_tag_affine() {
         let corners = [(0.0, 0.0), (0.0, 10.0), (10.0, 10.0), (10.0, 0.0)];
         let h = tag_affine(&corners, 10, 0.0);
-        assert!(h.nrows() == 3);
-        assert!(h.ncols() == 3);
+        assert!(h.nrows() == 3 && h.ncols() == 3);
         assert!((h[(2, 0)] - 0.0).abs() < 1e-6);
         assert!((h[(2, 1)] - 0.0).abs() < 1e-6);
         assert!((h[(2, 2)] - 1.0).abs() < 1e-6);

@@ -1,14 +1,13 @@
 use std::f32::consts::PI;
 
-use faer::linalg::solvers::Solve;
-
 pub fn find_xy(a0: f32, b0: f32, c0: f32, a1: f32, b1: f32, c1: f32) -> (f32, f32) {
-    let a = faer::mat![[a0, b0], [a1, b1]];
-    let b = faer::mat![[-c0], [-c1]];
-    let plu = a.partial_piv_lu();
-    let x1 = plu.solve(&b);
-
-    unsafe { (*x1.get_unchecked(0, 0), *x1.get_unchecked(1, 0)) }
+    let a = nalgebra::Matrix2::new(a0, b0, a1, b1);
+    let b = nalgebra::Vector2::new(-c0, -c1);
+    // partial-pivoting LU as before; a singular system gives NaN (no corner) rather than a panic
+    match a.lu().solve(&b) {
+        Some(x) => (x[0], x[1]),
+        None => (f32::NAN, f32::NAN),
+    }
 }
 
 /// Abs theta diff [0, 90.0]
