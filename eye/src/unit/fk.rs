@@ -163,7 +163,7 @@ impl UnitFk {
             None => self.geom.fk_cold(&th)?,
         };
         if check {
-            self.geom.check_singularity(&sol.r, &th)?;
+            self.geom.check_regular(&sol.r, &th)?;
         }
         Ok(sol.r)
     }
