@@ -306,9 +306,8 @@ impl SpmGeometry {
             Some((lo, hi)) if hi > 0.0 => lo / hi >= lim * lim + 1e-6,
             _ => false,
         };
-        // the serial measure as check_singularity computes it (min over the legs, from 1.0)
-        let serial = (0..3).all(|i| self.leg_roots(i, r).map(|(_, gap)| gap.sin()).unwrap_or(0.0).min(1.0) >= lim);
-        if clearly && serial {
+        // the serial measure as check_singularity computes it (min over the legs, from 1.0), only when needed
+        if clearly && (0..3).all(|i| self.leg_roots(i, r).map(|(_, gap)| gap.sin()).unwrap_or(0.0).min(1.0) >= lim) {
             return Ok(());
         }
         self.check_singularity(r, theta).map(|_| ())
@@ -474,13 +473,18 @@ mod tests {
         }
     }
 
-    #[test]
-    fn constraint_jacobian_matches_finite_difference() {
-        let g = SpmGeometry::from_params(&[
+    /// A geometry off the nominal one by a few tenths of a degree (link angles, axes).
+    fn perturbed() -> SpmGeometry {
+        SpmGeometry::from_params(&[
             LegParams { d1_deg: 60.3, axis_tilt_deg: [0.2, -0.1], ..LegParams::nominal(0) },
             LegParams { d2_deg: 89.6, platform_axis_deg: [0.3, 0.2], ..LegParams::nominal(1) },
             LegParams::nominal(2),
-        ]);
+        ])
+    }
+
+    #[test]
+    fn constraint_jacobian_matches_finite_difference() {
+        let g = perturbed();
         let r = Fick::from_deg([12.0, -7.0, 21.0]).to_matrix();
         let th = deg3([10.0, -20.0, 5.0]);
         let j = g.constraint_jacobian(&r, &th);
@@ -560,11 +564,7 @@ mod tests {
     /// and with the limit set at each configuration's own conditioning (the exact check then decides).
     #[test]
     fn the_fast_check_is_the_exact_check() {
-        let g = SpmGeometry::from_params(&[
-            LegParams { d1_deg: 60.3, axis_tilt_deg: [0.2, -0.1], ..LegParams::nominal(0) },
-            LegParams { d2_deg: 89.6, platform_axis_deg: [0.3, 0.2], ..LegParams::nominal(1) },
-            LegParams::nominal(2),
-        ]);
+        let g = perturbed();
         let (mut passed, mut refused, mut near) = (0, 0, 0);
         for a in crate::psc::grid(-80.0, 80.0, 8.0) {
             for b in crate::psc::grid(-40.0, 40.0, 8.0) {
